@@ -1,0 +1,74 @@
+# robot_ai: every target does its own set-up (Debian packages, .venv/, a private catkin workspace).
+#   make demo   build, then run the headless demo (roslaunch robot_ai demo.launch)
+#   make test   build, then unit tests (pytest) and rostest tests, one summary, non-zero on any failure
+#   make build  Debian packages + .venv + .catkin_ws (catkin_make); a second run with nothing changed is quick
+#   make bench  the benchmarks in bench/, figures beside the reference's
+#   make clean  remove .venv, .catkin_ws and outputs
+SHELL := /bin/bash
+.SHELLFLAGS := -eu -o pipefail -c
+.DEFAULT_GOAL := build
+
+ROOT := $(abspath $(dir $(lastword $(MAKEFILE_LIST))))
+VENV := $(ROOT)/.venv
+WS := $(ROOT)/.catkin_ws
+OUT := $(ROOT)/output
+SYS_PYTHON := /usr/bin/python3
+
+APT_PACKAGES := ros-core-dev catkin catkin-lint ros-message-generation rosbash rospack-tools \
+	python3-rospy python3-roslaunch python3-rostest librostest-dev python3-tf python3-tf2-ros \
+	python3-sensor-msgs python3-geometry-msgs python3-std-msgs python3-std-srvs libstd-msgs-dev \
+	python3-actionlib python3-actionlib-msgs ros-actionlib-msgs libactionlib-msgs-dev \
+	ros-robot-state-publisher joint-state-publisher joint-state-publisher-gui rviz \
+	xvfb imagemagick python3-venv python3-numpy
+
+# Everything a target runs sees the venv first on PATH (ROS nodes start with `#!/usr/bin/env python3`), the
+# workspace sourced, and caches kept inside the repository.
+export PIP_CACHE_DIR := $(VENV)/.pip-cache
+export MPLCONFIGDIR := $(VENV)/.mplconfig
+export PYTHONDONTWRITEBYTECODE := 1
+RUN := source $(WS)/devel/setup.bash && export PATH="$(VENV)/bin:$$PATH" &&
+
+.PHONY: build test demo bench clean apt venv
+
+apt:
+	@missing=$$(for p in $(APT_PACKAGES); do \
+	    dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q '^install ok installed' || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	  cmd="apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends $$(echo $$missing)"; \
+	  if [ "$$(id -u)" != 0 ]; then echo "Missing Debian packages. Run as root:"; echo "  $$cmd"; exit 1; fi; \
+	  echo "Installing Debian packages: $$missing"; \
+	  bash -c "$$cmd"; \
+	fi
+
+$(VENV)/.requirements.stamp: requirements.txt | apt
+	test -x $(VENV)/bin/python || $(SYS_PYTHON) -m venv --system-site-packages $(VENV)
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q -r requirements.txt
+	touch $@
+
+venv: apt $(VENV)/.requirements.stamp
+
+build: venv
+	mkdir -p $(WS)/src
+	ln -sfn $(ROOT) $(WS)/src/robot_ai
+	cd $(WS) && PATH="$(VENV)/bin:$$PATH" catkin_make -DPYTHON_EXECUTABLE=$(VENV)/bin/python \
+	  -DCATKIN_ENABLE_TESTING=ON -DCMAKE_BUILD_TYPE=Release > $(WS)/build.log 2>&1 \
+	  || { tail -n 40 $(WS)/build.log; echo "catkin_make failed; full log: $(WS)/build.log"; exit 1; }
+	@echo "built: source $(WS)/devel/setup.bash (with $(VENV)/bin first on PATH)"
+
+test: build
+	rm -rf $(WS)/build/test_results
+	cd $(WS) && $(RUN) catkin_make run_tests_robot_ai -j1 2>&1 | tee $(WS)/test.log \
+	  | grep -E --line-buffered '^(-- run_tests|\[ROSTEST\]|SUMMARY|  \* RESULT|[0-9]+ (passed|failed))|passed|failed' || true
+	$(RUN) python $(ROOT)/test/summarize.py $(WS)/build/test_results/robot_ai
+
+demo: build
+	mkdir -p $(OUT)
+	$(RUN) roslaunch robot_ai demo.launch output_dir:=$(OUT)
+
+bench: build
+	mkdir -p $(OUT)
+	$(RUN) python $(ROOT)/bench/fk_load.py
+	$(RUN) python $(ROOT)/bench/search_speed.py
+
+clean:
+	rm -rf $(WS) $(VENV) $(OUT)
