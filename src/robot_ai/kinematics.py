@@ -1,0 +1,414 @@
+"""Forward kinematics of a URDF robot, with robot_state_publisher's semantics. No rospy.
+
+    tree = KinematicTree.from_xml_string(open('ur5.urdf').read())
+    tree.joint_transform('shoulder_pan_joint', 0.3)        # 4x4, parent link -> child link
+    tree.link_poses({'shoulder_pan_joint': 0.3})           # {link: 4x4 in the root frame}
+    tree.link_poses_batch(q, names)                        # {link: (N, 4, 4)} for N configurations
+    plan = tree.transform_plan(); plan.compute(values, present)   # the node's vectorised hot path
+
+Semantics (those of robot_state_publisher + kdl_parser):
+- revolute and continuous rotate about the normalised axis, prismatic translates along it, both after the
+  joint's fixed origin (xyz, then rpy = fixed-axis roll, pitch, yaw); limits are never clamped;
+- fixed and planar joints are static (planar is treated as fixed); floating joints are skipped;
+- a mimic joint takes ``multiplier * source + offset`` (defaults 1 and 0), following chains of mimics;
+  a value given explicitly for a mimic joint wins.
+
+Only the elements kinematics uses are read (link names; each joint's type, parent, child, origin, axis,
+limit, mimic), so old or unusual elements elsewhere (PR2's ``<transmission>`` blocks, gazebo tags) cannot
+stop a robot from loading.
+"""
+import math
+import xml.etree.ElementTree as ET
+
+import numpy as np
+from tf import transformations as tft
+from urdf_parser_py import xml_reflection
+from urdf_parser_py.urdf import URDF
+
+MOVING_TYPES = ('revolute', 'continuous', 'prismatic')
+STATIC_TYPES = ('fixed', 'planar')  # planar is published as fixed, as robot_state_publisher does
+SKIPPED_TYPES = ('floating',)
+JOINT_CHILD_TAGS = ('parent', 'child', 'origin', 'axis', 'limit', 'mimic')
+
+
+class URDFError(ValueError):
+    """The robot description cannot be turned into a kinematic tree."""
+
+
+class Joint(object):
+    """One URDF joint with its fixed part precomputed.
+
+    Attributes: name, type, parent, child (link names); xyz (3,), quat (4, x y z w) and matrix (4x4) of the
+    origin; axis (3,), normalised; lower, upper (limits or None); mimic: (source, multiplier, offset) or None.
+    """
+
+    __slots__ = ('name', 'type', 'parent', 'child', 'xyz', 'rpy', 'quat', 'matrix', 'axis', 'lower', 'upper',
+                 'mimic')
+
+    def __init__(self, name, jtype, parent, child, xyz, rpy, axis, lower=None, upper=None, mimic=None):
+        self.name, self.type, self.parent, self.child = name, jtype, parent, child
+        self.xyz = np.array(xyz, dtype=float)
+        self.rpy = np.array(rpy, dtype=float)
+        self.quat = tft.quaternion_from_euler(*self.rpy)  # URDF rpy = static x, then y, then z ('sxyz')
+        self.matrix = tft.concatenate_matrices(tft.translation_matrix(self.xyz), tft.quaternion_matrix(self.quat))
+        axis = np.array(axis, dtype=float)
+        norm = np.linalg.norm(axis)
+        if jtype in MOVING_TYPES and not (norm > 0.0 and np.all(np.isfinite(axis))):
+            raise URDFError('joint %r has an invalid axis %s' % (name, list(axis)))
+        self.axis = axis / norm if norm > 0.0 else axis
+        self.lower, self.upper = lower, upper
+        self.mimic = mimic
+
+    @property
+    def moving(self):
+        return self.type in MOVING_TYPES
+
+    def transform(self, position=0.0):
+        """4x4 transform parent link -> child link at this joint position (tf.transformations)."""
+        if self.type in ('revolute', 'continuous'):
+            return np.dot(self.matrix, tft.rotation_matrix(position, self.axis))
+        if self.type == 'prismatic':
+            return np.dot(self.matrix, tft.translation_matrix(self.axis * position))
+        return self.matrix.copy()
+
+
+def _kinematic_subset(xml_string):
+    """The robot element with only link names and joints' kinematic children, as an XML string."""
+    try:
+        root = ET.fromstring(xml_string)
+    except ET.ParseError as e:
+        raise URDFError('robot_description is not valid XML: %s' % e)
+    if root.tag != 'robot':
+        raise URDFError('robot_description has root element <%s>, expected <robot>' % root.tag)
+    out = ET.Element('robot', {'name': root.get('name', '')})
+    for el in root:
+        if el.tag == 'link':
+            ET.SubElement(out, 'link', {'name': el.get('name', '')})
+        elif el.tag == 'joint':
+            joint = ET.SubElement(out, 'joint', dict(el.attrib))
+            for child in el:
+                if child.tag in JOINT_CHILD_TAGS:
+                    joint.append(child)
+    return ET.tostring(out, encoding='unicode')
+
+
+def _parse_quietly(xml_string):
+    """URDF.from_xml_string with urdf_parser_py's stderr warnings collected instead of printed."""
+    warnings = []
+    saved = xml_reflection.core.on_error
+    xml_reflection.core.on_error = warnings.append
+    try:
+        return URDF.from_xml_string(xml_string), warnings
+    except Exception as e:  # urdf_parser_py raises ParseError, AssertionError, ValueError, ...
+        raise URDFError('cannot parse the URDF: %s' % str(e).strip().splitlines()[0])
+    finally:
+        xml_reflection.core.on_error = saved
+
+
+class KinematicTree(object):
+    """The kinematic tree of a URDF: joints in parent-before-child order from the single root link."""
+
+    def __init__(self, name, root, links, joints, floating_joints=()):
+        self.name = name
+        self.root = root
+        self.links = links                      # every link, parents before children
+        self.joints = joints                    # {name: Joint} but floating ones, insertion order = topological
+        self.floating_joints = list(floating_joints)
+        self.warnings = []
+        self.joint_order = list(joints)
+        self.moving_joints = [n for n, j in joints.items() if j.moving]
+        self.static_joints = [n for n, j in joints.items() if j.type in STATIC_TYPES]
+        self.mimic_joints = [n for n, j in joints.items() if j.mimic is not None and j.moving]
+        # joints a user (or joint_state_publisher) drives: moving and not mimic
+        self.active_joints = [n for n in self.moving_joints if joints[n].mimic is None]
+
+    # ----------------------------------------------------------------------------------------- loading
+    @classmethod
+    def from_xml_string(cls, xml_string):
+        if not xml_string or not xml_string.strip():
+            raise URDFError('robot_description is empty')
+        robot, _ = _parse_quietly(_kinematic_subset(xml_string))
+        return cls.from_urdf(robot)
+
+    @classmethod
+    def from_file(cls, path):
+        with open(path) as f:
+            return cls.from_xml_string(f.read())
+
+    @classmethod
+    def from_urdf(cls, robot):
+        """Build from a urdf_parser_py URDF object."""
+        link_names = [l.name for l in robot.links]
+        if not link_names:
+            raise URDFError('the robot %r has no link' % robot.name)
+        if len(set(link_names)) != len(link_names):
+            raise URDFError('the robot %r names a link twice' % robot.name)
+        joint_names = [j.name for j in robot.joints]
+        if len(set(joint_names)) != len(joint_names):
+            raise URDFError('the robot %r names a joint twice' % robot.name)
+        by_child, children = {}, {}
+        for j in robot.joints:
+            for end in (j.parent, j.child):
+                if end not in link_names:
+                    raise URDFError('joint %r refers to the unknown link %r' % (j.name, end))
+            if j.child in by_child:
+                raise URDFError('link %r is the child of two joints' % j.child)
+            by_child[j.child] = j
+            children.setdefault(j.parent, []).append(j)
+        roots = [l for l in link_names if l not in by_child]
+        if len(roots) != 1:
+            raise URDFError('a robot needs exactly one root link, found %d: %s' % (len(roots), roots[:5]))
+        root = roots[0]
+
+        joints, links, floating = {}, [root], []
+        stack = [root]
+        while stack:  # depth-first from the root: every joint after its parent's joint
+            parent = stack.pop()
+            for j in reversed(children.get(parent, [])):
+                links.append(j.child)
+                stack.append(j.child)
+                if j.type in SKIPPED_TYPES:
+                    # robot_state_publisher cannot publish a floating joint from joint_states; the joints
+                    # below it are still published, relative to its child link
+                    floating.append(j.name)
+                    continue
+                if j.type not in MOVING_TYPES + STATIC_TYPES:
+                    raise URDFError('joint %r has the unknown type %r' % (j.name, j.type))
+                origin = j.origin
+                xyz = origin.xyz if origin is not None and origin.xyz is not None else [0.0, 0.0, 0.0]
+                rpy = origin.rpy if origin is not None and origin.rpy is not None else [0.0, 0.0, 0.0]
+                axis = j.axis if j.axis is not None else [1.0, 0.0, 0.0]
+                lower = upper = None
+                if j.limit is not None:
+                    lower, upper = j.limit.lower, j.limit.upper
+                mimic = None
+                if j.mimic is not None:
+                    mimic = (j.mimic.joint,
+                             1.0 if j.mimic.multiplier is None else float(j.mimic.multiplier),
+                             0.0 if j.mimic.offset is None else float(j.mimic.offset))
+                joints[j.name] = Joint(j.name, j.type, j.parent, j.child, xyz, rpy, axis, lower, upper, mimic)
+        tree = cls(robot.name, root, links, joints, floating)
+        tree._check_mimics()
+        return tree
+
+    def _check_mimics(self):
+        """A mimic joint must follow a moving joint, through a chain without cycles. robot_state_publisher
+        loads such a file anyway, so an invalid mimic is dropped with a warning, not a load failure."""
+        self.warnings, dropped = [], []
+        for name in list(self.mimic_joints):
+            seen, src, problem = [name], self.joints[name].mimic[0], None
+            while problem is None:
+                if src not in self.joints or not self.joints[src].moving:
+                    problem = 'follows %r, which is not a moving joint' % src
+                elif src in seen:
+                    problem = 'is part of a cycle of mimics: %s' % ' -> '.join(seen + [src])
+                elif self.joints[src].mimic is None:
+                    break
+                else:
+                    seen.append(src)
+                    src = self.joints[src].mimic[0]
+            if problem:
+                self.warnings.append('mimic joint %r %s; it is treated as an ordinary joint' % (name, problem))
+                dropped.append(name)
+        for name in dropped:
+            self.joints[name].mimic = None
+        self.mimic_joints = [n for n in self.mimic_joints if self.joints[n].mimic is not None]
+        self.active_joints = [n for n in self.moving_joints if self.joints[n].mimic is None]
+
+    # ---------------------------------------------------------------------------------- single form
+    def resolve_positions(self, positions):
+        """Positions of every joint that has one: the given ones, plus mimic joints whose source (or source's
+        source, ...) is given. A value given for a mimic joint wins over the computed one."""
+        resolved = dict(positions)
+        for name in self.mimic_joints:
+            if name in resolved:
+                continue
+            value = self._mimic_value(name, positions)
+            if value is not None:
+                resolved[name] = value
+        return resolved
+
+    def _mimic_value(self, name, positions):
+        if name in positions:
+            return positions[name]
+        joint = self.joints[name]
+        if joint.mimic is None:
+            return None
+        src = self._mimic_value(joint.mimic[0], positions)
+        return None if src is None else joint.mimic[1] * src + joint.mimic[2]
+
+    def joint_transform(self, name, position=0.0):
+        """4x4 parent link -> child link transform of one joint."""
+        return self.joints[name].transform(position)
+
+    def joint_transforms(self, positions):
+        """{joint: 4x4} for every moving joint that has a position (mimic joints resolved), as published."""
+        resolved = self.resolve_positions(positions)
+        return {n: self.joints[n].transform(resolved[n]) for n in self.moving_joints if n in resolved}
+
+    def static_transforms(self):
+        """{joint: 4x4} for the fixed (and planar) joints."""
+        return {n: self.joints[n].transform(0.0) for n in self.static_joints}
+
+    def link_poses(self, positions=None):
+        """{link: 4x4 pose in the root frame} of every link connected to the root (links below a floating
+        joint are not); moving joints without a position are taken at 0."""
+        resolved = self.resolve_positions(positions or {})
+        poses = {self.root: np.identity(4)}
+        for name in self.joint_order:
+            j = self.joints[name]
+            if j.parent in poses:
+                poses[j.child] = np.dot(poses[j.parent], j.transform(resolved.get(name, 0.0)))
+        return poses
+
+    # ----------------------------------------------------------------------------------- batch form
+    def link_poses_batch(self, q, names=None):
+        """Poses of every link for N configurations at once.
+
+        q: (N, len(names)) array; names defaults to ``active_joints``. Mimic joints follow their sources;
+        moving joints not named are at 0. Returns {link: (N, 4, 4)} in the root frame, for the links that
+        link_poses returns.
+        """
+        names = list(self.active_joints if names is None else names)
+        q = np.asarray(q, dtype=float)
+        if q.ndim != 2 or q.shape[1] != len(names):
+            raise ValueError('q must have shape (N, %d), got %s' % (len(names), q.shape))
+        unknown = [n for n in names if n not in self.joints or not self.joints[n].moving]
+        if unknown:
+            raise ValueError('not moving joints of this robot: %s' % unknown)
+        n = q.shape[0]
+        cols = {name: q[:, i] for i, name in enumerate(names)}
+        for name in self.mimic_joints:
+            if name not in cols:
+                chain, src = [], name
+                while src not in cols and self.joints[src].mimic is not None:
+                    chain.append(src)
+                    src = self.joints[src].mimic[0]
+                if src in cols:
+                    value = cols[src]
+                    for link in reversed(chain):
+                        _, mult, off = self.joints[link].mimic
+                        value = mult * value + off
+                    cols[name] = value
+        poses = {self.root: np.broadcast_to(np.identity(4), (n, 4, 4))}
+        for name in self.joint_order:
+            j = self.joints[name]
+            if j.parent in poses:
+                local = _batch_joint_matrices(j, cols.get(name, np.zeros(n)) if j.moving else None, n)
+                poses[j.child] = np.matmul(poses[j.parent], local)
+        poses[self.root] = np.array(poses[self.root])
+        return poses
+
+    # ------------------------------------------------------------------------------ node's hot path
+    def transform_plan(self, tf_prefix=''):
+        return TransformPlan(self, tf_prefix)
+
+
+def _batch_joint_matrices(joint, values, n):
+    """(n, 4, 4) parent -> child transforms of one joint for n values (Rodrigues' formula, vectorised)."""
+    out = np.empty((n, 4, 4))
+    out[:] = joint.matrix
+    if values is None or not joint.moving:
+        return out
+    k = joint.axis
+    if joint.type == 'prismatic':
+        out[:, :3, 3] += np.outer(values, np.dot(joint.matrix[:3, :3], k))
+        return out
+    c, s = np.cos(values), np.sin(values)
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    rot = (c[:, None, None] * np.identity(3) + s[:, None, None] * kx
+           + (1.0 - c)[:, None, None] * np.outer(k, k))
+    out[:, :3, :3] = np.matmul(joint.matrix[:3, :3], rot)
+    return out
+
+
+def quaternion_multiply_batch(a, b):
+    """Hamilton products a * b of (..., 4) quaternions in (x, y, z, w) order, as tf.transformations."""
+    ax, ay, az, aw = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bx, by, bz, bw = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack((aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw,
+                     aw * bw - ax * bx - ay * by - az * bz), axis=-1)
+
+
+def prefix_frame(tf_prefix, frame):
+    """robot_state_publisher's frame naming: a frame with a leading slash loses it and gets no prefix;
+    otherwise a non-empty prefix (without its own leading slash) and '/' are put before it."""
+    if frame.startswith('/'):
+        return frame[1:]
+    if not tf_prefix:
+        return frame
+    return (tf_prefix[1:] if tf_prefix.startswith('/') else tf_prefix) + '/' + frame
+
+
+class TransformPlan(object):
+    """Precomputed arrays that turn joint positions into every moving joint's parent -> child transform with
+    a few numpy operations (no per-joint Python loop). Used by the node for each joint_states message.
+
+    Moving joints are indexed 0..M-1 in ``names``. ``compute(values, present)`` takes values (M,) and a
+    boolean mask of the joints given explicitly, fills in mimic joints, and returns (indices, xyz (K, 3),
+    quat (K, 4)) for the K joints that have a value, in ``names`` order.
+    """
+
+    def __init__(self, tree, tf_prefix=''):
+        self.tree = tree
+        self.names = list(tree.moving_joints)
+        self.index = {n: i for i, n in enumerate(self.names)}
+        joints = [tree.joints[n] for n in self.names]
+        self.parent_frames = [prefix_frame(tf_prefix, j.parent) for j in joints]
+        self.child_frames = [prefix_frame(tf_prefix, j.child) for j in joints]
+        m = len(joints)
+        self.origin_xyz = np.array([j.xyz for j in joints]).reshape(m, 3)
+        self.origin_quat = np.array([j.quat for j in joints]).reshape(m, 4)
+        self.revolute = np.array([j.type != 'prismatic' for j in joints], dtype=bool)
+        self.half_axis = np.array([j.axis for j in joints]).reshape(m, 3)
+        # prismatic: child origin moves by value * (R_origin . axis) in the parent frame
+        self.slide = np.array([np.dot(j.matrix[:3, :3], j.axis) for j in joints]).reshape(m, 3)
+        self.slide[self.revolute] = 0.0
+        # mimic joints in an order where every source comes before the mimics that follow it
+        order, placed = [], set()
+
+        def place(name):
+            if name in placed:
+                return
+            src = tree.joints[name].mimic
+            if src is not None and tree.joints[src[0]].mimic is not None:
+                place(src[0])
+            placed.add(name)
+            order.append(name)
+        for name in tree.mimic_joints:
+            place(name)
+        self.mimic_steps = [(self.index[n], self.index[tree.joints[n].mimic[0]],
+                             tree.joints[n].mimic[1], tree.joints[n].mimic[2]) for n in order]
+        self.static_names = list(tree.static_joints)
+        static = [tree.joints[n] for n in self.static_names]
+        self.static_parent_frames = [prefix_frame(tf_prefix, j.parent) for j in static]
+        self.static_child_frames = [prefix_frame(tf_prefix, j.child) for j in static]
+        self.static_xyz = np.array([j.xyz for j in static]).reshape(len(static), 3)
+        self.static_quat = np.array([j.quat for j in static]).reshape(len(static), 4)
+
+    def fill_mimics(self, values, present):
+        """Set values/present of mimic joints whose source has a value (in place); explicit values win."""
+        for idx, src, mult, off in self.mimic_steps:
+            if not present[idx] and present[src]:
+                values[idx] = mult * values[src] + off
+                present[idx] = True
+
+    def compute(self, values, present):
+        values = np.array(values, dtype=float)
+        present = np.array(present, dtype=bool)
+        if self.mimic_steps:
+            self.fill_mimics(values, present)
+        idx = np.flatnonzero(present)
+        return (idx,) + self.transforms(idx, values[idx])
+
+    def transforms(self, idx, v):
+        """(xyz (K, 3), quat (K, 4)) of the joints idx at values v."""
+        half = 0.5 * v * self.revolute[idx]
+        motion = np.empty((len(idx), 4))
+        motion[:, :3] = self.half_axis[idx] * np.sin(half)[:, None]
+        motion[:, 3] = np.cos(half)
+        quat = quaternion_multiply_batch(self.origin_quat[idx], motion)
+        xyz = self.origin_xyz[idx] + self.slide[idx] * v[:, None]
+        return xyz, quat

@@ -1,0 +1,209 @@
+"""Unit tests of robot_ai.kinematics: no roscore. References: the zero poses of ../shared/robots/SOURCES.md,
+an independent implementation written from the URDF definitions (fk_helpers), and the single form for the
+batch and vectorised forms."""
+import math
+
+import numpy as np
+import pytest
+from tf import transformations as tft
+
+from fk_helpers import (REFERENCE_ROBOTS, random_urdf, reference_link_poses, robot_path,
+                        rotation_angle_between)
+from robot_ai.kinematics import KinematicTree, URDFError, prefix_frame
+
+TOL = 1e-9
+
+
+def load(name):
+    with open(robot_path(name)) as f:
+        return f.read()
+
+
+def assert_poses_equal(got, want, tol=TOL):
+    assert set(got) == set(want)
+    for link in want:
+        assert np.abs(got[link][:3, 3] - want[link][:3, 3]).max() < tol, link
+        assert rotation_angle_between(got[link][:3, :3], want[link][:3, :3]) < tol, link
+
+
+@pytest.mark.parametrize('name, root, tip, xyz', [
+    ('ur5.urdf', 'base_link', 'tool0', (0.81725, 0.19145, -0.00549)),
+    ('kuka_lwr_arm.urdf', 'world_link', 'lwr_arm_7_link', (0.0, 0.0, 1.3785)),
+    ('pr2.urdf', 'base_footprint', 'r_gripper_tool_frame', (0.951, -0.188, 0.79068)),
+])
+def test_zero_pose_matches_sources(name, root, tip, xyz):
+    tree = KinematicTree.from_xml_string(load(name))
+    assert tree.root == root
+    np.testing.assert_allclose(tree.link_poses()[tip][:3, 3], xyz, atol=1e-5)
+
+
+def test_pr2_loads_despite_old_transmissions():
+    tree = KinematicTree.from_xml_string(load('pr2.urdf'))
+    assert len(tree.links) == 83 and len(tree.joints) == 82
+    assert len(tree.mimic_joints) == 6
+    assert {tree.joints[n].type for n in tree.joints} == {'revolute', 'continuous', 'prismatic', 'fixed'}
+
+
+@pytest.mark.parametrize('name', REFERENCE_ROBOTS)
+def test_reference_robots_against_independent_fk(name):
+    xml = load(name)
+    tree = KinematicTree.from_xml_string(xml)
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        q = {n: float(rng.uniform(-3, 3)) for n in tree.active_joints}
+        assert_poses_equal(tree.link_poses(q), reference_link_poses(xml, q))
+
+
+@pytest.mark.parametrize('seed', range(40))
+def test_random_trees_against_independent_fk(seed):
+    xml = random_urdf(seed, n_links=15, mimic_chains=True)
+    tree = KinematicTree.from_xml_string(xml)
+    rng = np.random.default_rng(seed)
+    for scale in (1.0, 100.0):  # continuous joints at large angles too
+        q = {n: float(rng.uniform(-scale, scale)) for n in tree.active_joints}
+        assert_poses_equal(tree.link_poses(q), reference_link_poses(xml, q), tol=TOL * scale)
+
+
+@pytest.mark.parametrize('seed', range(10))
+def test_batch_equals_single(seed):
+    tree = KinematicTree.from_xml_string(random_urdf(seed, n_links=20, mimic_chains=True))
+    q = np.random.default_rng(seed).uniform(-4, 4, (7, len(tree.active_joints)))
+    batch = tree.link_poses_batch(q)
+    for i in range(q.shape[0]):
+        single = tree.link_poses(dict(zip(tree.active_joints, q[i])))
+        assert set(batch) == set(single)
+        for link in single:
+            np.testing.assert_allclose(batch[link][i], single[link], atol=1e-12)
+
+
+def test_batch_on_pr2_and_bad_shape():
+    tree = KinematicTree.from_xml_string(load('pr2.urdf'))
+    q = np.random.default_rng(0).uniform(-1, 1, (3, len(tree.active_joints)))
+    poses = tree.link_poses_batch(q)
+    assert poses['r_gripper_tool_frame'].shape == (3, 4, 4)
+    with pytest.raises(ValueError):
+        tree.link_poses_batch(q[:, :-1])
+    with pytest.raises(ValueError):
+        tree.link_poses_batch(q[:, :1], names=['not_a_joint'])
+
+
+@pytest.mark.parametrize('seed', range(20))
+def test_transform_plan_equals_single_form(seed):
+    tree = KinematicTree.from_xml_string(random_urdf(seed, n_links=25, mimic_chains=True))
+    plan = tree.transform_plan()
+    rng = np.random.default_rng(seed)
+    values = rng.uniform(-10, 10, len(plan.names))
+    present = rng.random(len(plan.names)) < 0.7
+    idx, xyz, quat = plan.compute(values, present)
+    given = {plan.names[i]: values[i] for i in np.flatnonzero(present)}
+    want = tree.joint_transforms(given)
+    assert [plan.names[i] for i in idx] == [n for n in plan.names if n in want]
+    for k, i in enumerate(idx):
+        m = tft.quaternion_matrix(quat[k])
+        m[:3, 3] = xyz[k]
+        np.testing.assert_allclose(m, want[plan.names[i]], atol=1e-12)
+        assert abs(np.linalg.norm(quat[k]) - 1.0) < 1e-12
+
+
+def test_panda_mimic_defaults_and_explicit_value_wins():
+    tree = KinematicTree.from_xml_string(load('panda.urdf'))
+    assert tree.joints['panda_finger_joint2'].mimic == ('panda_finger_joint1', 1.0, 0.0)
+    resolved = tree.resolve_positions({'panda_finger_joint1': 0.03})
+    assert resolved['panda_finger_joint2'] == 0.03
+    assert tree.resolve_positions({'panda_finger_joint1': 0.03, 'panda_finger_joint2': 0.01})[
+        'panda_finger_joint2'] == 0.01
+    plan = tree.transform_plan()
+    values = np.zeros(len(plan.names))
+    present = np.zeros(len(plan.names), bool)
+    values[plan.index['panda_finger_joint1']] = 0.03
+    present[plan.index['panda_finger_joint1']] = True
+    idx, xyz, _ = plan.compute(values, present)
+    got = dict(zip((plan.names[i] for i in idx), xyz))
+    # finger 2 slides along -y by the same 0.03
+    np.testing.assert_allclose(got['panda_finger_joint2'], [0, -0.03, 0.0584], atol=1e-12)
+
+
+MIMIC_CHAIN = """<robot name="chain">
+  <link name="a"/><link name="b"/><link name="c"/><link name="d"/>
+  <joint name="j1" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>
+    <limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+  <joint name="j2" type="continuous"><parent link="b"/><child link="c"/><axis xyz="0 0 1"/>
+    <mimic joint="j3" multiplier="2" offset="0.5"/></joint>
+  <joint name="j3" type="continuous"><parent link="c"/><child link="d"/><axis xyz="0 0 1"/>
+    <mimic joint="j1" multiplier="-1"/></joint>
+</robot>"""
+
+
+def test_mimic_of_mimic_is_followed():
+    tree = KinematicTree.from_xml_string(MIMIC_CHAIN)
+    assert tree.active_joints == ['j1']
+    r = tree.resolve_positions({'j1': 0.2})
+    assert r['j3'] == pytest.approx(-0.2) and r['j2'] == pytest.approx(2 * -0.2 + 0.5)
+    plan = tree.transform_plan()
+    values, present = np.zeros(3), np.zeros(3, bool)
+    values[plan.index['j1']], present[plan.index['j1']] = 0.2, True
+    plan.fill_mimics(values, present)
+    assert present.all() and values[plan.index['j2']] == pytest.approx(0.1)
+
+
+def test_invalid_mimic_is_a_warning_not_a_failure():
+    xml = MIMIC_CHAIN.replace('joint="j1" multiplier="-1"', 'joint="j2"')  # j2 <-> j3 cycle
+    tree = KinematicTree.from_xml_string(xml)
+    assert len(tree.warnings) == 2 and 'cycle' in tree.warnings[0]
+    assert sorted(tree.active_joints) == ['j1', 'j2', 'j3']
+
+
+def test_joint_types_floating_skipped_planar_fixed():
+    xml = """<robot name="t"><link name="a"/><link name="b"/><link name="c"/><link name="d"/>
+      <joint name="f" type="floating"><parent link="a"/><child link="b"/></joint>
+      <joint name="p" type="planar"><parent link="a"/><child link="c"/><origin xyz="1 2 3"/></joint>
+      <joint name="r" type="revolute"><parent link="b"/><child link="d"/><axis xyz="0 1 0"/>
+        <limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>"""
+    tree = KinematicTree.from_xml_string(xml)
+    assert tree.floating_joints == ['f'] and tree.static_joints == ['p'] and tree.moving_joints == ['r']
+    assert set(tree.link_poses()) == {'a', 'c'}  # b and d hang below a floating joint
+    assert 'r' in tree.joint_transforms({'r': 0.1})  # published relative to b, as robot_state_publisher
+    np.testing.assert_allclose(tree.static_transforms()['p'][:3, 3], [1, 2, 3])
+
+
+def test_limits_are_not_clamped_and_axis_normalised():
+    xml = """<robot name="t"><link name="a"/><link name="b"/>
+      <joint name="s" type="prismatic"><parent link="a"/><child link="b"/><axis xyz="0 0 5"/>
+        <limit lower="0" upper="0.1" effort="1" velocity="1"/></joint></robot>"""
+    tree = KinematicTree.from_xml_string(xml)
+    np.testing.assert_allclose(tree.link_poses({'s': 2.0})['b'][:3, 3], [0, 0, 2.0])
+
+
+@pytest.mark.parametrize('xml, message', [
+    ('', 'empty'),
+    ('<robot', 'not valid XML'),
+    ('<notarobot/>', 'expected <robot>'),
+    ('<robot name="x"/>', 'no link'),
+    ('<robot name="x"><link name="a"/><link name="b"/></robot>', 'exactly one root'),
+    ('<robot name="x"><link name="a"/><joint name="j" type="fixed"><parent link="a"/><child link="z"/>'
+     '</joint></robot>', 'unknown link'),
+    ('<robot name="x"><link name="a"/><link name="b"/><joint name="j" type="revolute"><parent link="a"/>'
+     '<child link="b"/><axis xyz="0 0 0"/><limit lower="0" upper="1" effort="1" velocity="1"/></joint>'
+     '</robot>', 'invalid axis'),
+])
+def test_bad_descriptions_raise_clear_errors(xml, message):
+    with pytest.raises(URDFError, match=message):
+        KinematicTree.from_xml_string(xml)
+
+
+def test_prefix_frame_like_robot_state_publisher():
+    # observed from Debian's robot_state_publisher 1.15 with tf_prefix "pre" on fixtures/frames_and_slashes
+    cases = {'link1': 'pre/link1', '/link2': 'link2', '//link3': '/link3', 'link4/': 'pre/link4/',
+             '/link6/': 'link6/', '//li/nk10//': '/li/nk10//', 'li//nk13': 'pre/li//nk13'}
+    for frame, want in cases.items():
+        assert prefix_frame('pre', frame) == want
+        assert prefix_frame('/pre', frame) == want
+    assert prefix_frame('', 'link1') == 'link1' and prefix_frame('', '/link2') == 'link2'
+
+
+def test_rpy_is_fixed_axis_xyz():
+    xml = """<robot name="t"><link name="a"/><link name="b"/>
+      <joint name="j" type="fixed"><parent link="a"/><child link="b"/><origin rpy="0.3 %r -0.7"/></joint>
+      </robot>""" % (math.pi / 2 - 1e-9)
+    tree = KinematicTree.from_xml_string(xml)
+    assert_poses_equal(tree.link_poses(), reference_link_poses(xml, {}))
