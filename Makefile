@@ -48,8 +48,12 @@ $(VENV)/.requirements.stamp: requirements.txt | apt
 venv: apt $(VENV)/.requirements.stamp
 
 build: venv
-	mkdir -p $(WS)/src
-	ln -sfn $(ROOT) $(WS)/src/robot_ai
+	@# The package in the workspace is a folder of links to the repository's entries, not a link to the root:
+	@# that would put .catkin_ws inside the package, and rosrun/roslaunch would find every executable twice.
+	[ ! -L $(WS)/src/robot_ai ] || rm $(WS)/src/robot_ai
+	mkdir -p $(WS)/src/robot_ai
+	find $(WS)/src/robot_ai -maxdepth 1 -type l ! -exec test -e {} \; -delete
+	for f in $(ROOT)/*; do case "$${f##*/}" in output) ;; *) ln -sfn "$$f" $(WS)/src/robot_ai/ ;; esac; done
 	cd $(WS) && PATH="$(VENV)/bin:$$PATH" catkin_make -DPYTHON_EXECUTABLE=$(VENV)/bin/python \
 	  -DCATKIN_ENABLE_TESTING=ON -DCMAKE_BUILD_TYPE=Release > $(WS)/build.log 2>&1 \
 	  || { tail -n 40 $(WS)/build.log; echo "catkin_make failed; full log: $(WS)/build.log"; exit 1; }

@@ -1,0 +1,256 @@
+"""forward_kinematics: a drop-in robot_state_publisher in Python.
+
+Reads the URDF from ``robot_description``, listens to ``joint_states`` and publishes one parent -> child
+transform per URDF joint: moving joints on ``/tf`` stamped with the JointState's ``header.stamp``, fixed
+joints once on the latched ``/tf_static``.
+
+ROS Parameters
+    robot_description (str): the URDF, searched up the namespaces. Waited for if missing or invalid.
+    ~publish_frequency (float, 50.0): a JointState is published only if its stamp is at least
+        1/frequency newer than the last published one of the same joints.
+    ~use_tf_static (bool, true): fixed joints latched on /tf_static; false: on /tf at publish_frequency.
+    ~ignore_timestamp (bool, false): publish every JointState whatever its stamp.
+    ~tf_prefix (str, ""): searched up the namespaces; put before frame names as robot_state_publisher does.
+
+ROS Subscribers
+    joint_states (sensor_msgs/JointState): queue of 1, so that under overload old messages are dropped.
+
+ROS Publishers
+    /tf (tf2_msgs/TFMessage): moving joints, one message per accepted JointState.
+    /tf_static (tf2_msgs/TFMessage, latched): fixed joints.
+
+ROS Services
+    ~reload (std_srvs/Trigger): re-read robot_description; on failure the current robot is kept.
+"""
+import threading
+
+import numpy as np
+import genpy
+import rospy
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger, TriggerResponse
+from tf2_msgs.msg import TFMessage
+
+from robot_ai.kinematics import KinematicTree, URDFError
+from robot_ai.tf_wire import JointStateDecoder, TFMessageEncoder, WireError
+
+THROTTLE = 10.0  # seconds between repeats of one input warning or error
+
+
+class RawJointState(genpy.Message):
+    """sensor_msgs/JointState on the wire, kept as bytes: decoded by JointStateDecoder in the callback."""
+    _md5sum = JointState._md5sum
+    _type = JointState._type
+    _has_header = False  # the header lives in the bytes; rospy must not touch it
+    _full_text = JointState._full_text
+    __slots__ = ['buff']
+
+    def __init__(self):
+        self.buff = b''
+
+    def deserialize(self, buff):
+        self.buff = buff
+        return self
+
+    def serialize(self, buff):
+        buff.write(self.buff)
+
+
+class RawTFMessage(genpy.Message):
+    """tf2_msgs/TFMessage already serialised by TFMessageEncoder."""
+    _md5sum = TFMessage._md5sum
+    _type = TFMessage._type
+    _has_header = False
+    _full_text = TFMessage._full_text
+    __slots__ = ['buff']
+
+    def __init__(self, buff=b''):
+        self.buff = buff
+
+    def serialize(self, buff):
+        buff.write(self.buff)
+
+    def deserialize(self, buff):
+        self.buff = buff
+        return self
+
+
+class Robot(object):
+    """Everything derived from one robot_description, swapped as a whole on reload."""
+
+    def __init__(self, tree, tf_prefix):
+        self.tree = tree
+        self.plan = tree.transform_plan(tf_prefix)
+        self.encoder = TFMessageEncoder(self.plan.parent_frames, self.plan.child_frames)
+        self.static_encoder = TFMessageEncoder(self.plan.static_parent_frames, self.plan.static_child_frames)
+        self.known = set(tree.joints) | set(tree.floating_joints)
+        self.layouts = {}
+
+    def layout(self, names):
+        """For a tuple of names: (msg positions, plan indices) of the moving joints (first occurrence wins,
+        as in robot_state_publisher's map), and the unknown names."""
+        found = self.layouts.get(names)
+        if found is None:
+            msg_idx, plan_idx, seen, unknown = [], [], set(), []
+            for i, name in enumerate(names):
+                if name in seen:
+                    continue
+                seen.add(name)
+                if name in self.plan.index:
+                    msg_idx.append(i)
+                    plan_idx.append(self.plan.index[name])
+                elif name not in self.known:
+                    unknown.append(name)
+            if len(self.layouts) > 64:
+                self.layouts.clear()
+            found = self.layouts[names] = (np.array(msg_idx, np.intp), np.array(plan_idx, np.intp), unknown)
+        return found
+
+
+class ForwardKinematicsNode(object):
+
+    def __init__(self):
+        self.publish_frequency = float(rospy.get_param('~publish_frequency', 50.0))
+        self.use_tf_static = bool(rospy.get_param('~use_tf_static', True))
+        self.ignore_timestamp = bool(rospy.get_param('~ignore_timestamp', False))
+        self.tf_prefix = self._tf_prefix()
+        self.interval_ns = int(round(1e9 / max(self.publish_frequency, 1.0)))
+
+        self.tf_pub = rospy.Publisher('/tf', RawTFMessage, queue_size=100)
+        self.static_pub = rospy.Publisher('/tf_static', RawTFMessage, queue_size=100, latch=True)
+        self.decoder = JointStateDecoder()
+        self.tf_msg = RawTFMessage()
+        self.last_publish = {}           # joint name -> stamp (ns) of its last published JointState
+        self.last_callback_ns = 0
+        self.lock = threading.Lock()     # the callback against a reload
+
+        self.robot = self._wait_for_robot()
+        if self.robot is None:
+            return
+        self._publish_static()
+        if not self.use_tf_static:
+            rospy.Timer(rospy.Duration(self.interval_ns * 1e-9), lambda _: self._publish_static())
+        self.reload_srv = rospy.Service('~reload', Trigger, self._on_reload)
+        self.sub = rospy.Subscriber('joint_states', RawJointState, self._on_joint_state, queue_size=1,
+                                    tcp_nodelay=True)
+
+    # ----------------------------------------------------------------------------- robot_description
+    @staticmethod
+    def _tf_prefix():
+        if rospy.has_param('~tf_prefix'):
+            return str(rospy.get_param('~tf_prefix'))
+        key = rospy.search_param('tf_prefix')
+        return str(rospy.get_param(key, '')) if key else ''
+
+    def _load(self):
+        """Robot from robot_description, or raise URDFError/KeyError with a message."""
+        key = rospy.search_param('robot_description')
+        if key is None:
+            raise KeyError('no robot_description parameter in %s or above' % (rospy.get_namespace()))
+        xml = rospy.get_param(key)
+        tree = KinematicTree.from_xml_string(xml if isinstance(xml, str) else '')
+        for warning in tree.warnings:
+            rospy.logwarn(warning)
+        return Robot(tree, self.tf_prefix), key
+
+    def _wait_for_robot(self):
+        last_error = None
+        while not rospy.is_shutdown():
+            try:
+                robot, key = self._load()
+            except (KeyError, URDFError) as e:
+                if str(e) != last_error:
+                    rospy.logwarn('%s; waiting for a valid robot_description' % e)
+                    last_error = str(e)
+                rospy.sleep(0.5)
+                continue
+            self._log_loaded(robot, key)
+            return robot
+        return None
+
+    @staticmethod
+    def _log_loaded(robot, key):
+        t = robot.tree
+        rospy.loginfo('robot %r from %s: root %s, %d links, %d moving joints (%d mimic), %d fixed, %d floating '
+                      'skipped', t.name, key, t.root, len(t.links), len(t.moving_joints), len(t.mimic_joints),
+                      len(t.static_joints), len(t.floating_joints))
+
+    def _on_reload(self, _req):
+        try:
+            robot, key = self._load()
+        except (KeyError, URDFError) as e:
+            rospy.logerr('reload failed, keeping the current robot: %s' % e)
+            return TriggerResponse(success=False, message='reload failed, kept the current robot: %s' % e)
+        with self.lock:
+            self.robot = robot
+            self.last_publish.clear()
+        self._log_loaded(robot, key)
+        self._publish_static()
+        return TriggerResponse(success=True, message='loaded %r: %d links, %d moving joints' % (
+            robot.tree.name, len(robot.tree.links), len(robot.tree.moving_joints)))
+
+    def _publish_static(self):
+        robot = self.robot
+        plan = robot.plan
+        stamp = rospy.Time.now()
+        if not self.use_tf_static:
+            stamp += rospy.Duration(0.5)  # as robot_state_publisher: valid until the next timer tick
+        idx = np.arange(len(plan.static_names))
+        buff = robot.static_encoder.encode(idx, stamp.secs, stamp.nsecs, plan.static_xyz, plan.static_quat)
+        (self.static_pub if self.use_tf_static else self.tf_pub).publish(RawTFMessage(buff))
+
+    # ---------------------------------------------------------------------------------- joint_states
+    def _on_joint_state(self, msg):
+        try:
+            secs, nsecs, names, positions = self.decoder.decode(msg.buff)
+        except WireError as e:
+            rospy.logerr_throttle(THROTTLE, 'dropped a JointState: %s' % e)
+            return
+        if len(names) != len(positions):
+            rospy.logerr_throttle(THROTTLE, 'dropped a JointState with %d names and %d positions; they must be '
+                                  'as many' % (len(names), len(positions)))
+            return
+        if not np.isfinite(positions).all():
+            bad = [n for n, p in zip(names, positions) if not np.isfinite(p)]
+            rospy.logerr_throttle(THROTTLE, 'dropped a JointState with non-finite positions for %s' % bad)
+            return
+        with self.lock:
+            self._publish(names, positions, secs, nsecs)
+
+    def _publish(self, names, positions, secs, nsecs):
+        robot = self.robot
+        msg_idx, plan_idx, unknown = robot.layout(names)
+        if unknown:
+            rospy.logwarn_throttle(THROTTLE, 'joint_states names joints that are not in the URDF, ignored: %s'
+                                   % unknown)
+        now = rospy.Time.now()
+        now_ns = now.to_nsec()
+        stamp_ns = secs * 1000000000 + nsecs
+        if now_ns < self.last_callback_ns:
+            rospy.logwarn('time moved backwards (a bag looped or the clock was reset): re-publishing')
+            self.last_publish.clear()
+        self.last_callback_ns = now_ns
+        if stamp_ns + 30000000000 < now_ns:
+            rospy.logwarn_throttle(THROTTLE, 'received a JointState %.1f s old' % ((now_ns - stamp_ns) * 1e-9))
+        last = self.last_publish
+        if not self.ignore_timestamp:
+            oldest = min([now_ns] + [last.get(n, 0) for n in names])
+            if stamp_ns < oldest + self.interval_ns:
+                return
+        plan = robot.plan
+        values = np.zeros(len(plan.names))
+        present = np.zeros(len(plan.names), bool)
+        values[plan_idx] = positions[msg_idx]
+        present[plan_idx] = True
+        idx, xyz, quat = plan.compute(values, present)
+        self.tf_msg.buff = robot.encoder.encode(idx, secs, nsecs, xyz, quat)
+        self.tf_pub.publish(self.tf_msg)
+        for n in names:
+            last[n] = stamp_ns
+
+
+def main():
+    rospy.init_node('forward_kinematics')
+    node = ForwardKinematicsNode()
+    if node.robot is not None:
+        rospy.spin()

@@ -1,0 +1,77 @@
+"""robot_ai.tf_wire against genpy's generated (de)serialisers of the same message types."""
+import io
+import math
+
+import numpy as np
+import pytest
+import rospy.rostime  # noqa: F401  (genpy.Time only; no roscore is contacted)
+from sensor_msgs.msg import JointState
+from tf2_msgs.msg import TFMessage
+
+from robot_ai.tf_wire import JointStateDecoder, TFMessageEncoder, WireError
+
+
+def serialise(msg):
+    buff = io.BytesIO()
+    msg.serialize(buff)
+    return buff.getvalue()
+
+
+def joint_state(names, positions, secs=12, nsecs=345, frame='base'):
+    msg = JointState(name=list(names), position=list(positions))
+    msg.header.stamp.secs, msg.header.stamp.nsecs, msg.header.frame_id = secs, nsecs, frame
+    msg.velocity = [0.5] * len(names)
+    return msg
+
+
+def test_decode_matches_genpy_and_caches_names():
+    dec = JointStateDecoder()
+    names = ['a', 'joint_b', 'ü-unicode', '']
+    for k in range(3):
+        pos = [0.1 * k, -2.0, 1e300, 5.0]
+        secs, nsecs, got_names, got_pos = dec.decode(serialise(joint_state(names, pos, secs=k, nsecs=7)))
+        assert (secs, nsecs) == (k, 7)
+        assert got_names == tuple(names)
+        assert list(got_pos) == pos
+    # a different set of names is parsed again, not taken from the cache
+    _, _, got_names, got_pos = dec.decode(serialise(joint_state(['a', 'c'], [1.0, 2.0])))
+    assert got_names == ('a', 'c') and list(got_pos) == [1.0, 2.0]
+
+
+def test_decode_mismatched_lengths_and_empty():
+    dec = JointStateDecoder()
+    _, _, names, pos = dec.decode(serialise(joint_state(['a', 'b'], [1.0])))
+    assert len(names) == 2 and len(pos) == 1
+    _, _, names, pos = dec.decode(serialise(joint_state([], [])))
+    assert names == () and len(pos) == 0
+
+
+@pytest.mark.parametrize('cut', [3, 17, 30, 45])
+def test_decode_truncated_raises(cut):
+    buf = serialise(joint_state(['shoulder', 'elbow'], [1.0, 2.0]))
+    with pytest.raises(WireError):
+        JointStateDecoder().decode(buf[:cut])
+
+
+def test_encode_matches_genpy_deserialisation():
+    parents = ['base', 'l1', 'pre/l2', 'ü']
+    children = ['l1', 'pre/l2', 'l3', 'x']
+    enc = TFMessageEncoder(parents, children)
+    rng = np.random.default_rng(0)
+    for idx in ([0, 1, 2, 3], [2, 0], [], [3]):
+        idx = np.array(idx, dtype=np.intp)
+        xyz = rng.normal(size=(len(idx), 3))
+        quat = rng.normal(size=(len(idx), 4))
+        msg = TFMessage().deserialize(enc.encode(idx, 1795000000, 999999999, xyz, quat))
+        assert len(msg.transforms) == len(idx)
+        for k, t in enumerate(msg.transforms):
+            assert t.header.frame_id == parents[idx[k]] and t.child_frame_id == children[idx[k]]
+            assert (t.header.stamp.secs, t.header.stamp.nsecs) == (1795000000, 999999999)
+            tr, r = t.transform.translation, t.transform.rotation
+            assert [tr.x, tr.y, tr.z] == list(xyz[k]) and [r.x, r.y, r.z, r.w] == list(quat[k])
+    # the cached layout is refilled, not reused stale
+    idx = np.array([1], np.intp)
+    a = TFMessage().deserialize(enc.encode(idx, 1, 2, np.zeros((1, 3)), np.array([[0, 0, 0, 1.0]])))
+    b = TFMessage().deserialize(enc.encode(idx, 3, 4, np.ones((1, 3)), np.array([[0, 0, math.sin(1), math.cos(1)]])))
+    assert a.transforms[0].header.stamp.secs == 1 and b.transforms[0].header.stamp.secs == 3
+    assert b.transforms[0].transform.translation.x == 1.0
