@@ -37,6 +37,10 @@ from robot_ai.tf_wire import JointStateDecoder, TFMessageEncoder, WireError
 THROTTLE = 10.0  # seconds between repeats of one input warning or error
 
 
+class MissingDescription(Exception):
+    """No robot_description parameter where the node looks for it."""
+
+
 class RawJointState(genpy.Message):
     """sensor_msgs/JointState on the wire, kept as bytes: decoded by JointStateDecoder in the callback."""
     _md5sum = JointState._md5sum
@@ -143,10 +147,10 @@ class ForwardKinematicsNode(object):
         return str(rospy.get_param(key, '')) if key else ''
 
     def _load(self):
-        """Robot from robot_description, or raise URDFError/KeyError with a message."""
+        """Robot from robot_description, or raise URDFError/MissingDescription with a message."""
         key = rospy.search_param('robot_description')
         if key is None:
-            raise KeyError('no robot_description parameter in %s or above' % (rospy.get_namespace()))
+            raise MissingDescription('no robot_description parameter in %s or above' % rospy.get_namespace())
         xml = rospy.get_param(key)
         tree = KinematicTree.from_xml_string(xml if isinstance(xml, str) else '')
         for warning in tree.warnings:
@@ -158,7 +162,7 @@ class ForwardKinematicsNode(object):
         while not rospy.is_shutdown():
             try:
                 robot, key = self._load()
-            except (KeyError, URDFError) as e:
+            except (MissingDescription, URDFError) as e:
                 if str(e) != last_error:
                     rospy.logwarn('%s; waiting for a valid robot_description' % e)
                     last_error = str(e)
@@ -178,7 +182,7 @@ class ForwardKinematicsNode(object):
     def _on_reload(self, _req):
         try:
             robot, key = self._load()
-        except (KeyError, URDFError) as e:
+        except (MissingDescription, URDFError) as e:
             rospy.logerr('reload failed, keeping the current robot: %s' % e)
             return TriggerResponse(success=False, message='reload failed, kept the current robot: %s' % e)
         with self.lock:
