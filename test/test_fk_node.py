@@ -1,0 +1,106 @@
+#!/usr/bin/env python3
+"""forward_kinematics on bad input, a late robot_description and ~reload: it keeps running and keeps
+publishing frames equal to robot_state_publisher's afterwards."""
+import os
+import sys
+import unittest
+
+import numpy as np
+import rospy
+import rostest
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
+from fk_helpers import robot_path  # noqa: E402
+from ros_helpers import NodePair, rotation_angle, to_matrix, wait_for  # noqa: E402
+
+UR5 = ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint', 'wrist_2_joint',
+       'wrist_3_joint']
+
+
+def read(name):
+    with open(robot_path(name)) as f:
+        return f.read()
+
+
+class TestForwardKinematicsNode(unittest.TestCase):
+
+    def assert_same_as_rsp(self, pair, stamp, root, tip):
+        for rec in pair.recorders.values():
+            self.assertTrue(wait_for(lambda: rec.buffer.can_transform(root, tip, stamp), 5))
+        want = to_matrix(pair.recorders['rsp'].buffer.lookup_transform(root, tip, stamp))
+        got = to_matrix(pair.recorders['fk'].buffer.lookup_transform(root, tip, stamp))
+        self.assertLess(np.abs(got[:3, 3] - want[:3, 3]).max(), 1e-9)
+        self.assertLess(rotation_angle(got, want), 1e-9)
+
+    def test_bad_input_is_dropped_and_node_keeps_publishing(self):
+        pair = NodePair('/bad', read('ur5.urdf'))
+        try:
+            pair.wait_connected()
+            fk = pair.recorders['fk']
+            raw = rospy.Publisher('/bad/joint_states', JointState, queue_size=10)
+            self.assertTrue(wait_for(lambda: raw.get_num_connections() >= 2, 10))
+            dropped = []
+            for names, pos in ((UR5, [0.1, float('nan'), 0, 0, 0, 0]),        # NaN
+                               (UR5, [0.1, float('inf'), 0, 0, 0, 0]),        # infinite
+                               (UR5, [0.1, 0.2]),                             # fewer positions than names
+                               (UR5[:2], [0.1, 0.2, 0.3])):                   # more positions than names
+                msg = JointState(name=names, position=pos)
+                msg.header.stamp = rospy.Time.now()
+                raw.publish(msg)
+                dropped.append(msg.header.stamp)
+                rospy.sleep(0.05)
+            # unknown names: the known ones are used
+            rospy.sleep(0.05)
+            stamp = pair.send(dict({n: 0.3 * i for i, n in enumerate(UR5)}, not_a_joint=1.0, another=2.0))
+            self.assert_same_as_rsp(pair, stamp, 'base_link', 'tool0')
+            self.assertFalse([s for s in dropped if s in fk.stamps], 'a bad message was published')
+            # and a normal message after all that
+            rospy.sleep(0.05)
+            stamp = pair.send({n: -0.2 * i for i, n in enumerate(UR5)})
+            self.assert_same_as_rsp(pair, stamp, 'base_link', 'tool0')
+            self.assertTrue(pair.alive('fk'))
+            raw.unregister()
+        finally:
+            pair.close()
+
+    def test_waits_for_robot_description_then_reloads(self):
+        pair = NodePair('/late', '', who=('fk',))
+        rospy.delete_param('/late/robot_description')
+        try:
+            rospy.sleep(3.0)  # started with no robot_description: it waits, it does not exit
+            self.assertTrue(pair.alive('fk'))
+            rospy.set_param('/late/robot_description', read('ur5.urdf'))
+            pair.wait_connected()
+            stamp = pair.send({n: 0.1 for n in UR5})
+            fk = pair.recorders['fk']
+            self.assertTrue(wait_for(lambda: fk.buffer.can_transform('base_link', 'tool0', stamp), 10))
+
+            rospy.wait_for_service('/late/fk/reload', 10)
+            reload = rospy.ServiceProxy('/late/fk/reload', Trigger)
+            rospy.set_param('/late/robot_description', '<robot name="broken"><link name="a"/>')
+            res = reload()
+            self.assertFalse(res.success)
+            self.assertIn('kept the current robot', res.message)
+            rospy.sleep(0.05)
+            stamp = pair.send({n: 0.2 for n in UR5})  # still the UR5
+            self.assertTrue(wait_for(lambda: fk.buffer.can_transform('base_link', 'tool0', stamp), 10))
+
+            rospy.set_param('/late/robot_description', read('kuka_lwr_arm.urdf'))
+            res = reload()
+            self.assertTrue(res.success, res.message)
+            self.assertIn('lwr', res.message.lower())
+            rospy.sleep(0.05)
+            stamp = pair.send({'lwr_arm_%d_joint' % i: 0.0 for i in range(7)})
+            self.assertTrue(wait_for(lambda: fk.buffer.can_transform('world_link', 'lwr_arm_7_link', stamp), 10))
+            t = fk.buffer.lookup_transform('world_link', 'lwr_arm_7_link', stamp).transform.translation
+            self.assertAlmostEqual(t.z, 1.3785, places=9)  # SOURCES.md: zero pose of the KUKA LWR
+            self.assertTrue(pair.alive('fk'))
+        finally:
+            pair.close()
+
+
+if __name__ == '__main__':
+    rospy.init_node('test_fk_node')
+    rostest.rosrun('robot_ai', 'test_fk_node', TestForwardKinematicsNode)
