@@ -1,0 +1,137 @@
+#!/usr/bin/env python3
+"""cartpole_search node: every service and the action, bad input, artifacts, reproducibility through ROS."""
+import math
+import os
+import time
+import unittest
+
+import actionlib
+import numpy as np
+import rospy
+import rostest
+from actionlib_msgs.msg import GoalStatus
+
+from robot_ai import cartpole_search as cs
+from robot_ai.msg import RandomSearchAction, RandomSearchGoal, SearchProgress
+from robot_ai.srv import Act, EvaluatePolicy, RandomSearch
+
+NS = '/cartpole_search/'
+
+
+def wait_file(path, timeout=20.0):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if os.path.isfile(path) and os.path.getsize(path) > 0:
+            return True
+        time.sleep(0.1)
+    return False
+
+
+class TestCartPoleSearchNode(unittest.TestCase):
+
+    @classmethod
+    def setUpClass(cls):
+        for name in ('random_search', 'evaluate', 'act'):
+            rospy.wait_for_service(NS + name, 60)
+        cls.search = rospy.ServiceProxy(NS + 'random_search', RandomSearch)
+        cls.evaluate = rospy.ServiceProxy(NS + 'evaluate', EvaluatePolicy)
+        cls.act = rospy.ServiceProxy(NS + 'act', Act)
+        cls.progress = []
+        cls.sub = rospy.Subscriber(NS + 'progress', SearchProgress, cls.progress.append, queue_size=1000)
+        cls.output_dir = rospy.get_param(NS + 'output_dir')
+
+    def test_1_course_experiment_with_defaults(self):
+        res = self.search()  # every field zero/empty: the course's 100 x 100 on CartPole-v1, seed 0
+        self.assertTrue(res.success, res.message)
+        self.assertEqual(len(res.avg_lengths), 100)
+        self.assertEqual(res.best_avg_length, max(res.avg_lengths))
+        # the same search without ROS gives the same numbers, bit for bit
+        local = cs.random_search(cs.CartPoleModel('CartPole-v1'), 100, 100, 500, 0, 100)
+        self.assertEqual(list(res.best_weights), list(local.best_weights))
+        self.assertEqual(list(res.avg_lengths), list(local.avg_lengths))
+        self.assertEqual(res.final_avg_length, local.final_avg_length)
+        self.assertTrue(res.plot_path.startswith(self.output_dir) and res.plot_path.endswith('.png'))
+        self.assertTrue(wait_file(res.plot_path), res.plot_path)
+        with open(res.plot_path, 'rb') as f:
+            self.assertEqual(f.read(8), b'\x89PNG\r\n\x1a\n')
+        self.assertEqual(res.video_path, '')
+        self.assertGreater(res.elapsed, 0.0)
+        self.assertTrue(any(p.iteration == 100 and p.iterations == 100 for p in self.progress))
+        # the best becomes the node's policy
+        ev = self.evaluate(weights=[], episodes=20, seed=5, env_id='', max_steps=0)
+        self.assertTrue(ev.success, ev.message)
+        want = cs.evaluate(cs.CartPoleModel('CartPole-v1'), res.best_weights, 20, 500, 5)
+        self.assertEqual(list(ev.lengths), [int(v) for v in want])
+        self.assertAlmostEqual(ev.avg_length, float(np.mean(want)))
+        for state in ([0, 0, 0.05, 0], [0, 0, -0.05, 0], [0.1, -0.4, 0.01, 0.3]):
+            a = self.act(state=state)
+            self.assertTrue(a.success)
+            self.assertEqual(a.action, cs.act(np.array(res.best_weights), state))
+
+    def test_2_video_and_v0(self):
+        res = self.search(env_id='CartPole-v0', iterations=10, episodes=5, max_steps=60, seed=3, final_episodes=5,
+                          record_video=True)
+        self.assertTrue(res.success, res.message)
+        self.assertTrue(res.video_path.startswith(self.output_dir) and res.video_path.endswith('.mp4'))
+        self.assertGreater(os.path.getsize(res.video_path), 1000)
+        self.assertLessEqual(max(res.avg_lengths), 60)
+
+    def test_3_bad_input_gets_a_message_and_the_node_keeps_serving(self):
+        cases = [
+            (self.search, dict(env_id='MountainCar-v0'), 'not a CartPole'),
+            (self.search, dict(env_id='NoSuchEnv-v3'), 'unknown'),
+            (self.search, dict(iterations=100000, episodes=1000), 'more than the limit'),
+            (self.search, dict(max_steps=10000), 'limit 500'),
+            (self.evaluate, dict(weights=[1.0, 2.0, 3.0]), 'weights must be 4 numbers'),
+            (self.evaluate, dict(weights=[1.0, float('nan'), 0, 0]), 'finite'),
+            (self.evaluate, dict(weights=[1.0, 0, 0, 0], episodes=10 ** 6), 'episodes must be 1 to'),
+            (self.act, dict(state=[0.0, 1.0]), 'state must be 4 numbers'),
+            (self.act, dict(state=[0.0, float('inf'), 0, 0]), 'finite'),
+        ]
+        for call, kwargs, message in cases:
+            t = time.time()
+            res = call(**kwargs)
+            self.assertFalse(res.success, kwargs)
+            self.assertIn(message, res.message)
+            self.assertLess(time.time() - t, 2.0, 'a bad request must be answered fast')
+        self.assertTrue(self.evaluate(weights=[0.1, 0.5, 1.0, 0.9], episodes=3).success)
+
+    def test_4_action_feedback_and_cancel(self):
+        client = actionlib.SimpleActionClient(NS + 'search', RandomSearchAction)
+        self.assertTrue(client.wait_for_server(rospy.Duration(30)))
+        feedback = []
+        client.send_goal(RandomSearchGoal(iterations=40, episodes=50, seed=11),
+                         feedback_cb=lambda fb: feedback.append(fb))
+        self.assertTrue(client.wait_for_result(rospy.Duration(60)))
+        self.assertEqual(client.get_state(), GoalStatus.SUCCEEDED)
+        result = client.get_result()
+        self.assertTrue(result.success)
+        self.assertEqual(len(result.avg_lengths), 40)
+        deadline = time.time() + 5
+        while len(feedback) < 40 and time.time() < deadline:
+            time.sleep(0.05)
+        self.assertEqual([fb.iteration for fb in feedback], list(range(1, 41)))
+        self.assertTrue(all(b.best_avg_length >= a.best_avg_length for a, b in zip(feedback, feedback[1:])))
+
+        # a long search (the 10,000 x 1,000 of the issue) is cancelled after its first feedback
+        feedback[:] = []
+        client.send_goal(RandomSearchGoal(iterations=10000, episodes=1000, seed=1),
+                         feedback_cb=lambda fb: feedback.append(fb))
+        deadline = time.time() + 60
+        while not feedback and time.time() < deadline:
+            time.sleep(0.05)
+        self.assertTrue(feedback, 'no feedback from a long search')
+        t = time.time()
+        client.cancel_goal()
+        self.assertTrue(client.wait_for_result(rospy.Duration(30)))
+        self.assertEqual(client.get_state(), GoalStatus.PREEMPTED)
+        self.assertLess(time.time() - t, 15)
+        result = client.get_result()
+        self.assertIn('cancelled', result.message)
+        self.assertLess(len(result.avg_lengths), 10000)
+        self.assertTrue(self.search(iterations=5, episodes=5).success)  # serving again
+
+
+if __name__ == '__main__':
+    rospy.init_node('test_cartpole_search_node')
+    rostest.rosrun('robot_ai', 'test_cartpole_search_node', TestCartPoleSearchNode)
