@@ -67,7 +67,9 @@ test: build
 
 demo: build
 	mkdir -p $(OUT)
-	$(RUN) roslaunch robot_ai demo.launch output_dir:=$(OUT)
+	$(RUN) roslaunch robot_ai demo.launch output_dir:=$(OUT) 2>&1 | tee $(OUT)/demo.log
+	@# roslaunch exits 0 when its required client ends, whatever the client's status: the verdict decides
+	@grep -q '^verdict: OK' $(OUT)/demo.log
 
 bench: build
 	mkdir -p $(OUT)

@@ -233,7 +233,7 @@ def plot_learning_curve(result, path):
     ax.set_title('%s random search, seed %d: best %.1f, final %.1f' % (
         result.env_id, result.seed, result.best_avg_length, result.final_avg_length))
     ax.set_ylim(0, result.max_steps * 1.08)
-    ax.legend(loc='lower right', fontsize=8)
+    ax.legend(loc='center right', fontsize=8, framealpha=0.9)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

@@ -1,0 +1,69 @@
+"""joint_sweep: smooth, stamped joint_states for every movable, non-mimic joint, so frames move without a GUI.
+
+Each joint follows a sinusoid inside its limits (continuous joints: +-1 rad), with its own phase.
+
+ROS Parameters
+    robot_description (str): the URDF, searched up the namespaces (waited for).
+    ~rate (float, 50.0): messages per second.
+    ~period (float, 8.0): seconds of one sweep.
+    ~amplitude (float, 0.8): share of each joint's half range used.
+
+ROS Publishers
+    joint_states (sensor_msgs/JointState)
+"""
+import math
+
+import rospy
+from sensor_msgs.msg import JointState
+
+from robot_ai.kinematics import KinematicTree, URDFError
+
+
+def sweep_ranges(tree, amplitude):
+    """(name, centre, half-amplitude) of every active joint."""
+    out = []
+    for name in tree.active_joints:
+        j = tree.joints[name]
+        if j.type == 'continuous' or j.lower is None or j.upper is None or j.upper <= j.lower:
+            centre, half = 0.0, 1.0
+        else:
+            centre, half = (j.lower + j.upper) / 2.0, min((j.upper - j.lower) / 2.0, math.pi / 2)
+        if j.type == 'prismatic':
+            half = (j.upper - j.lower) / 2.0 if j.upper is not None and j.lower is not None else 0.05
+        out.append((name, centre, amplitude * half))
+    return out
+
+
+def main():
+    rospy.init_node('joint_sweep')
+    rate = float(rospy.get_param('~rate', 50.0))
+    period = float(rospy.get_param('~period', 8.0))
+    amplitude = float(rospy.get_param('~amplitude', 0.8))
+    tree, warned = None, False
+    while tree is None and not rospy.is_shutdown():
+        key = rospy.search_param('robot_description')
+        try:
+            tree = KinematicTree.from_xml_string(rospy.get_param(key) if key else '')
+        except URDFError as e:
+            if not warned:
+                rospy.logwarn('joint_sweep: waiting for a valid robot_description (%s)', e)
+                warned = True
+            rospy.sleep(0.5)
+    if tree is None:
+        return
+    ranges = sweep_ranges(tree, amplitude)
+    rospy.loginfo('joint_sweep: %d joints at %.0f Hz', len(ranges), rate)
+    pub = rospy.Publisher('joint_states', JointState, queue_size=10)
+    msg = JointState(name=[r[0] for r in ranges])
+    t0 = rospy.Time.now()
+    r = rospy.Rate(rate)
+    while not rospy.is_shutdown():
+        now = rospy.Time.now()
+        t = (now - t0).to_sec()
+        msg.header.stamp = now
+        msg.position = [c + a * math.sin(2 * math.pi * t / period + 0.9 * i) for i, (_, c, a) in enumerate(ranges)]
+        pub.publish(msg)
+        try:
+            r.sleep()
+        except rospy.ROSInterruptException:
+            break

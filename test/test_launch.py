@@ -1,0 +1,120 @@
+#!/usr/bin/env python3
+"""demo.launch as users run it: headless it ends by itself with status 0 and the summary; with rviz:=true
+under Xvfb, a screenshot of rviz's 3D view shows the robot and its frames, not only the grid.
+
+Each launch gets its own master on a free port, so it does not disturb rostest's."""
+import os
+import signal
+import socket
+import subprocess
+import time
+import unittest
+
+import rospkg
+import rostest
+from PIL import Image
+
+ARTIFACTS = os.path.join(rospkg.RosPack().get_path('robot_ai'), '..', '..', 'build', 'test_artifacts')
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def free_display():
+    for n in range(90, 200):
+        if not os.path.exists('/tmp/.X%d-lock' % n) and not os.path.exists('/tmp/.X11-unix/X%d' % n):
+            return n
+    raise RuntimeError('no free X display number')
+
+
+def launch(args, env=None):
+    port = free_port()
+    env = dict(env or os.environ, ROS_MASTER_URI='http://127.0.0.1:%d' % port)
+    return subprocess.Popen(['roslaunch', '-p', str(port), 'robot_ai', 'demo.launch'] + args, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=os.setsid)
+
+
+def stop(proc):
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGINT)
+        try:
+            proc.wait(20)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def colour_counts(path):
+    """Pixels of the robot's materials and of the TF axes in the screenshot."""
+    img = Image.open(path).convert('RGB')
+    counts = dict(orange=0, blue=0, tf_red=0, tf_green=0)
+    for r, g, b in img.getdata():
+        if r > 190 and 70 < g < 160 and b < 70:
+            counts['orange'] += 1
+        elif r < 70 and 50 < g < 130 and b > 150:
+            counts['blue'] += 1
+        elif r > 180 and g < 50 and b < 50:
+            counts['tf_red'] += 1
+        elif g > 150 and r < 80 and b < 80:
+            counts['tf_green'] += 1
+    return counts
+
+
+class TestLaunch(unittest.TestCase):
+
+    def test_demo_ends_cleanly_with_a_summary(self):
+        out_dir = os.path.join(ARTIFACTS, 'demo')
+        t0 = time.time()
+        proc = launch(['output_dir:=' + out_dir])
+        try:
+            out, _ = proc.communicate(timeout=120)
+        finally:
+            stop(proc)
+        text = out.decode(errors='replace')
+        self.assertEqual(proc.returncode, 0, text[-3000:])
+        self.assertIn('verdict: OK', text, text[-3000:])
+        self.assertIn('the end effector moves', text)
+        self.assertIn('best average', text)
+        self.assertLess(time.time() - t0, 60.0)
+        video = [l.split()[-1] for l in text.splitlines() if l.strip().startswith('video ')][0]
+        self.assertTrue(os.path.isfile(video) and video.startswith(out_dir), video)
+
+    def test_rviz_screenshot_shows_robot_and_frames(self):
+        display = ':%d' % free_display()
+        xvfb = subprocess.Popen(['Xvfb', display, '-screen', '0', '1024x768x24', '-nolisten', 'tcp'],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        proc = None
+        try:
+            time.sleep(1.0)
+            env = dict(os.environ, DISPLAY=display)
+            proc = launch(['rviz:=true', 'record_video:=false', 'output_dir:=' + os.path.join(ARTIFACTS, 'rviz')],
+                          env)
+            os.makedirs(ARTIFACTS, exist_ok=True)
+            shot = os.path.abspath(os.path.join(ARTIFACTS, 'rviz_screenshot.png'))
+            counts = {}
+            deadline = time.time() + 90
+            while time.time() < deadline:  # rviz takes a while to start under software GL
+                time.sleep(3.0)
+                self.assertIsNone(proc.poll(), 'demo.launch rviz:=true ended by itself')
+                subprocess.run(['import', '-display', display, '-window', 'root', shot], check=True, timeout=30)
+                counts = colour_counts(shot)
+                if counts['orange'] > 3000 and counts['blue'] > 500 and counts['tf_red'] > 30:
+                    break
+            print('rviz screenshot: %s %s' % (shot, counts))
+            self.assertGreater(counts['orange'], 3000, 'the arm is not drawn: %s' % counts)
+            self.assertGreater(counts['blue'], 500, 'the arm is not drawn: %s' % counts)
+            self.assertGreater(counts['tf_red'], 30, 'the TF axes are not drawn: %s' % counts)
+            self.assertGreater(counts['tf_green'], 10, 'the TF axes are not drawn: %s' % counts)
+            self.assertIsNone(proc.poll(), 'with rviz:=true the demo keeps running until stopped')
+        finally:
+            if proc is not None:
+                stop(proc)
+            xvfb.terminate()
+            xvfb.wait(10)
+
+
+if __name__ == '__main__':
+    rostest.rosrun('robot_ai', 'test_launch', TestLaunch)

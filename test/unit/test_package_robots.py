@@ -1,0 +1,32 @@
+"""The package's own robots (urdf/) against the reference robots in ../shared/robots: the same frames for
+every shared link at random configurations, and the zero poses of SOURCES.md."""
+import os
+
+import numpy as np
+import pytest
+
+from fk_helpers import robot_path
+from robot_ai.kinematics import KinematicTree
+
+URDF_DIR = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', 'urdf')
+
+
+@pytest.mark.parametrize('ours, reference, root, tip, zero', [
+    ('ur5_arm.urdf', 'ur5.urdf', 'base_link', 'tool0', (0.81725, 0.19145, -0.00549)),
+    ('kuka_lwr_arm.urdf', 'kuka_lwr_arm.urdf', 'world_link', 'lwr_arm_7_link', (0.0, 0.0, 1.3785)),
+])
+def test_package_robot_matches_reference(ours, reference, root, tip, zero):
+    mine = KinematicTree.from_file(os.path.join(URDF_DIR, ours))
+    ref = KinematicTree.from_file(robot_path(reference))
+    assert mine.root == root and mine.active_joints == ref.active_joints
+    np.testing.assert_allclose(mine.link_poses()[tip][:3, 3], zero, atol=1e-5)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        q = {n: float(rng.uniform(-3, 3)) for n in mine.active_joints}
+        a, b = mine.link_poses(q), ref.link_poses(q)
+        shared = set(a) & set(b)
+        assert tip in shared and len(shared) >= len(mine.active_joints) + 2
+        for link in shared:
+            np.testing.assert_allclose(a[link], b[link], atol=1e-9, err_msg=link)
+    for n in mine.active_joints:
+        assert (mine.joints[n].lower, mine.joints[n].upper) == (ref.joints[n].lower, ref.joints[n].upper)
