@@ -5,7 +5,7 @@
 #   make bench  the benchmarks in bench/, figures beside the reference's
 #   make clean  remove .venv, .catkin_ws and outputs
 SHELL := /bin/bash
-.SHELLFLAGS := -eu -o pipefail -c
+.SHELLFLAGS := -e -o pipefail -c  # not -u: ROS's setup.bash reads unset variables
 .DEFAULT_GOAL := build
 
 ROOT := $(abspath $(dir $(lastword $(MAKEFILE_LIST))))
