@@ -1,9 +1,11 @@
 #!/usr/bin/env python3
 """Print one summary of the JUnit files that `catkin_make run_tests` left, and fail unless all passed.
 
-Reads pytest-*.xml (unit tests), rostest-*.xml (integration tests) and MISSING-*.xml (a test whose
-runner died before writing results). Exits 1 if any test failed or errored, if any was skipped (no
-test here may skip on the supported machine), or if no test ran at all.
+Counts the test cases of pytest-*.xml (unit tests), rosunit-*.xml (the cases of each rostest test node)
+and roslaunch-check*.xml. A rostest-*.xml (one per .test file) adds its failures too, so a test node that
+died or ran out of time fails the run even without case results; MISSING-*.xml is a runner that wrote
+nothing. Exits 1 if any test failed or errored, if any was skipped (no test here may skip on the supported
+machine), if the unit tests left no results, or if no test ran at all.
 """
 import glob
 import os
@@ -37,11 +39,14 @@ def count(path):
 
 
 def main(result_dir):
-    files = sorted(f for pattern in ('pytest-*.xml', 'rostest-*.xml', 'MISSING-*.xml')
+    files = sorted(f for pattern in ('pytest-*.xml', 'rosunit-*.xml', 'roslaunch-check*.xml', 'rostest-*.xml',
+                                     'MISSING-*.xml')
                    for f in glob.glob(os.path.join(result_dir, pattern)))
     totals = [0, 0, 0]
     for path in files:
         p, f, s, names = count(path)
+        if os.path.basename(path).startswith('rostest-'):
+            p = 0  # its cases are counted in the rosunit files; only its failures count here
         totals = [totals[0] + p, totals[1] + f, totals[2] + s]
         status = 'ok' if not (f or s) else 'FAILED'
         print('%-55s %4d passed %3d failed %3d skipped  %s' % (os.path.basename(path), p, f, s, status))
@@ -51,6 +56,9 @@ def main(result_dir):
     print('summary: %d passed, %d failed, %d skipped' % (passed, failed, skipped))
     if not files or passed == 0:
         print('no test ran (looked in %s)' % result_dir)
+        return 1
+    if not glob.glob(os.path.join(result_dir, 'pytest-*.xml')):
+        print('the unit tests left no results: pytest did not run')
         return 1
     return 1 if failed or skipped else 0
 

@@ -72,8 +72,8 @@ class CartPoleModel(object):
             if w is None:
                 push = rng.random(len(alive)) < 0.5
             else:
-                obs = s.astype(np.float32).astype(np.float64)  # the policy sees gymnasium's float32 observation
-                push = np.einsum('ij,ij->j', obs, w) > 0
+                # the policy sees gymnasium's float32 observation, promoted exactly to float64 in the dot
+                push = np.einsum('ij,ij->j', s.astype(np.float32), w) > 0
             x, x_dot, theta, theta_dot = s
             force = np.where(push, fm, -fm)
             cos, sin = np.cos(theta), np.sin(theta)
@@ -82,8 +82,7 @@ class CartPoleModel(object):
             theta_acc = (g * sin - cos * temp) / (ln * (4.0 / 3.0 - mp * np.square(cos) / tm))
             x_acc = temp - pml * theta_acc * cos / tm
             s = np.stack((x + tau * x_dot, x_dot + tau * x_acc, theta + tau * theta_dot, theta_dot + tau * theta_acc))
-            x, theta = s[0], s[2]
-            done = (x < -xt) | (x > xt) | (theta < -tt) | (theta > tt)
+            done = (np.abs(s[0]) > xt) | (np.abs(s[2]) > tt)  # |x| > t is gymnasium's x < -t or x > t
             if done.any():
                 lengths[alive[done]] = t
                 keep = ~done
