@@ -1,6 +1,5 @@
 #!/usr/bin/env python3
 """cartpole_search node: every service and the action, bad input, artifacts, reproducibility through ROS."""
-import math
 import os
 import time
 import unittest

@@ -17,7 +17,6 @@ Only the elements kinematics uses are read (link names; each joint's type, paren
 limit, mimic), so old or unusual elements elsewhere (PR2's ``<transmission>`` blocks, gazebo tags) cannot
 stop a robot from loading.
 """
-import math
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -403,6 +402,27 @@ class TransformPlan(object):
         idx = np.flatnonzero(present)
         return (idx,) + self.transforms(idx, values[idx])
 
+    def message_layout(self, names):
+        """Everything about a JointState's tuple of names that does not depend on its positions, so that
+        a stream of messages with the same names costs a few numpy operations each (MessageLayout)."""
+        return MessageLayout(self, names)
+
+    def message_transforms(self, layout, positions):
+        """(K, 7) array: translation xyz and rotation xyzw of the layout's K joints (layout.out_idx) for one
+        message's positions, mimic joints filled in as in fill_mimics."""
+        v = positions[layout.gather]
+        if layout.affine:
+            v = v * layout.scale + layout.shift  # explicit: v * 1 + 0 == v; mimic: source * multiplier + offset
+        for k, src, mult, off in layout.chain:
+            v[k] = mult * v[src] + off
+        half = v * layout.half  # 0.5 for revolute joints, 0 for prismatic ones (their rotation is the origin's)
+        out = np.empty((len(v), 7))
+        np.multiply(layout.slide, v[:, None], out=out[:, :3])
+        out[:, :3] += layout.xyz
+        np.multiply(layout.p, np.sin(half)[:, None], out=out[:, 3:])
+        out[:, 3:] += layout.q * np.cos(half)[:, None]
+        return out
+
     def transforms(self, idx, v):
         """(xyz (K, 3), quat (K, 4)) of the joints idx at values v."""
         half = 0.5 * v * self.revolute[idx]
@@ -412,3 +432,70 @@ class TransformPlan(object):
         quat = quaternion_multiply_batch(self.origin_quat[idx], motion)
         xyz = self.origin_xyz[idx] + self.slide[idx] * v[:, None]
         return xyz, quat
+
+
+def _left_matrix(q):
+    """4x4 L with L . b == quaternion_multiply(q, b) for (x, y, z, w) quaternions."""
+    x, y, z, w = q
+    return np.array([[w, -z, y, x], [z, w, -x, y], [-y, x, w, z], [-x, -y, -z, w]])
+
+
+class MessageLayout(object):
+    """Precomputed for one tuple of joint names (see TransformPlan.message_layout).
+
+    out_idx: plan indices of the joints published (explicit first occurrences of moving joints, then the mimic
+    joints whose source has a value); gather: for each, the message position its value comes from (a mimic's
+    explicit source); scale/shift: the mimic affine terms (affine is False when there is none); chain: mimics
+    of mimics, applied in order; unknown: names not in the URDF; xyz, slide, p, q: per published joint, so
+    that translation = xyz + slide * v and rotation = p * sin(v / 2) + q * cos(v / 2) (revolute: the origin's
+    quaternion times the rotation about the axis; prismatic: p = 0)."""
+
+    def __init__(self, plan, names):
+        tree = plan.tree
+        value_of, unknown = {}, []          # plan index -> message index, first occurrence wins
+        for i, name in enumerate(names):
+            k = plan.index.get(name)
+            if k is not None:
+                value_of.setdefault(k, i)
+            elif name not in tree.joints and name not in tree.floating_joints and name not in unknown:
+                unknown.append(name)
+        self.unknown = unknown
+        out, gather, scale, shift = [], [], [], []
+        for k in sorted(value_of):
+            out.append(k)
+            gather.append(value_of[k])
+            scale.append(1.0)
+            shift.append(0.0)
+        pos_of = {k: j for j, k in enumerate(out)}
+        chain = []
+        for idx, src, mult, off in plan.mimic_steps:   # sources before the mimics that follow them
+            if idx in pos_of or src not in pos_of:
+                continue
+            j = len(out)
+            out.append(idx)
+            pos_of[idx] = j
+            if src in value_of:                         # the source is given: one affine term
+                gather.append(value_of[src])
+                scale.append(mult)
+                shift.append(off)
+            else:                                       # the source is itself a mimic: computed after
+                gather.append(0)
+                scale.append(1.0)
+                shift.append(0.0)
+                chain.append((j, pos_of[src], mult, off))
+        self.out_idx = np.array(out, dtype=np.intp)
+        self.gather = np.array(gather, dtype=np.intp)
+        self.scale = np.array(scale)
+        self.shift = np.array(shift)
+        self.affine = bool(len(out) > len(value_of))
+        self.chain = chain
+        idx = self.out_idx
+        self.xyz = plan.origin_xyz[idx]
+        self.slide = plan.slide[idx]
+        left = np.array([_left_matrix(qo) for qo in plan.origin_quat[idx]]).reshape(len(idx), 4, 4)
+        rev = plan.revolute[idx]
+        axis = np.concatenate((plan.half_axis[idx], np.zeros((len(idx), 1))), axis=1)
+        self.p = np.einsum('kij,kj->ki', left, axis) * rev[:, None]
+        self.q = left[:, :, 3]
+        self.half = 0.5 * rev
+        self.encoder_key = None

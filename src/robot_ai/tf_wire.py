@@ -85,6 +85,13 @@ class TFMessageEncoder(object):
     def encode(self, idx, secs, nsecs, xyz, quat):
         """Bytes of a TFMessage with transforms idx (indices into the frame list), all stamped secs.nsecs,
         translations xyz (K, 3) and rotations quat (K, 4, x y z w)."""
+        data = np.empty((len(idx), 7))
+        data[:, :3] = xyz
+        data[:, 3:] = quat
+        return self.encode_data(idx, secs, nsecs, data)
+
+    def encode_data(self, idx, secs, nsecs, data):
+        """As encode, with translation and rotation in one (K, 7) float64 array."""
         key = idx.tobytes() if isinstance(idx, np.ndarray) else tuple(idx)
         layout = self._layouts.get(key)
         if layout is None:
@@ -94,10 +101,7 @@ class TFMessageEncoder(object):
         template, stamp_index, data_index = layout
         if len(idx):
             template[stamp_index] = np.frombuffer(_STAMP.pack(secs, nsecs), np.uint8)
-            data = np.empty((len(idx), 7))
-            data[:, :3] = xyz
-            data[:, 3:] = quat
-            template[data_index] = data.view(np.uint8)
+            template[data_index] = np.ascontiguousarray(data, dtype='<f8').view(np.uint8)
         return template.tobytes()
 
 

@@ -207,3 +207,31 @@ def test_rpy_is_fixed_axis_xyz():
       </robot>""" % (math.pi / 2 - 1e-9)
     tree = KinematicTree.from_xml_string(xml)
     assert_poses_equal(tree.link_poses(), reference_link_poses(xml, {}))
+
+
+@pytest.mark.parametrize('seed', range(15))
+def test_message_layout_equals_single_form(seed):
+    """The node's per-message path: names in any order, duplicates, unknown names, fixed joints, explicit
+    mimic values, mimics of mimics, against joint_transforms of the single form."""
+    tree = KinematicTree.from_xml_string(random_urdf(seed, n_links=25, mimic_chains=True))
+    plan = tree.transform_plan()
+    rng = np.random.default_rng(seed)
+    names = [n for n in plan.names if rng.random() < 0.7] + ['unknown_a'] + tree.static_joints[:1]
+    rng.shuffle(names)
+    if names:
+        names.append(names[0])  # a duplicate: the first occurrence wins
+    positions = rng.uniform(-10, 10, len(names))
+    layout = plan.message_layout(tuple(names))
+    assert layout.unknown == ['unknown_a']
+    given = {}
+    for n, v in zip(names, positions):
+        if n in plan.index:
+            given.setdefault(n, v)
+    want = tree.joint_transforms(given)
+    out = plan.message_transforms(layout, positions)
+    assert sorted(plan.names[i] for i in layout.out_idx) == sorted(want)
+    for k, i in enumerate(layout.out_idx):
+        m = tft.quaternion_matrix(out[k, 3:])
+        m[:3, 3] = out[k, :3]
+        np.testing.assert_allclose(m, want[plan.names[i]], atol=1e-12)
+        assert abs(np.linalg.norm(out[k, 3:]) - 1.0) < 1e-12

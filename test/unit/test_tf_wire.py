@@ -4,7 +4,6 @@ import math
 
 import numpy as np
 import pytest
-import rospy.rostime  # noqa: F401  (genpy.Time only; no roscore is contacted)
 from sensor_msgs.msg import JointState
 from tf2_msgs.msg import TFMessage
 

@@ -87,27 +87,15 @@ class Robot(object):
         self.plan = tree.transform_plan(tf_prefix)
         self.encoder = TFMessageEncoder(self.plan.parent_frames, self.plan.child_frames)
         self.static_encoder = TFMessageEncoder(self.plan.static_parent_frames, self.plan.static_child_frames)
-        self.known = set(tree.joints) | set(tree.floating_joints)
         self.layouts = {}
 
     def layout(self, names):
-        """For a tuple of names: (msg positions, plan indices) of the moving joints (first occurrence wins,
-        as in robot_state_publisher's map), and the unknown names."""
+        """The plan's MessageLayout of a tuple of names, cached (a publisher rarely changes its names)."""
         found = self.layouts.get(names)
         if found is None:
-            msg_idx, plan_idx, seen, unknown = [], [], set(), []
-            for i, name in enumerate(names):
-                if name in seen:
-                    continue
-                seen.add(name)
-                if name in self.plan.index:
-                    msg_idx.append(i)
-                    plan_idx.append(self.plan.index[name])
-                elif name not in self.known:
-                    unknown.append(name)
             if len(self.layouts) > 64:
                 self.layouts.clear()
-            found = self.layouts[names] = (np.array(msg_idx, np.intp), np.array(plan_idx, np.intp), unknown)
+            found = self.layouts[names] = self.plan.message_layout(names)
         return found
 
 
@@ -124,7 +112,10 @@ class ForwardKinematicsNode(object):
         self.static_pub = rospy.Publisher('/tf_static', RawTFMessage, queue_size=100, latch=True)
         self.decoder = JointStateDecoder()
         self.tf_msg = RawTFMessage()
-        self.last_publish = {}           # joint name -> stamp (ns) of its last published JointState
+        # robot_state_publisher's gate: per joint name, the stamp (ns) of its last published JointState
+        self.slot_of = {}                # name -> index in last_publish
+        self.slots = {}                  # tuple of names -> their indices
+        self.last_publish = np.zeros(0, np.int64)
         self.last_callback_ns = 0
         self.lock = threading.Lock()     # the callback against a reload
 
@@ -187,7 +178,7 @@ class ForwardKinematicsNode(object):
             return TriggerResponse(success=False, message='reload failed, kept the current robot: %s' % e)
         with self.lock:
             self.robot = robot
-            self.last_publish.clear()
+            self.last_publish[:] = 0
         self._log_loaded(robot, key)
         self._publish_static()
         return TriggerResponse(success=True, message='loaded %r: %d links, %d moving joints' % (
@@ -221,36 +212,43 @@ class ForwardKinematicsNode(object):
         with self.lock:
             self._publish(names, positions, secs, nsecs)
 
+    def _slots(self, names):
+        slots = self.slots.get(names)
+        if slots is None:
+            for n in names:
+                self.slot_of.setdefault(n, len(self.slot_of))
+            if len(self.slot_of) > len(self.last_publish):
+                grown = np.zeros(2 * len(self.slot_of), np.int64)
+                grown[:len(self.last_publish)] = self.last_publish
+                self.last_publish = grown
+            if len(self.slots) > 64:
+                self.slots.clear()
+            slots = self.slots[names] = np.array([self.slot_of[n] for n in names], np.intp)
+        return slots
+
     def _publish(self, names, positions, secs, nsecs):
         robot = self.robot
-        msg_idx, plan_idx, unknown = robot.layout(names)
-        if unknown:
+        layout = robot.layout(names)
+        if layout.unknown:
             rospy.logwarn_throttle(THROTTLE, 'joint_states names joints that are not in the URDF, ignored: %s'
-                                   % unknown)
-        now = rospy.Time.now()
-        now_ns = now.to_nsec()
+                                   % layout.unknown)
+        now_ns = rospy.Time.now().to_nsec()
         stamp_ns = secs * 1000000000 + nsecs
         if now_ns < self.last_callback_ns:
             rospy.logwarn('time moved backwards (a bag looped or the clock was reset): re-publishing')
-            self.last_publish.clear()
+            self.last_publish[:] = 0
         self.last_callback_ns = now_ns
         if stamp_ns + 30000000000 < now_ns:
             rospy.logwarn_throttle(THROTTLE, 'received a JointState %.1f s old' % ((now_ns - stamp_ns) * 1e-9))
-        last = self.last_publish
+        slots = self._slots(names)
         if not self.ignore_timestamp:
-            oldest = min([now_ns] + [last.get(n, 0) for n in names])
+            oldest = min(now_ns, int(self.last_publish[slots].min())) if len(slots) else now_ns
             if stamp_ns < oldest + self.interval_ns:
                 return
-        plan = robot.plan
-        values = np.zeros(len(plan.names))
-        present = np.zeros(len(plan.names), bool)
-        values[plan_idx] = positions[msg_idx]
-        present[plan_idx] = True
-        idx, xyz, quat = plan.compute(values, present)
-        self.tf_msg.buff = robot.encoder.encode(idx, secs, nsecs, xyz, quat)
+        data = robot.plan.message_transforms(layout, positions)
+        self.tf_msg.buff = robot.encoder.encode_data(layout.out_idx, secs, nsecs, data)
         self.tf_pub.publish(self.tf_msg)
-        for n in names:
-            last[n] = stamp_ns
+        self.last_publish[slots] = stamp_ns
 
 
 def main():
