@@ -86,7 +86,8 @@ def main():
         res = cs.random_search(model, 100, 100, seed=i)
         times.append(time.time() - t)
     lib = float(np.median(times))
-    print('random_search, library (median)      %8.3f s   %6.0fx   best %.1f' % (lib, course / lib, res.best_avg_length))
+    print('random_search, library (median)      %8.3f s   %6.0fx   best %.1f' % (
+        lib, course / lib, res.best_avg_length))
 
     port = free_port()
     os.environ['ROS_MASTER_URI'] = 'http://127.0.0.1:%d' % port

@@ -4,7 +4,8 @@
     tree.joint_transform('shoulder_pan_joint', 0.3)        # 4x4, parent link -> child link
     tree.link_poses({'shoulder_pan_joint': 0.3})           # {link: 4x4 in the root frame}
     tree.link_poses_batch(q, names)                        # {link: (N, 4, 4)} for N configurations
-    plan = tree.transform_plan(); plan.compute(values, present)   # the node's vectorised hot path
+    plan = tree.transform_plan()                           # the node's vectorised hot path, per message:
+    data = plan.message_transforms(plan.message_layout(names), positions)
 
 Semantics (those of robot_state_publisher + kdl_parser):
 - revolute and continuous rotate about the normalised axis, prismatic translates along it, both after the
@@ -321,16 +322,6 @@ def _batch_joint_matrices(joint, values, n):
     return out
 
 
-def quaternion_multiply_batch(a, b):
-    """Hamilton products a * b of (..., 4) quaternions in (x, y, z, w) order, as tf.transformations."""
-    ax, ay, az, aw = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bx, by, bz, bw = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack((aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw,
-                     aw * bw - ax * bx - ay * by - az * bz), axis=-1)
-
-
 def prefix_frame(tf_prefix, frame):
     """robot_state_publisher's frame naming: a frame with a leading slash loses it and gets no prefix;
     otherwise a non-empty prefix (without its own leading slash) and '/' are put before it."""
@@ -342,12 +333,13 @@ def prefix_frame(tf_prefix, frame):
 
 
 class TransformPlan(object):
-    """Precomputed arrays that turn joint positions into every moving joint's parent -> child transform with
-    a few numpy operations (no per-joint Python loop). Used by the node for each joint_states message.
+    """Precomputed arrays that turn a JointState's positions into every published joint's parent -> child
+    transform with a few numpy operations (no per-joint Python loop). Used by the node for each message:
 
-    Moving joints are indexed 0..M-1 in ``names``. ``compute(values, present)`` takes values (M,) and a
-    boolean mask of the joints given explicitly, fills in mimic joints, and returns (indices, xyz (K, 3),
-    quat (K, 4)) for the K joints that have a value, in ``names`` order.
+        layout = plan.message_layout(names)            # once per tuple of names
+        data = plan.message_transforms(layout, positions)   # (K, 7): xyz, quaternion xyzw
+
+    Moving joints are indexed 0..M-1 in ``names``; static joints are in ``static_*``.
     """
 
     def __init__(self, tree, tf_prefix=''):
@@ -387,21 +379,6 @@ class TransformPlan(object):
         self.static_xyz = np.array([j.xyz for j in static]).reshape(len(static), 3)
         self.static_quat = np.array([j.quat for j in static]).reshape(len(static), 4)
 
-    def fill_mimics(self, values, present):
-        """Set values/present of mimic joints whose source has a value (in place); explicit values win."""
-        for idx, src, mult, off in self.mimic_steps:
-            if not present[idx] and present[src]:
-                values[idx] = mult * values[src] + off
-                present[idx] = True
-
-    def compute(self, values, present):
-        values = np.array(values, dtype=float)
-        present = np.array(present, dtype=bool)
-        if self.mimic_steps:
-            self.fill_mimics(values, present)
-        idx = np.flatnonzero(present)
-        return (idx,) + self.transforms(idx, values[idx])
-
     def message_layout(self, names):
         """Everything about a JointState's tuple of names that does not depend on its positions, so that
         a stream of messages with the same names costs a few numpy operations each (MessageLayout)."""
@@ -409,7 +386,7 @@ class TransformPlan(object):
 
     def message_transforms(self, layout, positions):
         """(K, 7) array: translation xyz and rotation xyzw of the layout's K joints (layout.out_idx) for one
-        message's positions, mimic joints filled in as in fill_mimics."""
+        message's positions, with the mimic joints whose source has a value."""
         v = positions[layout.gather]
         if layout.affine:
             v = v * layout.scale + layout.shift  # explicit: v * 1 + 0 == v; mimic: source * multiplier + offset
@@ -422,16 +399,6 @@ class TransformPlan(object):
         np.multiply(layout.p, np.sin(half)[:, None], out=out[:, 3:])
         out[:, 3:] += layout.q * np.cos(half)[:, None]
         return out
-
-    def transforms(self, idx, v):
-        """(xyz (K, 3), quat (K, 4)) of the joints idx at values v."""
-        half = 0.5 * v * self.revolute[idx]
-        motion = np.empty((len(idx), 4))
-        motion[:, :3] = self.half_axis[idx] * np.sin(half)[:, None]
-        motion[:, 3] = np.cos(half)
-        quat = quaternion_multiply_batch(self.origin_quat[idx], motion)
-        xyz = self.origin_xyz[idx] + self.slide[idx] * v[:, None]
-        return xyz, quat
 
 
 def _left_matrix(q):

@@ -87,24 +87,6 @@ def test_batch_on_pr2_and_bad_shape():
         tree.link_poses_batch(q[:, :1], names=['not_a_joint'])
 
 
-@pytest.mark.parametrize('seed', range(20))
-def test_transform_plan_equals_single_form(seed):
-    tree = KinematicTree.from_xml_string(random_urdf(seed, n_links=25, mimic_chains=True))
-    plan = tree.transform_plan()
-    rng = np.random.default_rng(seed)
-    values = rng.uniform(-10, 10, len(plan.names))
-    present = rng.random(len(plan.names)) < 0.7
-    idx, xyz, quat = plan.compute(values, present)
-    given = {plan.names[i]: values[i] for i in np.flatnonzero(present)}
-    want = tree.joint_transforms(given)
-    assert [plan.names[i] for i in idx] == [n for n in plan.names if n in want]
-    for k, i in enumerate(idx):
-        m = tft.quaternion_matrix(quat[k])
-        m[:3, 3] = xyz[k]
-        np.testing.assert_allclose(m, want[plan.names[i]], atol=1e-12)
-        assert abs(np.linalg.norm(quat[k]) - 1.0) < 1e-12
-
-
 def test_panda_mimic_defaults_and_explicit_value_wins():
     tree = KinematicTree.from_xml_string(load('panda.urdf'))
     assert tree.joints['panda_finger_joint2'].mimic == ('panda_finger_joint1', 1.0, 0.0)
@@ -113,14 +95,14 @@ def test_panda_mimic_defaults_and_explicit_value_wins():
     assert tree.resolve_positions({'panda_finger_joint1': 0.03, 'panda_finger_joint2': 0.01})[
         'panda_finger_joint2'] == 0.01
     plan = tree.transform_plan()
-    values = np.zeros(len(plan.names))
-    present = np.zeros(len(plan.names), bool)
-    values[plan.index['panda_finger_joint1']] = 0.03
-    present[plan.index['panda_finger_joint1']] = True
-    idx, xyz, _ = plan.compute(values, present)
-    got = dict(zip((plan.names[i] for i in idx), xyz))
+    layout = plan.message_layout(('panda_finger_joint1',))
+    data = plan.message_transforms(layout, np.array([0.03]))
+    got = dict(zip((plan.names[i] for i in layout.out_idx), data[:, :3]))
     # finger 2 slides along -y by the same 0.03
     np.testing.assert_allclose(got['panda_finger_joint2'], [0, -0.03, 0.0584], atol=1e-12)
+    layout = plan.message_layout(('panda_finger_joint2', 'panda_finger_joint1'))
+    got = dict(zip((plan.names[i] for i in layout.out_idx), plan.message_transforms(layout, np.array([0.01, 0.03]))))
+    np.testing.assert_allclose(got['panda_finger_joint2'][:3], [0, -0.01, 0.0584], atol=1e-12)  # explicit wins
 
 
 MIMIC_CHAIN = """<robot name="chain">
@@ -140,10 +122,14 @@ def test_mimic_of_mimic_is_followed():
     r = tree.resolve_positions({'j1': 0.2})
     assert r['j3'] == pytest.approx(-0.2) and r['j2'] == pytest.approx(2 * -0.2 + 0.5)
     plan = tree.transform_plan()
-    values, present = np.zeros(3), np.zeros(3, bool)
-    values[plan.index['j1']], present[plan.index['j1']] = 0.2, True
-    plan.fill_mimics(values, present)
-    assert present.all() and values[plan.index['j2']] == pytest.approx(0.1)
+    layout = plan.message_layout(('j1',))
+    assert len(layout.chain) == 1  # j2 follows j3, which follows j1
+    data = plan.message_transforms(layout, np.array([0.2]))
+    got = dict(zip((plan.names[i] for i in layout.out_idx), data))
+    for name in ('j1', 'j2', 'j3'):
+        m = tft.quaternion_matrix(got[name][3:])
+        m[:3, 3] = got[name][:3]
+        np.testing.assert_allclose(m, tree.joint_transform(name, r[name]), atol=1e-12)
 
 
 def test_invalid_mimic_is_a_warning_not_a_failure():
