@@ -89,7 +89,10 @@ class TestLaunch(unittest.TestCase):
         proc = None
         try:
             time.sleep(1.0)
-            env = dict(os.environ, DISPLAY=display)
+            # rviz writes ~/.rviz and Mesa ~/.cache: keep them in the build folder, ROS's logs where they are
+            home = os.path.abspath(os.path.join(ARTIFACTS, 'home'))
+            os.makedirs(home, exist_ok=True)
+            env = dict(os.environ, DISPLAY=display, HOME=home, ROS_HOME=rospkg.get_ros_home())
             proc = launch(['rviz:=true', 'record_video:=false', 'output_dir:=' + os.path.join(ARTIFACTS, 'rviz')],
                           env)
             os.makedirs(ARTIFACTS, exist_ok=True)
