@@ -126,3 +126,18 @@ def test_plot_and_video(tmp_path):
     with open(path, 'rb') as f:
         assert b'ftyp' in f.read(64)
     assert sorted(os.listdir(str(tmp_path))) == ['best.mp4', 'curve.png']  # the temporary folder is gone
+
+
+def test_plot_worker_process(tmp_path):
+    """The node's plot process: one JSON job a line; a bad job is reported and the next one still drawn."""
+    import subprocess
+    import sys
+    from robot_ai.plot_worker import job_of
+    res = random_search(CartPoleModel('CartPole-v1'), 10, 5, seed=2, final_episodes=5)
+    good = str(tmp_path / 'curve.png')
+    proc = subprocess.run([sys.executable, '-m', 'robot_ai.plot_worker'], input='{"not": "a job"}\n'
+                          + job_of(res, good), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0
+    assert 'failed' in proc.stderr and proc.stdout.strip() == 'written %s' % good
+    with open(good, 'rb') as f:
+        assert f.read(8) == b'\x89PNG\r\n\x1a\n'

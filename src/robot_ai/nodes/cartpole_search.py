@@ -19,7 +19,8 @@ ROS Publishers
 Bad requests get success: false and a message that says what is allowed; the node keeps serving.
 """
 import os
-import queue
+import subprocess
+import sys
 import threading
 import time
 
@@ -28,6 +29,7 @@ import rospkg
 import rospy
 
 from robot_ai import cartpole_search as cs
+from robot_ai.plot_worker import job_of
 from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchResult, SearchProgress
 from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, RandomSearch,
                           RandomSearchResponse)
@@ -48,8 +50,8 @@ class CartPoleSearchNode(object):
         cs.resolve(defaults=self.defaults)  # a bad default is a clear error at start, not at the first call
         self.best_weights = None
         self.search_lock = threading.Lock()  # one search at a time; later requests wait their turn
-        self.plots = queue.Queue()
-        threading.Thread(target=self._plot_worker, name='plots', daemon=True).start()
+        self.plotter = None
+        self._start_plotter()
         self.progress_pub = rospy.Publisher('~progress', SearchProgress, queue_size=100)
         self.services = [rospy.Service('~random_search', RandomSearch, self._on_random_search),
                          rospy.Service('~evaluate', EvaluatePolicy, self._on_evaluate),
@@ -89,7 +91,7 @@ class CartPoleSearchNode(object):
             self.best_weights = result.best_weights.copy()
             stem = cs.artifact_stem(self.output_dir, result)
             plot_path = stem + '.png'
-            self.plots.put((result, plot_path))  # written in the background: the answer does not wait for it
+            self._plot(result, plot_path)  # drawn by another process: the answer does not wait for it
             video_path = ''
             if req.record_video:
                 video_path, _ = cs.record_video(model.env_id, result.best_weights, max_steps, seed, stem + '.mp4')
@@ -103,14 +105,28 @@ class CartPoleSearchNode(object):
                     final_avg_length=result.final_avg_length, plot_path=plot_path, video_path=video_path,
                     elapsed=elapsed), result
 
-    def _plot_worker(self):
-        while True:
-            result, path = self.plots.get()
+    def _start_plotter(self):
+        self.plotter = subprocess.Popen([sys.executable, '-m', 'robot_ai.plot_worker'], stdin=subprocess.PIPE,
+                                        stdout=subprocess.PIPE, text=True, bufsize=1)
+        threading.Thread(target=self._log_plots, args=(self.plotter,), name='plots', daemon=True).start()
+
+    def _log_plots(self, plotter):
+        for line in plotter.stdout:
+            rospy.loginfo('learning curve %s', line.strip())
+
+    def _plot(self, result, path):
+        """Hand a plot to the plot process (restarted if it died); a plot never takes the node down."""
+        for _ in range(2):
+            if self.plotter.poll() is not None:
+                rospy.logwarn('the plot process ended (status %s); starting another', self.plotter.returncode)
+                self._start_plotter()
             try:
-                cs.plot_learning_curve(result, path)
-                rospy.loginfo('learning curve written: %s', path)
-            except Exception as e:  # a plot must never take the node down
-                rospy.logerr('could not write the learning curve %s: %s', path, e)
+                self.plotter.stdin.write(job_of(result, path))
+                self.plotter.stdin.flush()
+                return
+            except (BrokenPipeError, OSError) as e:
+                rospy.logwarn('could not hand the plot %s to the plot process: %s', path, e)
+        rospy.logerr('learning curve not written: %s', path)
 
     # ------------------------------------------------------------------------------------- handlers
     def _on_random_search(self, req):
