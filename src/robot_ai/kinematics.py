@@ -93,12 +93,12 @@ def _kinematic_subset(xml_string):
 
 
 def _parse_quietly(xml_string):
-    """URDF.from_xml_string with urdf_parser_py's stderr warnings collected instead of printed."""
-    warnings = []
+    """URDF.from_xml_string without urdf_parser_py's stderr warnings (about elements it does not know, which
+    kinematics does not use)."""
     saved = xml_reflection.core.on_error
-    xml_reflection.core.on_error = warnings.append
+    xml_reflection.core.on_error = lambda message: None
     try:
-        return URDF.from_xml_string(xml_string), warnings
+        return URDF.from_xml_string(xml_string)
     except Exception as e:  # urdf_parser_py raises ParseError, AssertionError, ValueError, ...
         raise URDFError('cannot parse the URDF: %s' % str(e).strip().splitlines()[0])
     finally:
@@ -127,8 +127,7 @@ class KinematicTree(object):
     def from_xml_string(cls, xml_string):
         if not xml_string or not xml_string.strip():
             raise URDFError('robot_description is empty')
-        robot, _ = _parse_quietly(_kinematic_subset(xml_string))
-        return cls.from_urdf(robot)
+        return cls.from_urdf(_parse_quietly(_kinematic_subset(xml_string)))
 
     @classmethod
     def from_file(cls, path):
@@ -277,19 +276,8 @@ class KinematicTree(object):
         if unknown:
             raise ValueError('not moving joints of this robot: %s' % unknown)
         n = q.shape[0]
-        cols = {name: q[:, i] for i, name in enumerate(names)}
-        for name in self.mimic_joints:
-            if name not in cols:
-                chain, src = [], name
-                while src not in cols and self.joints[src].mimic is not None:
-                    chain.append(src)
-                    src = self.joints[src].mimic[0]
-                if src in cols:
-                    value = cols[src]
-                    for link in reversed(chain):
-                        _, mult, off = self.joints[link].mimic
-                        value = mult * value + off
-                    cols[name] = value
+        # the single form's mimic resolution works on columns as well as on numbers
+        cols = self.resolve_positions({name: q[:, i] for i, name in enumerate(names)})
         poses = {self.root: np.broadcast_to(np.identity(4), (n, 4, 4))}
         for name in self.joint_order:
             j = self.joints[name]
@@ -353,7 +341,7 @@ class TransformPlan(object):
         self.origin_xyz = np.array([j.xyz for j in joints]).reshape(m, 3)
         self.origin_quat = np.array([j.quat for j in joints]).reshape(m, 4)
         self.revolute = np.array([j.type != 'prismatic' for j in joints], dtype=bool)
-        self.half_axis = np.array([j.axis for j in joints]).reshape(m, 3)
+        self.axis = np.array([j.axis for j in joints]).reshape(m, 3)
         # prismatic: child origin moves by value * (R_origin . axis) in the parent frame
         self.slide = np.array([np.dot(j.matrix[:3, :3], j.axis) for j in joints]).reshape(m, 3)
         self.slide[self.revolute] = 0.0
@@ -461,8 +449,7 @@ class MessageLayout(object):
         self.slide = plan.slide[idx]
         left = np.array([_left_matrix(qo) for qo in plan.origin_quat[idx]]).reshape(len(idx), 4, 4)
         rev = plan.revolute[idx]
-        axis = np.concatenate((plan.half_axis[idx], np.zeros((len(idx), 1))), axis=1)
+        axis = np.concatenate((plan.axis[idx], np.zeros((len(idx), 1))), axis=1)
         self.p = np.einsum('kij,kj->ki', left, axis) * rev[:, None]
         self.q = left[:, :, 3]
         self.half = 0.5 * rev
-        self.encoder_key = None
