@@ -34,8 +34,6 @@ from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchR
 from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, RandomSearch,
                           RandomSearchResponse)
 
-SEED_RANGE = 2 ** 63
-
 
 class CartPoleSearchNode(object):
 
@@ -68,8 +66,6 @@ class CartPoleSearchNode(object):
 
     def _search(self, req, feedback=None, should_stop=None):
         """Run the search of a RandomSearch request or goal; return the fields of the response."""
-        if not -SEED_RANGE <= req.seed < SEED_RANGE:
-            raise cs.SearchError('seed must be a 64-bit integer')
         model, iterations, episodes, max_steps, final_episodes = cs.resolve(
             req.env_id, req.iterations, req.episodes, req.max_steps, req.final_episodes, self.defaults)
         model = self._model(model.env_id)
