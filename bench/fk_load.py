@@ -39,29 +39,6 @@ def free_port():
         return s.getsockname()[1]
 
 
-class RawMsg(object):
-    """Typed raw message: subscribe/publish bytes with a real type's md5 (no genpy work in the bench)."""
-
-    @staticmethod
-    def of(msg_class):
-        import genpy
-
-        class Raw(genpy.Message):
-            _md5sum, _type, _full_text, _has_header = msg_class._md5sum, msg_class._type, msg_class._full_text, False
-            __slots__ = ['buff']
-
-            def __init__(self, buff=b''):
-                self.buff = buff
-
-            def deserialize(self, buff):
-                self.buff = buff
-                return self
-
-            def serialize(self, buff):
-                buff.write(self.buff)
-        return Raw
-
-
 def serialisation_costs(pr2_xml):
     """Microseconds per PR2-sized message: genpy vs robot_ai.tf_wire, both directions."""
     from sensor_msgs.msg import JointState
@@ -127,7 +104,8 @@ def run_case(label, urdf, rate, seconds, warmup=2.0):
         procs[who] = subprocess.Popen(cmd + ['__ns:=' + ns, '__name:=' + who, '_publish_frequency:=5000.0',
                                              '/tf:=%s/%s/tf' % (ns, who), '/tf_static:=%s/%s/tf_static' % (ns, who)],
                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid)
-    RawJS, RawTF = RawMsg.of(JointState), RawMsg.of(TFMessage)
+    from robot_ai.tf_wire import raw_message_class
+    RawJS, RawTF = raw_message_class(JointState), raw_message_class(TFMessage)
     received = {who: [] for who in procs}
     counting = threading.Event()
 

@@ -7,6 +7,7 @@ of joints, with stamps and transforms filled in by two numpy assignments.
 """
 import struct
 
+import genpy
 import numpy as np
 
 _U32 = struct.Struct('<I')
@@ -16,6 +17,31 @@ _STAMP = struct.Struct('<II')
 
 class WireError(ValueError):
     """A buffer that is not a well-formed message."""
+
+
+def raw_message_class(msg_class):
+    """A message class with msg_class's type and md5sum whose instances carry their serialised bytes in
+    ``buff``: rospy hands received bytes over untouched and publishes ``buff`` as it is."""
+
+    class Raw(genpy.Message):
+        _md5sum = msg_class._md5sum
+        _type = msg_class._type
+        _full_text = msg_class._full_text
+        _has_header = False  # a header lives in the bytes; rospy must not try to set its seq
+        __slots__ = ['buff']
+
+        def __init__(self, buff=b''):
+            self.buff = buff
+
+        def serialize(self, buff):
+            buff.write(self.buff)
+
+        def deserialize(self, buff):
+            self.buff = buff
+            return self
+
+    Raw.__name__ = 'Raw' + msg_class.__name__
+    return Raw
 
 
 class JointStateDecoder(object):

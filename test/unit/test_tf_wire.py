@@ -74,3 +74,14 @@ def test_encode_matches_genpy_deserialisation():
     b = TFMessage().deserialize(enc.encode(idx, 3, 4, np.ones((1, 3)), np.array([[0, 0, math.sin(1), math.cos(1)]])))
     assert a.transforms[0].header.stamp.secs == 1 and b.transforms[0].header.stamp.secs == 3
     assert b.transforms[0].transform.translation.x == 1.0
+
+
+def test_raw_message_class_keeps_type_and_bytes():
+    from robot_ai.tf_wire import raw_message_class
+    raw = raw_message_class(JointState)
+    assert (raw._type, raw._md5sum) == (JointState._type, JointState._md5sum)
+    data = serialise(joint_state(['a'], [1.5]))
+    msg = raw().deserialize(data)
+    buff = io.BytesIO()
+    msg.serialize(buff)
+    assert buff.getvalue() == data

@@ -25,58 +25,20 @@ ROS Services
 import threading
 
 import numpy as np
-import genpy
 import rospy
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger, TriggerResponse
 from tf2_msgs.msg import TFMessage
 
-from robot_ai.kinematics import KinematicTree, URDFError
-from robot_ai.tf_wire import JointStateDecoder, TFMessageEncoder, WireError
+from robot_ai.kinematics import URDFError
+from robot_ai.nodes.description import MissingDescription, load_tree, wait_for_tree
+from robot_ai.tf_wire import JointStateDecoder, TFMessageEncoder, WireError, raw_message_class
 
 THROTTLE = 10.0  # seconds between repeats of one input warning or error
 
 
-class MissingDescription(Exception):
-    """No robot_description parameter where the node looks for it."""
-
-
-class RawJointState(genpy.Message):
-    """sensor_msgs/JointState on the wire, kept as bytes: decoded by JointStateDecoder in the callback."""
-    _md5sum = JointState._md5sum
-    _type = JointState._type
-    _has_header = False  # the header lives in the bytes; rospy must not touch it
-    _full_text = JointState._full_text
-    __slots__ = ['buff']
-
-    def __init__(self):
-        self.buff = b''
-
-    def deserialize(self, buff):
-        self.buff = buff
-        return self
-
-    def serialize(self, buff):
-        buff.write(self.buff)
-
-
-class RawTFMessage(genpy.Message):
-    """tf2_msgs/TFMessage already serialised by TFMessageEncoder."""
-    _md5sum = TFMessage._md5sum
-    _type = TFMessage._type
-    _has_header = False
-    _full_text = TFMessage._full_text
-    __slots__ = ['buff']
-
-    def __init__(self, buff=b''):
-        self.buff = buff
-
-    def serialize(self, buff):
-        buff.write(self.buff)
-
-    def deserialize(self, buff):
-        self.buff = buff
-        return self
+RawJointState = raw_message_class(JointState)   # decoded by JointStateDecoder in the callback
+RawTFMessage = raw_message_class(TFMessage)     # written by TFMessageEncoder
 
 
 class Robot(object):
@@ -139,29 +101,21 @@ class ForwardKinematicsNode(object):
 
     def _load(self):
         """Robot from robot_description, or raise URDFError/MissingDescription with a message."""
-        key = rospy.search_param('robot_description')
-        if key is None:
-            raise MissingDescription('no robot_description parameter in %s or above' % rospy.get_namespace())
-        xml = rospy.get_param(key)
-        tree = KinematicTree.from_xml_string(xml if isinstance(xml, str) else '')
+        tree, key = load_tree()
+        return self._robot(tree), key
+
+    def _robot(self, tree):
         for warning in tree.warnings:
             rospy.logwarn(warning)
-        return Robot(tree, self.tf_prefix), key
+        return Robot(tree, self.tf_prefix)
 
     def _wait_for_robot(self):
-        last_error = None
-        while not rospy.is_shutdown():
-            try:
-                robot, key = self._load()
-            except (MissingDescription, URDFError) as e:
-                if str(e) != last_error:
-                    rospy.logwarn('%s; waiting for a valid robot_description' % e)
-                    last_error = str(e)
-                rospy.sleep(0.5)
-                continue
-            self._log_loaded(robot, key)
-            return robot
-        return None
+        tree, key = wait_for_tree()
+        if tree is None:
+            return None
+        robot = self._robot(tree)
+        self._log_loaded(robot, key)
+        return robot
 
     @staticmethod
     def _log_loaded(robot, key):

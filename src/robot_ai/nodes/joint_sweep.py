@@ -16,7 +16,7 @@ import math
 import rospy
 from sensor_msgs.msg import JointState
 
-from robot_ai.kinematics import KinematicTree, URDFError
+from robot_ai.nodes.description import wait_for_tree
 
 
 def sweep_ranges(tree, amplitude):
@@ -39,16 +39,7 @@ def main():
     rate = float(rospy.get_param('~rate', 50.0))
     period = float(rospy.get_param('~period', 8.0))
     amplitude = float(rospy.get_param('~amplitude', 0.8))
-    tree, warned = None, False
-    while tree is None and not rospy.is_shutdown():
-        key = rospy.search_param('robot_description')
-        try:
-            tree = KinematicTree.from_xml_string(rospy.get_param(key) if key else '')
-        except URDFError as e:
-            if not warned:
-                rospy.logwarn('joint_sweep: waiting for a valid robot_description (%s)', e)
-                warned = True
-            rospy.sleep(0.5)
+    tree, _ = wait_for_tree()
     if tree is None:
         return
     ranges = sweep_ranges(tree, amplitude)

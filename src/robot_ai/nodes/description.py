@@ -1,0 +1,31 @@
+"""robot_description for the nodes: searched up the namespaces, parsed, waited for while missing or invalid."""
+import rospy
+
+from robot_ai.kinematics import KinematicTree, URDFError
+
+
+class MissingDescription(Exception):
+    """No robot_description parameter where the node looks for it."""
+
+
+def load_tree():
+    """(KinematicTree, parameter key) of robot_description; raise MissingDescription or URDFError."""
+    key = rospy.search_param('robot_description')
+    if key is None:
+        raise MissingDescription('no robot_description parameter in %s or above' % rospy.get_namespace())
+    xml = rospy.get_param(key)
+    return KinematicTree.from_xml_string(xml if isinstance(xml, str) else ''), key
+
+
+def wait_for_tree():
+    """load_tree() until it succeeds, logging each distinct problem once; (None, None) at shutdown."""
+    last_error = None
+    while not rospy.is_shutdown():
+        try:
+            return load_tree()
+        except (MissingDescription, URDFError) as e:
+            if str(e) != last_error:
+                rospy.logwarn('%s; waiting for a valid robot_description' % e)
+                last_error = str(e)
+            rospy.sleep(0.5)
+    return None, None
