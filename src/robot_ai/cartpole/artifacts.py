@@ -1,0 +1,143 @@
+"""Where the agents' files go, what they are called, and how they are drawn: plots and videos. No rospy.
+
+A plot is described by a job, a plain dict that crosses a pipe as JSON (the nodes hand plots to
+``robot_ai.plot_worker``, a process of its own) and is drawn by ``write_plot``::
+
+    job = {'title': ..., 'xlabel': ..., 'ylabel': ...,
+           'series': [{'y': [...], 'x': [...] (default 1..n), 'label': ..., 'style': 'line' | 'points' | 'step',
+                       'color': ..., 'lw': ..., 'alpha': ...}, ...],
+           'hlines': [{'y': ..., 'label': ..., 'color': ..., 'ls': ...}, ...],
+           'ylim': [low, high] (optional), 'integer_x': true}
+    write_plot(search_plot_job(result), stem + '.png')
+
+A plot file is written whole or not at all: it is drawn into a hidden temporary file beside it and renamed.
+"""
+import os
+import shutil
+import tempfile
+import threading
+import time
+
+import numpy as np
+
+FIGSIZE_INCHES, DPI = (10.0, 5.6), 100   # 1000 x 560 pixels: reads well in a README
+_reserved = set()                       # stems handed out by this process whose files may not exist yet
+_reserved_lock = threading.Lock()
+
+
+def default_output_dir():
+    """$ROS_HOME/robot_ai, or ~/.ros/robot_ai when ROS_HOME is unset: where every agent's files go."""
+    ros_home = os.environ.get('ROS_HOME') or os.path.join(os.path.expanduser('~'), '.ros')
+    return os.path.join(ros_home, 'robot_ai')
+
+
+def artifact_stem(output_dir, kind, env_id, seed):
+    """A path without extension for one run's files, new in output_dir: <kind>_<time>_<env>_seed<seed>[_n].
+
+    The seed is written as given (seed-1 for -1). Stems handed out earlier by this process are not handed out
+    again, even before their files exist."""
+    os.makedirs(output_dir, exist_ok=True)
+    base = os.path.join(output_dir, '%s_%s_%s_seed%d' % (kind, time.strftime('%Y%m%d-%H%M%S'), env_id, int(seed)))
+    with _reserved_lock:
+        stem, n = base, 1
+        while stem in _reserved or any(os.path.lexists(stem + ext) for ext in ('.png', '.mp4')):
+            n += 1
+            stem = '%s_%d' % (base, n)
+        _reserved.add(stem)
+    return stem
+
+
+def search_plot_job(result):
+    """The learning curve of a linear_search.SearchResult: every candidate's average length, the best so far,
+    the random-action baseline and the step limit."""
+    avgs = [float(v) for v in result.avg_lengths]
+    hlines = []
+    if np.isfinite(result.baseline_avg_length):
+        hlines.append(dict(y=result.baseline_avg_length, label='random actions (%.1f)' % result.baseline_avg_length,
+                           color='tab:gray', ls='--'))
+    hlines.append(dict(y=result.max_steps, label='step limit (%d)' % result.max_steps, color='tab:red', ls=':'))
+    return dict(
+        title='%s random search, seed %d: best %.1f, final %.1f' % (
+            result.env_id, result.seed, result.best_avg_length, result.final_avg_length),
+        xlabel='candidate (iteration)', ylabel='average episode length over %d episodes' % result.episodes,
+        series=[dict(y=avgs, label='candidate average length', style='points', color='tab:blue'),
+                dict(y=[float(v) for v in np.maximum.accumulate(avgs)] if avgs else [], label='best so far',
+                     style='step', color='tab:orange', lw=2)],
+        hlines=hlines, ylim=[0, result.max_steps * 1.05], integer_x=True)
+
+
+def write_plot(job, path):
+    """Draw a plot job into the PNG file path (1000 x 560), whole or not at all; return path."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
+    fig, ax = plt.subplots(figsize=FIGSIZE_INCHES, dpi=DPI, layout='constrained')
+    try:
+        for s in job.get('series', []):
+            y = np.asarray(s['y'], dtype=np.float64)
+            x = np.asarray(s['x'], dtype=np.float64) if s.get('x') is not None else np.arange(1, len(y) + 1)
+            style = s.get('style', 'line')
+            kw = dict(color=s.get('color'), label=s.get('label'), alpha=s.get('alpha', 1.0))
+            if style == 'points':
+                ax.plot(x, y, '.', ms=s.get('ms', 4), **kw)
+            else:
+                ax.plot(x, y, '-', lw=s.get('lw', 1.5), drawstyle='steps-post' if style == 'step' else 'default', **kw)
+        for h in job.get('hlines', []):
+            ax.axhline(h['y'], color=h.get('color', 'tab:gray'), ls=h.get('ls', '--'), lw=1.2, label=h.get('label'))
+        if job.get('integer_x'):
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        if job.get('ylim'):
+            ax.set_ylim(*job['ylim'])
+        ax.set_xlabel(job.get('xlabel', ''))
+        ax.set_ylabel(job.get('ylabel', ''))
+        ax.set_title(job.get('title', ''))
+        ax.grid(alpha=0.3)
+        handles, labels = ax.get_legend_handles_labels()
+        keep = [(h, l) for h, l in zip(handles, labels) if l and not l.startswith('_')]
+        if keep:  # below the axes, never over the data
+            fig.legend(*zip(*keep), loc='outside lower center', ncols=min(4, len(keep)), fontsize=9, frameon=False)
+        folder = os.path.dirname(os.path.abspath(path))
+        fd, tmp = tempfile.mkstemp(prefix='.plot_', suffix='.png', dir=folder)
+        try:
+            with os.fdopen(fd, 'wb') as f:
+                fig.savefig(f, format='png')
+            os.replace(tmp, path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+    finally:
+        plt.close(fig)
+    return path
+
+
+def record_video(env_id, policy, max_steps, seed, path):
+    """mp4 of one episode, rendered by gymnasium (rgb_array) and written by its RecordVideo.
+
+    policy(observation) -> action (0 or 1); the start state comes from gymnasium's reset(seed).
+    Returns (path, steps)."""
+    os.environ.setdefault('SDL_VIDEODRIVER', 'dummy')
+    os.environ.setdefault('SDL_AUDIODRIVER', 'dummy')
+    import gymnasium as gym
+    from gymnasium.wrappers import RecordVideo
+    work = tempfile.mkdtemp(prefix='video_', dir=os.path.dirname(path))
+    folder = os.path.join(work, 'frames')  # a folder RecordVideo creates itself
+    try:
+        env = RecordVideo(gym.make(env_id, render_mode='rgb_array', max_episode_steps=max_steps), folder,
+                          episode_trigger=lambda i: i == 0, name_prefix='episode', disable_logger=True)
+        try:
+            obs, _ = env.reset(seed=int(seed) % (2 ** 32))
+            steps, done = 0, False
+            while not done:
+                obs, _, terminated, truncated, _ = env.step(policy(obs))
+                steps += 1
+                done = terminated or truncated
+        finally:
+            env.close()
+        videos = [f for f in os.listdir(folder) if f.endswith('.mp4')] if os.path.isdir(folder) else []
+        if not videos:
+            raise RuntimeError('RecordVideo wrote no video')
+        shutil.move(os.path.join(folder, videos[0]), path)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return path, steps

@@ -1,0 +1,130 @@
+"""The course's linear CartPole policy and its random search, batched over every candidate and episode. No rospy.
+
+The course's exercise: draw weight vectors w uniformly in [-1, 1]^4, play episodes with the policy
+``action = 1 if obs.dot(w) > 0 else 0``, keep the best average episode length (the first best wins ties),
+then evaluate the best on final episodes. Here every (candidate, episode) pair is stepped together with
+gymnasium's own CartPole equations (``dynamics.CartPoleDynamics``), so a 100 x 100 search takes a fraction
+of a second instead of the course loop's seconds.
+
+The same seed gives the same result bit for bit: weights, start states and the random-action baseline all
+come from ``numpy.random.default_rng(seed)`` in a fixed order, and the batching does not change which
+numbers are drawn.
+
+    search = resolve(iterations=100, episodes=100)          # defaults filled in, every value checked
+    result = random_search(search.dynamics, search.iterations, search.episodes, search.max_steps, seed=0)
+    result.best_weights, result.best_avg_length, result.final_avg_length
+"""
+import collections
+import math
+import time
+
+import numpy as np
+
+from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError, check_state, rng_for, start_states
+
+DEFAULTS = dict(env_id='CartPole-v1', iterations=100, episodes=100, final_episodes=100)
+MAX_ITERATIONS = 100000
+MAX_EPISODES = 10000
+MAX_WORK = 20000000            # iterations * episodes (+ final episodes): about a minute or two on 2 cores
+BATCH_ENVS = 131072            # episodes stepped together: bounds memory (~40 MiB of state) whatever the size
+
+Search = collections.namedtuple('Search', 'dynamics iterations episodes max_steps final_episodes')
+
+
+def resolve(env_id='', iterations=0, episodes=0, max_steps=0, final_episodes=0, defaults=None):
+    """A Search with zero/empty fields filled from defaults (DEFAULTS, then the given dict) and every value
+    checked; RequestError says what is allowed."""
+    d = dict(DEFAULTS, **(defaults or {}))
+    dynamics = CartPoleDynamics.of(env_id or d['env_id'])
+    iterations = int(iterations or d['iterations'])
+    episodes = int(episodes or d['episodes'])
+    final_episodes = int(final_episodes or d['final_episodes'])
+    limit = dynamics.max_episode_steps
+    max_steps = int(max_steps or limit)
+    if not 1 <= iterations <= MAX_ITERATIONS:
+        raise RequestError('iterations must be 1 to %d (0 = %d), got %d' % (MAX_ITERATIONS, d['iterations'],
+                                                                           iterations))
+    for name, value in (('episodes', episodes), ('final_episodes', final_episodes)):
+        if not 1 <= value <= MAX_EPISODES:
+            raise RequestError('%s must be 1 to %d (0 = %d), got %d' % (name, MAX_EPISODES, d[name], value))
+    if not 1 <= max_steps <= limit:
+        raise RequestError('max_steps must be 1 to %s\'s limit %d (0 = %d), got %d' % (
+            dynamics.env_id, limit, limit, max_steps))
+    if iterations * episodes + final_episodes > MAX_WORK:
+        raise RequestError('iterations x episodes = %d episodes is more than the limit of %d; use fewer '
+                           'iterations or episodes' % (iterations * episodes, MAX_WORK))
+    return Search(dynamics, iterations, episodes, max_steps, final_episodes)
+
+
+def check_weights(weights):
+    """The policy's weights as 4 finite floats, or RequestError saying what is wrong."""
+    return check_state(weights, 'weights')
+
+
+def act(weights, state):
+    """The course's policy: 1 (push right) if state.w > 0, else 0."""
+    return 1 if float(np.dot(check_state(state), weights)) > 0 else 0
+
+
+def evaluate(dynamics, weights, episodes, max_steps, seed):
+    """Lengths (episodes,) of one linear policy's episodes; start states from rng_for(seed).
+
+    dynamics: a CartPoleDynamics; weights: 4 numbers; max_steps: at most the environment's limit."""
+    rng = rng_for(seed)
+    w = check_weights(weights)
+    return dynamics.episode_lengths(start_states(rng, 1, episodes), max_steps, weights=w[None, :])[0]
+
+
+class SearchResult(object):
+    """What a search found: every candidate's weights and average length, the best, its final evaluation."""
+    __slots__ = ('env_id', 'seed', 'iterations', 'episodes', 'max_steps', 'weights', 'avg_lengths',
+                 'best_index', 'best_weights', 'best_avg_length', 'final_lengths', 'final_avg_length',
+                 'baseline_avg_length', 'elapsed', 'cancelled')
+
+    def __init__(self, **kw):
+        for k in self.__slots__:
+            setattr(self, k, kw.get(k))
+
+
+def random_search(dynamics, iterations=100, episodes=100, max_steps=None, seed=0, final_episodes=100,
+                  progress=None, should_stop=None, batch_envs=BATCH_ENVS):
+    """The course's random search, batched.
+
+    progress(i, avg, best, elapsed) is called for every candidate i (1-based) in order; should_stop() is
+    asked between batches, and a search it stops returns the candidates evaluated so far (cancelled=True).
+    seed: any integer (see dynamics.rng_for); the result keeps it as given.
+    """
+    t0 = time.time()
+    max_steps = max_steps or dynamics.max_episode_steps
+    rng = rng_for(seed)
+    weights = rng.uniform(-1.0, 1.0, size=(iterations, 4))
+    per_batch = max(1, batch_envs // episodes)
+    avgs = np.empty(iterations)
+    best_index, best, done, cancelled = -1, -math.inf, 0, False
+    while done < iterations:
+        if should_stop is not None and should_stop():
+            cancelled = True
+            break
+        k = min(per_batch, iterations - done)
+        lengths = dynamics.episode_lengths(start_states(rng, k, episodes), max_steps, weights=weights[done:done + k])
+        batch_avgs = lengths.mean(axis=1)
+        avgs[done:done + k] = batch_avgs
+        for j, avg in enumerate(batch_avgs):
+            if avg > best:  # strictly better, as the course: the first of equal candidates stays the best
+                best, best_index = avg, done + j
+            if progress is not None:
+                progress(done + j + 1, float(avg), float(best), time.time() - t0)
+        done += k
+    avgs = avgs[:done]
+    final = np.zeros(0, np.int64)
+    baseline = float('nan')
+    if best_index >= 0 and not cancelled:
+        final = dynamics.episode_lengths(start_states(rng, 1, final_episodes), max_steps,
+                                         weights=weights[best_index][None, :])[0]
+        baseline = float(dynamics.episode_lengths(start_states(rng, 1, episodes), max_steps, rng=rng).mean())
+    return SearchResult(env_id=dynamics.env_id, seed=seed, iterations=iterations, episodes=episodes,
+                        max_steps=max_steps, weights=weights[:done], avg_lengths=avgs, best_index=best_index,
+                        best_weights=weights[best_index] if best_index >= 0 else np.zeros(4),
+                        best_avg_length=float(best) if best_index >= 0 else 0.0, final_lengths=final,
+                        final_avg_length=float(final.mean()) if len(final) else 0.0,
+                        baseline_avg_length=baseline, elapsed=time.time() - t0, cancelled=cancelled)

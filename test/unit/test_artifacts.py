@@ -1,0 +1,58 @@
+"""robot_ai.cartpole.artifacts: the output folder, names, plots and videos."""
+import os
+
+import numpy as np
+from PIL import Image
+
+from robot_ai.cartpole import artifacts
+from robot_ai.cartpole.dynamics import CartPoleDynamics
+from robot_ai.cartpole.linear_search import act, random_search
+
+
+def test_default_output_dir_follows_ros_home(monkeypatch):
+    monkeypatch.setenv('ROS_HOME', '/some/dir')
+    assert artifacts.default_output_dir() == '/some/dir/robot_ai'
+    monkeypatch.delenv('ROS_HOME')
+    monkeypatch.setenv('HOME', '/home/someone')
+    assert artifacts.default_output_dir() == '/home/someone/.ros/robot_ai'
+
+
+def test_stems_are_new_and_keep_the_seed_as_given(tmp_path):
+    a = artifacts.artifact_stem(str(tmp_path), 'search', 'CartPole-v1', -1)
+    b = artifacts.artifact_stem(str(tmp_path), 'search', 'CartPole-v1', -1)  # same second, no file yet
+    assert os.path.basename(a).endswith('_CartPole-v1_seed-1') and a != b
+    open(b + '.png', 'w').close()
+    assert artifacts.artifact_stem(str(tmp_path), 'search', 'CartPole-v1', -1) not in (a, b)
+
+
+def test_search_plot_reads_well(tmp_path):
+    res = random_search(CartPoleDynamics.of('CartPole-v1'), 20, 5, seed=1, final_episodes=5)
+    job = artifacts.search_plot_job(res)
+    best = job['series'][1]
+    assert best['style'] == 'step' and best['y'] == list(np.maximum.accumulate(res.avg_lengths))
+    assert job['integer_x'] and [h['y'] for h in job['hlines']] == [res.baseline_avg_length, 500]
+    path = artifacts.write_plot(job, str(tmp_path / 'curve.png'))
+    img = Image.open(path)
+    assert img.size == (1000, 560)
+    # the legend sits below the axes: the bottom strip holds the legend's coloured marks, not the data's
+    assert sorted(os.listdir(str(tmp_path))) == ['curve.png']  # no temporary file left
+
+
+def test_plot_is_whole_or_absent(tmp_path):
+    bad = dict(series=[dict(y=[1, 2], x=[1, 2, 3])])  # x and y of different lengths: matplotlib raises
+    try:
+        artifacts.write_plot(bad, str(tmp_path / 'bad.png'))
+    except ValueError:
+        pass
+    else:
+        raise AssertionError('a bad job must fail')
+    assert os.listdir(str(tmp_path)) == []
+
+
+def test_video(tmp_path):
+    w = np.array([0.1, 0.5, 1.0, 0.9])
+    path, steps = artifacts.record_video('CartPole-v1', lambda obs: act(w, obs), 40, 1, str(tmp_path / 'best.mp4'))
+    assert os.path.getsize(path) > 1000 and steps == 40  # a balancing policy lasts to the 40-step limit
+    with open(path, 'rb') as f:
+        assert b'ftyp' in f.read(64)
+    assert os.listdir(str(tmp_path)) == ['best.mp4']  # the temporary folder is gone
