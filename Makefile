@@ -45,7 +45,13 @@ $(VENV)/.requirements.stamp: requirements.txt | apt
 	$(VENV)/bin/python -m pip install --disable-pip-version-check -q -r requirements.txt
 	touch $@
 
-venv: apt $(VENV)/.requirements.stamp
+# robot_ai's pure modules importable from the venv with nothing sourced (`.venv/bin/python -m robot_ai.cartpole`);
+# a sourced workspace's PYTHONPATH comes first, and its robot_ai adds the generated messages to the same package.
+$(VENV)/.pth.stamp: $(VENV)/.requirements.stamp
+	echo "$(ROOT)/src" > "$$($(VENV)/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/robot_ai_src.pth"
+	touch $@
+
+venv: apt $(VENV)/.requirements.stamp $(VENV)/.pth.stamp
 
 build: venv
 	@# The package in the workspace is a folder of links to the repository's entries, not a link to the root:

@@ -2,7 +2,7 @@
 """Speed benchmark of the CartPole random search, 100 candidates x 100 episodes on CartPole-v1, in one run:
 
 - the course's loop: gymnasium's single env, one episode after another, as the course wrote it;
-- robot_ai.cartpole_search.random_search called directly;
+- robot_ai.cartpole.linear_search.random_search called directly;
 - the cartpole_search node's ~random_search service, round trip included (median of several calls);
 - peak memory and time of the 10,000 x 1,000 search, in a process of its own.
 
@@ -59,9 +59,10 @@ def free_port():
 
 LARGE = """
 import resource, time
-from robot_ai import cartpole_search as cs
+from robot_ai.cartpole.dynamics import CartPoleDynamics
+from robot_ai.cartpole.linear_search import random_search
 t = time.time()
-r = cs.random_search(cs.CartPoleModel('CartPole-v1'), 10000, 1000, seed=0, final_episodes=100)
+r = random_search(CartPoleDynamics.of('CartPole-v1'), 10000, 1000, seed=0, final_episodes=100)
 print('%.1f %.1f %.2f' % (time.time() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
                           r.best_avg_length))
 """
@@ -72,18 +73,19 @@ def main():
     ap.add_argument('--skip-large', action='store_true', help='skip the 10,000 x 1,000 run')
     ap.add_argument('--calls', type=int, default=7)
     args = ap.parse_args()
-    from robot_ai import cartpole_search as cs
+    from robot_ai.cartpole.dynamics import CartPoleDynamics
+    from robot_ai.cartpole.linear_search import random_search
 
     t = time.time()
     best, final = course_loop()
     course = time.time() - t
     print('course loop (gymnasium single env)   %8.3f s   best %.1f, final %.1f' % (course, best, final))
 
-    model = cs.CartPoleModel('CartPole-v1')
+    dynamics = CartPoleDynamics.of('CartPole-v1')
     times = []
     for i in range(args.calls):
         t = time.time()
-        res = cs.random_search(model, 100, 100, seed=i)
+        res = random_search(dynamics, 100, 100, seed=i)
         times.append(time.time() - t)
     lib = float(np.median(times))
     print('random_search, library (median)      %8.3f s   %6.0fx   best %.1f' % (
@@ -104,7 +106,7 @@ def main():
         rospy.init_node('bench_search_speed', disable_signals=True)
         rospy.wait_for_service('/cartpole_search/random_search', 60)
         call = rospy.ServiceProxy('/cartpole_search/random_search', RandomSearch, persistent=True)
-        call(iterations=5, episodes=5)  # warm-up: gymnasium's spec, matplotlib's import in the plot thread
+        call(iterations=5, episodes=5)  # warm-up: gymnasium's spec, matplotlib's import in the plot process
         time.sleep(1.0)
         rt, inside = [], []
         for i in range(args.calls):

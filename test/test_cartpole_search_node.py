@@ -10,7 +10,8 @@ import rospy
 import rostest
 from actionlib_msgs.msg import GoalStatus
 
-from robot_ai import cartpole_search as cs
+from robot_ai.cartpole import linear_search
+from robot_ai.cartpole.dynamics import CartPoleDynamics
 from robot_ai.msg import RandomSearchAction, RandomSearchGoal, SearchProgress
 from robot_ai.srv import Act, EvaluatePolicy, RandomSearch
 
@@ -37,7 +38,7 @@ class TestCartPoleSearchNode(unittest.TestCase):
         cls.act = rospy.ServiceProxy(NS + 'act', Act)
         cls.progress = []
         cls.sub = rospy.Subscriber(NS + 'progress', SearchProgress, cls.progress.append, queue_size=1000)
-        cls.output_dir = rospy.get_param(NS + 'output_dir')
+        cls.output_dir = os.path.abspath(rospy.get_param(NS + 'output_dir'))
 
     def test_1_course_experiment_with_defaults(self):
         res = self.search()  # every field zero/empty: the course's 100 x 100 on CartPole-v1, seed 0
@@ -45,11 +46,12 @@ class TestCartPoleSearchNode(unittest.TestCase):
         self.assertEqual(len(res.avg_lengths), 100)
         self.assertEqual(res.best_avg_length, max(res.avg_lengths))
         # the same search without ROS gives the same numbers, bit for bit
-        local = cs.random_search(cs.CartPoleModel('CartPole-v1'), 100, 100, 500, 0, 100)
+        local = linear_search.random_search(CartPoleDynamics.of('CartPole-v1'), 100, 100, 500, 0, 100)
         self.assertEqual(list(res.best_weights), list(local.best_weights))
         self.assertEqual(list(res.avg_lengths), list(local.avg_lengths))
         self.assertEqual(res.final_avg_length, local.final_avg_length)
         self.assertTrue(res.plot_path.startswith(self.output_dir) and res.plot_path.endswith('.png'))
+        self.assertIn('being drawn to plot_path', res.message)
         self.assertTrue(wait_file(res.plot_path), res.plot_path)
         with open(res.plot_path, 'rb') as f:
             self.assertEqual(f.read(8), b'\x89PNG\r\n\x1a\n')
@@ -59,13 +61,13 @@ class TestCartPoleSearchNode(unittest.TestCase):
         # the best becomes the node's policy
         ev = self.evaluate(weights=[], episodes=20, seed=5, env_id='', max_steps=0)
         self.assertTrue(ev.success, ev.message)
-        want = cs.evaluate(cs.CartPoleModel('CartPole-v1'), res.best_weights, 20, 500, 5)
+        want = linear_search.evaluate(CartPoleDynamics.of('CartPole-v1'), res.best_weights, 20, 500, 5)
         self.assertEqual(list(ev.lengths), [int(v) for v in want])
         self.assertAlmostEqual(ev.avg_length, float(np.mean(want)))
         for state in ([0, 0, 0.05, 0], [0, 0, -0.05, 0], [0.1, -0.4, 0.01, 0.3]):
             a = self.act(state=state)
             self.assertTrue(a.success)
-            self.assertEqual(a.action, cs.act(np.array(res.best_weights), state))
+            self.assertEqual(a.action, linear_search.act(np.array(res.best_weights), state))
 
     def test_2_video_and_v0(self):
         res = self.search(env_id='CartPole-v0', iterations=10, episodes=5, max_steps=60, seed=3, final_episodes=5,
@@ -74,6 +76,12 @@ class TestCartPoleSearchNode(unittest.TestCase):
         self.assertTrue(res.video_path.startswith(self.output_dir) and res.video_path.endswith('.mp4'))
         self.assertGreater(os.path.getsize(res.video_path), 1000)
         self.assertLessEqual(max(res.avg_lengths), 60)
+        # a negative seed is kept as given in the names; two searches in the same second get their own files
+        a, b = (self.search(iterations=3, episodes=3, seed=-1) for _ in range(2))
+        self.assertTrue(a.success and b.success)
+        self.assertIn('_CartPole-v1_seed-1', a.plot_path)
+        self.assertNotEqual(a.plot_path, b.plot_path)
+        self.assertTrue(wait_file(a.plot_path) and wait_file(b.plot_path))
 
     def test_3_bad_input_gets_a_message_and_the_node_keeps_serving(self):
         cases = [

@@ -30,10 +30,10 @@ def free_display():
     raise RuntimeError('no free X display number')
 
 
-def launch(args, env=None):
+def launch(args, env=None, launch_file='demo.launch'):
     port = free_port()
     env = dict(env or os.environ, ROS_MASTER_URI='http://127.0.0.1:%d' % port)
-    return subprocess.Popen(['roslaunch', '-p', str(port), 'robot_ai', 'demo.launch'] + args, env=env,
+    return subprocess.Popen(['roslaunch', '-p', str(port), 'robot_ai', launch_file] + args, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=os.setsid)
 
 
@@ -66,7 +66,7 @@ def colour_counts(path):
 class TestLaunch(unittest.TestCase):
 
     def test_demo_ends_cleanly_with_a_summary(self):
-        out_dir = os.path.join(ARTIFACTS, 'demo')
+        out_dir = os.path.abspath(os.path.join(ARTIFACTS, 'demo'))
         t0 = time.time()
         proc = launch(['output_dir:=' + out_dir])
         try:
@@ -81,6 +81,34 @@ class TestLaunch(unittest.TestCase):
         self.assertLess(time.time() - t0, 60.0)
         video = [l.split()[-1] for l in text.splitlines() if l.strip().startswith('video ')][0]
         self.assertTrue(os.path.isfile(video) and video.startswith(out_dir), video)
+
+    def test_ros_home_moves_every_artifact(self):
+        ros_home = os.path.abspath(os.path.join(ARTIFACTS, 'ros_home'))
+        proc = launch([], dict(os.environ, ROS_HOME=ros_home))
+        try:
+            out, _ = proc.communicate(timeout=120)
+        finally:
+            stop(proc)
+        text = out.decode(errors='replace')
+        self.assertIn('verdict: OK', text, text[-3000:])
+        paths = [l.split()[-1] for l in text.splitlines() if l.strip().startswith(('video ', 'learning curve '))]
+        self.assertEqual(len(paths), 2, text[-3000:])
+        for path in paths:
+            self.assertTrue(path.startswith(os.path.join(ros_home, 'robot_ai') + '/') and os.path.isfile(path), path)
+        self.assertNotIn('Traceback', text)
+
+    def test_ctrl_c_prints_no_traceback(self):
+        """A terminal's Ctrl-C: SIGINT to roslaunch and every node, while they serve and while they work."""
+        for launch_file, wait in (('cartpole_search.launch', 6), ('forward_kinematics.launch', 6),
+                                  ('demo.launch', 3), ('demo.launch', 5)):
+            proc = launch(['output_dir:=' + os.path.join(ARTIFACTS, 'ctrl_c')] if launch_file != 'forward_kinematics.launch'
+                          else [], launch_file=launch_file)
+            time.sleep(wait)
+            os.killpg(proc.pid, signal.SIGINT)
+            out, _ = proc.communicate(timeout=30)
+            text = out.decode(errors='replace')
+            self.assertNotIn('Traceback', text, '%s after %d s:\n%s' % (launch_file, wait, text[-3000:]))
+            self.assertNotIn('KeyboardInterrupt', text, launch_file)
 
     def test_rviz_screenshot_shows_robot_and_frames(self):
         display = ':%d' % free_display()

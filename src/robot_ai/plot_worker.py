@@ -1,40 +1,46 @@
-"""A long-lived process that draws learning curves, fed one JSON job per line on stdin. No rospy.
+"""A long-lived process that draws plots for the nodes, fed one JSON line per plot on stdin. No rospy.
 
-The cartpole_search node hands plots to it instead of a thread: matplotlib holds the GIL for tens of
-milliseconds, which a thread in the node would take from the service answering the search.
+The nodes hand plots to it instead of drawing them in a thread: matplotlib holds the GIL for tens of
+milliseconds, which a thread in the node would take from the service answering a request.
 
-    job = {"path": ..., "env_id": ..., "seed": ..., "episodes": ..., "max_steps": ...,
-           "avg_lengths": [...], "best_avg_length": ..., "final_avg_length": ..., "baseline_avg_length": ...}
+    line = {"path": "/abs/file.png", "job": <a plot job of robot_ai.cartpole.artifacts>}
+
+For every line it prints ``written <path>`` on stdout, or ``failed <path>: <reason>`` on stderr, and goes on
+with the next. It ends quietly, with status 0, at the end of its input and on SIGINT or SIGTERM: a Ctrl-C
+in a terminal reaches it as well as the node that started it.
 """
 import json
+import signal
 import sys
 
-import numpy as np
 
-from robot_ai.cartpole_search import SearchResult, plot_learning_curve
-
-FIELDS = ('env_id', 'seed', 'episodes', 'max_steps', 'best_avg_length', 'final_avg_length',
-          'baseline_avg_length')
+def job_line(job, path):
+    """The line that asks the plot process to draw job into path."""
+    return json.dumps({'path': path, 'job': job}) + '\n'
 
 
-def job_of(result, path):
-    """The JSON line of one plot job for a SearchResult."""
-    job = {k: getattr(result, k) for k in FIELDS}
-    job['avg_lengths'] = [float(v) for v in result.avg_lengths]
-    job['path'] = path
-    return json.dumps(job) + '\n'
+def _quit(signum, frame):
+    raise SystemExit(0)
 
 
 def main():
-    for line in sys.stdin:
-        try:
-            job = json.loads(line)
-            result = SearchResult(avg_lengths=np.array(job['avg_lengths']), **{k: job[k] for k in FIELDS})
-            plot_learning_curve(result, job['path'])
-            print('written %s' % job['path'], flush=True)
-        except Exception as e:  # one bad job must not stop the next ones
-            print('failed %s' % e, file=sys.stderr, flush=True)
+    signal.signal(signal.SIGINT, _quit)
+    signal.signal(signal.SIGTERM, _quit)
+    try:
+        from robot_ai.cartpole.artifacts import write_plot
+        for line in sys.stdin:
+            path = '?'
+            try:
+                request = json.loads(line)
+                path = request['path']
+                write_plot(request['job'], path)
+                print('written %s' % path, flush=True)
+            except Exception as e:  # one bad job must not stop the next ones
+                print('failed %s: %s' % (path, e), file=sys.stderr, flush=True)
+    except (SystemExit, BrokenPipeError):
+        pass
+    return 0
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

@@ -1,9 +1,9 @@
 """cartpole_search: the course's CartPole random search served over ROS.
 
 ROS Parameters
-    ~env_id (str, CartPole-v1), ~iterations (int, 100), ~episodes (int, 100), ~final_episodes (int, 100):
-        what zero or empty request fields mean.
-    ~output_dir (str, $ROS_HOME/robot_ai): where plots and videos are written; requests never name paths.
+    ~env_id (str), ~iterations (int), ~episodes (int), ~final_episodes (int): what zero or empty request
+        fields mean; unset, zero or empty: linear_search.DEFAULTS (CartPole-v1, 100, 100, 100).
+    ~output_dir (str, "" = $ROS_HOME/robot_ai): where plots and videos are written; requests never name paths.
 
 ROS Services
     ~random_search (robot_ai/RandomSearch): run a search; its best weights become the current policy.
@@ -17,19 +17,17 @@ ROS Publishers
     ~progress (robot_ai/SearchProgress): after every candidate of any running search.
 
 Bad requests get success: false and a message that says what is allowed; the node keeps serving.
+A response arrives before its plot: plot_path names the file being drawn (see agent_common).
 """
-import os
-import subprocess
-import sys
 import threading
 import time
 
 import actionlib
-import rospkg
 import rospy
 
-from robot_ai import cartpole_search as cs
-from robot_ai.plot_worker import job_of
+from robot_ai.cartpole import artifacts, linear_search
+from robot_ai.cartpole.dynamics import RequestError
+from robot_ai.nodes.agent_common import PlotProcess, defaults_from_params, output_dir_param
 from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchResult, SearchProgress
 from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, RandomSearch,
                           RandomSearchResponse)
@@ -38,18 +36,12 @@ from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyRespon
 class CartPoleSearchNode(object):
 
     def __init__(self):
-        self.defaults = dict(env_id=rospy.get_param('~env_id', 'CartPole-v1'),
-                             iterations=int(rospy.get_param('~iterations', 100)),
-                             episodes=int(rospy.get_param('~episodes', 100)),
-                             final_episodes=int(rospy.get_param('~final_episodes', 100)))
-        self.output_dir = os.path.expanduser(rospy.get_param(
-            '~output_dir', os.path.join(rospkg.get_ros_home(), 'robot_ai')))
-        self.models = {}
-        cs.resolve(defaults=self.defaults)  # a bad default is a clear error at start, not at the first call
+        self.defaults = defaults_from_params(linear_search.DEFAULTS)
+        self.output_dir = output_dir_param()
+        linear_search.resolve(defaults=self.defaults)  # a bad default is a clear error at start
         self.best_weights = None
         self.search_lock = threading.Lock()  # one search at a time; later requests wait their turn
-        self.plotter = None
-        self._start_plotter()
+        self.plots = PlotProcess()
         self.progress_pub = rospy.Publisher('~progress', SearchProgress, queue_size=100)
         self.services = [rospy.Service('~random_search', RandomSearch, self._on_random_search),
                          rospy.Service('~evaluate', EvaluatePolicy, self._on_evaluate),
@@ -59,17 +51,11 @@ class CartPoleSearchNode(object):
         rospy.loginfo('cartpole_search ready: defaults %s, artifacts in %s', self.defaults, self.output_dir)
 
     # ------------------------------------------------------------------------------------- the search
-    def _model(self, env_id):
-        if env_id not in self.models:
-            self.models[env_id] = cs.CartPoleModel(env_id)
-        return self.models[env_id]
-
     def _search(self, req, feedback=None, should_stop=None):
         """Run the search of a RandomSearch request or goal; return the fields of the response."""
-        model, iterations, episodes, max_steps, final_episodes = cs.resolve(
-            req.env_id, req.iterations, req.episodes, req.max_steps, req.final_episodes, self.defaults)
-        model = self._model(model.env_id)
-        seed = int(req.seed) % (2 ** 64)  # default_rng takes non-negative seeds; keep negatives distinct
+        search = linear_search.resolve(req.env_id, req.iterations, req.episodes, req.max_steps,
+                                       req.final_episodes, self.defaults)
+        env_id, iterations = search.dynamics.env_id, search.iterations
 
         def progress(i, avg, best, elapsed):
             self.progress_pub.publish(SearchProgress(iteration=i, iterations=iterations, last_avg_length=avg,
@@ -80,56 +66,37 @@ class CartPoleSearchNode(object):
 
         with self.search_lock:
             t0 = time.time()
-            result = cs.random_search(model, iterations, episodes, max_steps, seed, final_episodes,
-                                      progress=progress, should_stop=should_stop)
+            result = linear_search.random_search(search.dynamics, iterations, search.episodes, search.max_steps,
+                                                 req.seed, search.final_episodes, progress=progress,
+                                                 should_stop=should_stop)
             if result.cancelled:
                 return None, result
             self.best_weights = result.best_weights.copy()
-            stem = cs.artifact_stem(self.output_dir, result)
+            stem = artifacts.artifact_stem(self.output_dir, 'search', env_id, req.seed)
             plot_path = stem + '.png'
-            self._plot(result, plot_path)  # drawn by another process: the answer does not wait for it
+            plotting = self.plots.draw(artifacts.search_plot_job(result), plot_path)
             video_path = ''
             if req.record_video:
-                video_path, _ = cs.record_video(model.env_id, result.best_weights, max_steps, seed, stem + '.mp4')
+                weights = result.best_weights
+                video_path, _ = artifacts.record_video(env_id, lambda obs: linear_search.act(weights, obs),
+                                                       search.max_steps, req.seed, stem + '.mp4')
             elapsed = time.time() - t0
-        message = ('best average %.1f of %d candidates x %d episodes (%s, seed %d); final %.1f over %d episodes'
-                   % (result.best_avg_length, iterations, episodes, model.env_id, req.seed,
-                      result.final_avg_length, final_episodes))
+        message = ('best average %.1f of %d candidates x %d episodes (%s, seed %d); final %.1f over %d episodes; %s'
+                   % (result.best_avg_length, iterations, search.episodes, env_id, req.seed,
+                      result.final_avg_length, search.final_episodes,
+                      'learning curve being drawn to plot_path' if plotting else 'learning curve NOT drawn'))
         rospy.loginfo(message)
         return dict(success=True, message=message, best_weights=list(result.best_weights),
                     best_avg_length=result.best_avg_length, avg_lengths=list(result.avg_lengths),
-                    final_avg_length=result.final_avg_length, plot_path=plot_path, video_path=video_path,
-                    elapsed=elapsed), result
-
-    def _start_plotter(self):
-        self.plotter = subprocess.Popen([sys.executable, '-m', 'robot_ai.plot_worker'], stdin=subprocess.PIPE,
-                                        stdout=subprocess.PIPE, text=True, bufsize=1)
-        threading.Thread(target=self._log_plots, args=(self.plotter,), name='plots', daemon=True).start()
-
-    def _log_plots(self, plotter):
-        for line in plotter.stdout:
-            rospy.loginfo('learning curve %s', line.strip())
-
-    def _plot(self, result, path):
-        """Hand a plot to the plot process (restarted if it died); a plot never takes the node down."""
-        for _ in range(2):
-            if self.plotter.poll() is not None:
-                rospy.logwarn('the plot process ended (status %s); starting another', self.plotter.returncode)
-                self._start_plotter()
-            try:
-                self.plotter.stdin.write(job_of(result, path))
-                self.plotter.stdin.flush()
-                return
-            except (BrokenPipeError, OSError) as e:
-                rospy.logwarn('could not hand the plot %s to the plot process: %s', path, e)
-        rospy.logerr('learning curve not written: %s', path)
+                    final_avg_length=result.final_avg_length, plot_path=plot_path if plotting else '',
+                    video_path=video_path, elapsed=elapsed), result
 
     # ------------------------------------------------------------------------------------- handlers
     def _on_random_search(self, req):
         try:
             fields, _ = self._search(req)
             return RandomSearchResponse(**fields)
-        except cs.SearchError as e:
+        except RequestError as e:
             return RandomSearchResponse(success=False, message=str(e))
         except Exception as e:
             rospy.logerr('random_search failed: %s', e)
@@ -141,7 +108,7 @@ class CartPoleSearchNode(object):
                                                               elapsed=elapsed))
         try:
             fields, result = self._search(goal, feedback, should_stop=self.action.is_preempt_requested)
-        except cs.SearchError as e:
+        except RequestError as e:
             self.action.set_aborted(RandomSearchResult(success=False, message=str(e)), str(e))
             return
         except Exception as e:
@@ -160,29 +127,32 @@ class CartPoleSearchNode(object):
         try:
             if len(req.weights) == 0:
                 if self.best_weights is None:
-                    raise cs.SearchError('no current policy yet: run a search first or give 4 weights')
+                    raise RequestError('no current policy yet: run a search first or give 4 weights')
                 weights = self.best_weights
             else:
-                weights = cs.check_weights(req.weights)
-            model, _, episodes, max_steps, _ = cs.resolve(req.env_id, 1, req.episodes, req.max_steps, 1,
-                                                          self.defaults)
-            lengths = cs.evaluate(self._model(model.env_id), weights, episodes, max_steps,
-                                  int(req.seed) % (2 ** 64))
-            return EvaluatePolicyResponse(success=True, message='%d episodes of %s' % (episodes, model.env_id),
+                weights = linear_search.check_weights(req.weights)
+            search = linear_search.resolve(req.env_id, 1, req.episodes, req.max_steps, 1, self.defaults)
+            lengths = linear_search.evaluate(search.dynamics, weights, search.episodes, search.max_steps, req.seed)
+            return EvaluatePolicyResponse(success=True, message='%d episodes of %s' % (
+                                              search.episodes, search.dynamics.env_id),
                                           lengths=[int(v) for v in lengths], avg_length=float(lengths.mean()))
-        except cs.SearchError as e:
+        except RequestError as e:
             return EvaluatePolicyResponse(success=False, message=str(e))
 
     def _on_act(self, req):
         if self.best_weights is None:
             return ActResponse(success=False, message='no current policy yet: run a search first', action=-1)
         try:
-            return ActResponse(success=True, message='', action=cs.act(self.best_weights, req.state))
-        except cs.SearchError as e:
+            return ActResponse(success=True, message='', action=linear_search.act(self.best_weights, req.state))
+        except RequestError as e:
             return ActResponse(success=False, message=str(e), action=-1)
 
 
 def main():
     rospy.init_node('cartpole_search')
-    CartPoleSearchNode()
+    try:
+        CartPoleSearchNode()
+    except (RequestError, ValueError) as e:
+        rospy.logfatal('cartpole_search: bad parameter: %s', e)
+        raise SystemExit(1)
     rospy.spin()

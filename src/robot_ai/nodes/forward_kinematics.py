@@ -31,7 +31,7 @@ from std_srvs.srv import Trigger, TriggerResponse
 from tf2_msgs.msg import TFMessage
 
 from robot_ai.kinematics import URDFError
-from robot_ai.nodes.description import MissingDescription, load_tree, wait_for_tree
+from robot_ai.nodes.robot_description import MissingDescription, load_tree, wait_for_tree
 from robot_ai.tf_wire import JointStateDecoder, TFMessageEncoder, WireError, raw_message_class
 
 THROTTLE = 10.0  # seconds between repeats of one input warning or error

@@ -16,7 +16,7 @@ import math
 import rospy
 from sensor_msgs.msg import JointState
 
-from robot_ai.nodes.description import wait_for_tree
+from robot_ai.nodes.robot_description import wait_for_tree
 
 
 def sweep_ranges(tree, amplitude):
