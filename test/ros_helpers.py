@@ -134,3 +134,13 @@ def wait_for(predicate, timeout=10.0, step=0.02):
             return True
         time.sleep(step)
     return predicate()
+
+
+def wait_file(path, timeout=20.0):
+    """True once path is a non-empty file (a plot appears after its response), False after timeout seconds."""
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if os.path.isfile(path) and os.path.getsize(path) > 0:
+            return True
+        time.sleep(0.1)
+    return False

@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """cartpole_search node: every service and the action, bad input, artifacts, reproducibility through ROS."""
 import os
+import sys
 import time
 import unittest
 
@@ -15,16 +16,10 @@ from robot_ai.cartpole.dynamics import CartPoleDynamics
 from robot_ai.msg import RandomSearchAction, RandomSearchGoal, SearchProgress
 from robot_ai.srv import Act, EvaluatePolicy, RandomSearch
 
+sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
+from ros_helpers import wait_file  # noqa: E402
+
 NS = '/cartpole_search/'
-
-
-def wait_file(path, timeout=20.0):
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        if os.path.isfile(path) and os.path.getsize(path) > 0:
-            return True
-        time.sleep(0.1)
-    return False
 
 
 class TestCartPoleSearchNode(unittest.TestCase):

@@ -92,7 +92,7 @@ class TestLaunch(unittest.TestCase):
         text = out.decode(errors='replace')
         self.assertIn('verdict: OK', text, text[-3000:])
         paths = [l.split()[-1] for l in text.splitlines() if l.strip().startswith(('video ', 'learning curve '))]
-        self.assertEqual(len(paths), 2, text[-3000:])
+        self.assertEqual(len(paths), 4, text[-3000:])  # the search's and the Q-learning agent's
         for path in paths:
             self.assertTrue(path.startswith(os.path.join(ros_home, 'robot_ai') + '/') and os.path.isfile(path), path)
         self.assertNotIn('Traceback', text)

@@ -56,3 +56,16 @@ def test_video(tmp_path):
     with open(path, 'rb') as f:
         assert b'ftyp' in f.read(64)
     assert os.listdir(str(tmp_path)) == ['best.mp4']  # the temporary folder is gone
+
+
+def test_q_learning_plot(tmp_path):
+    from robot_ai.cartpole import q_learning
+    result = q_learning.train(q_learning.resolve(episodes=150, components=100, learners=3), 0, workers=1)
+    job = artifacts.q_learning_plot_job(result)
+    labels = [s.get('label') for s in job['series']]
+    # one faint running average per other learner, learner 0's totals and running average
+    assert len(job['series']) == 2 + 2 and labels[0].startswith('learners 1-2') and labels[1] is None
+    assert job['series'][-1]['y'] == list(q_learning.running_average(result.total_rewards[0]))
+    assert [h['y'] for h in job['hlines']] == [result.baseline_total_reward, 199]
+    path = artifacts.write_plot(job, str(tmp_path / 'q.png'))
+    assert Image.open(path).size == (1000, 560)

@@ -35,3 +35,20 @@ def test_random_search_with_nothing_sourced_writes_under_ros_home(tmp_path):
 def test_bad_options_say_what_is_allowed(tmp_path, args, message):
     proc = run(args, tmp_path)
     assert proc.returncode == 2 and message in proc.stderr and 'Traceback' not in proc.stderr
+
+
+def test_q_learning_ends_as_the_course_prints(tmp_path):
+    proc = run(['q-learning', '--episodes', '120', '--components', '200', '--learners', '2', '--seed', '4',
+                '--output-dir', str(tmp_path)], tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.strip().splitlines()
+    assert lines[-1].startswith('avg reward for last 100 episodes: ')
+    learners = [float(l.split()[-1]) for l in lines if l.startswith('learner ')]
+    assert len(learners) == 2 and float(lines[-1].split()[-1]) == round(sum(learners) / 2, 2)
+    assert '240/240' in proc.stderr  # the progress bar counts every learner's episodes
+    plot = [l.split()[-1] for l in lines if l.startswith('plot')][0]
+    assert os.path.isfile(plot) and '_CartPole-v0_seed4' in plot
+    help_text = run(['q-learning', '--help'], tmp_path).stdout.replace('\n', ' ')
+    for option in ('--episodes', '--gamma', '--regressor', '--components', '--learners', '--bootstrap-at-time-limit',
+                   '--video', '--seed', '--env-id'):
+        assert option in help_text

@@ -1,13 +1,14 @@
 """The CartPole agents without ROS: ``python -m robot_ai.cartpole <agent> [options]`` (see --help).
 
     python -m robot_ai.cartpole random-search --iterations 100 --episodes 100 --seed 0 --video
+    python -m robot_ai.cartpole q-learning --episodes 500 --seed 0 --learners 8
 """
 import argparse
 import sys
 
 import numpy as np
 
-from robot_ai.cartpole import artifacts, linear_search
+from robot_ai.cartpole import artifacts, linear_search, q_learning
 from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, RequestError
 
 
@@ -71,11 +72,68 @@ def run_random_search(a, parser):
     return 0
 
 
+def q_learning_parser(sub):
+    d = q_learning.DEFAULTS
+    p = sub.add_parser('q-learning', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       help='the course\'s Q-learning agent with RBF features (its "TensorFlow warm-up")',
+                       description='The course\'s Q-learning with RBF features: epsilon-greedy (1/sqrt(n+1)), '
+                       'r = -200 on the last step, one linear regressor per action. Ends by printing the '
+                       'average total reward of the last 100 episodes (the mean over learners if several).')
+    add_common(p, d['env_id'])
+    p.add_argument('--episodes', type=int, default=d['episodes'], help='episodes per learner (1 to %d)'
+                   % q_learning.MAX_EPISODES)
+    p.add_argument('--gamma', type=float, default=d['gamma'], help='discount, in (0, 1]')
+    p.add_argument('--regressor', default=d['regressor'], choices=sorted(q_learning.REGRESSORS),
+                   help='tf: the warm-up\'s (w ~ N(0, 1), w += 0.2 (G - x.w) x); sgd: q_learning.py\'s '
+                   '(w ~ N(0, 1)/sqrt(D), w += 0.1 (G - x.w) x)')
+    p.add_argument('--components', type=int, default=d['components'], help='random Fourier features per RBF bank '
+                   '(4 banks; 1 to %d)' % q_learning.MAX_COMPONENTS)
+    p.add_argument('--learners', type=int, default=d['learners'], help='independent learners, seeds seed, seed+1, '
+                   '... (1 to %d), spread over the cores' % q_learning.MAX_LEARNERS)
+    p.add_argument('--bootstrap-at-time-limit', action='store_true',
+                   help='a time-limit truncation is not a failure: no -200, bootstrap from s\' (the course: off)')
+    p.set_defaults(run=run_q_learning)
+
+
+def run_q_learning(a, parser):
+    try:
+        training = q_learning.resolve(a.env_id, a.episodes, a.gamma, a.regressor, a.components, a.learners,
+                                      a.bootstrap_at_time_limit)
+    except RequestError as e:
+        parser.error(str(e))
+    bar = progress_bar(training.episodes * training.learners, 'episode')
+    recent = []
+
+    def progress(learner, episode, total, eps):
+        bar.update(1)
+        if learner == 0:
+            recent.append(total)
+            if episode % 10 == 0:
+                bar.set_postfix(learner0_avg100='%.1f' % np.mean(recent[-100:]), eps='%.3f' % eps)
+    result = q_learning.train(training, a.seed, progress=progress)
+    bar.close()
+    stem = artifacts.artifact_stem(a.output_dir, 'qlearning', result.env_id, a.seed)
+    for k, avg in enumerate(result.last100_averages):
+        print('learner %2d (seed %d)  last-100 average %.2f' % (k, a.seed + k, avg))
+    if len(result.last100_averages) > 1:
+        print('mean of %d learners    %.2f ± %.2f (95%% interval of the mean)' % (
+            len(result.last100_averages), result.mean_last100, result.ci95_last100))
+    print('random actions         %.2f' % result.baseline_total_reward)
+    print('training time          %.1f s' % result.elapsed)
+    print('plot                   %s' % artifacts.write_plot(artifacts.q_learning_plot_job(result), stem + '.png'))
+    if a.video:
+        path, steps = artifacts.record_video(result.env_id, result.agent.act, training.max_steps, a.seed, stem + '.mp4')
+        print('video                  %s (learner 0, greedy, %d steps)' % (path, steps))
+    print('avg reward for last 100 episodes: %.2f' % result.mean_last100)
+    return 0
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(prog='python -m robot_ai.cartpole',
                                      description='The course\'s CartPole agents, without ROS.')
     sub = parser.add_subparsers(dest='agent', required=True, metavar='AGENT')
     random_search_parser(sub)
+    q_learning_parser(sub)
     a = parser.parse_args(argv)
     try:
         return a.run(a, sub.choices[a.agent])

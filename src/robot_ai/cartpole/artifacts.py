@@ -66,6 +66,33 @@ def search_plot_job(result):
         hlines=hlines, ylim=[0, result.max_steps * 1.05], integer_x=True)
 
 
+def q_learning_plot_job(result):
+    """The learning curves of a q_learning.TrainingResult: learner 0's total reward per episode and its running
+    average of 100, every other learner's running average as a faint line, the random-action baseline."""
+    from robot_ai.cartpole.q_learning import running_average, RBF_GAMMAS
+    t = result.training
+    rewards = [np.asarray(r, dtype=np.float64) for r in result.total_rewards]
+    series = [dict(y=[float(v) for v in running_average(r)], style='line', color='tab:blue', alpha=0.3, lw=1,
+                   label='learners 1-%d: running average of 100' % (len(rewards) - 1) if j == 1 else None)
+              for j, r in enumerate(rewards) if j > 0]
+    series += [dict(y=[float(v) for v in rewards[0]], style='points', color='tab:gray', ms=3,
+                    label='learner 0: total reward per episode'),
+               dict(y=[float(v) for v in running_average(rewards[0])], style='line', color='tab:orange', lw=2.5,
+                    label='learner 0: running average of 100')]
+    best = t.max_steps if t.bootstrap_at_time_limit else t.max_steps - 1
+    spread = ('%d learners, last-100 average %.1f ± %.1f' % (len(result.last100_averages), result.mean_last100,
+                                                              result.ci95_last100)
+              if len(result.last100_averages) > 1 else 'last-100 average %.1f' % result.mean_last100)
+    return dict(
+        title='%s Q-learning, %s regressor, %d x %d RBF features, seed %d: %s' % (
+            result.env_id, t.regressor, len(RBF_GAMMAS), t.components, result.seed, spread),
+        xlabel='episode', ylabel='total reward (+1 steps)', series=series,
+        hlines=[dict(y=result.baseline_total_reward, label='random actions (%.1f)' % result.baseline_total_reward,
+                     color='tab:gray', ls='--'),
+                dict(y=best, label='most an episode totals (%d)' % best, color='tab:red', ls=':')],
+        ylim=[0, t.max_steps * 1.05], integer_x=True)
+
+
 def write_plot(job, path):
     """Draw a plot job into the PNG file path (1000 x 560), whole or not at all; return path."""
     import matplotlib
@@ -96,7 +123,8 @@ def write_plot(job, path):
         handles, labels = ax.get_legend_handles_labels()
         keep = [(h, l) for h, l in zip(handles, labels) if l and not l.startswith('_')]
         if keep:  # below the axes, never over the data
-            fig.legend(*zip(*keep), loc='outside lower center', ncols=min(4, len(keep)), fontsize=9, frameon=False)
+            fig.legend(*zip(*keep), loc='outside lower center', ncols=min(3 if len(keep) > 4 else 4, len(keep)), fontsize=9,
+                       frameon=False)
         folder = os.path.dirname(os.path.abspath(path))
         fd, tmp = tempfile.mkstemp(prefix='.plot_', suffix='.png', dir=folder)
         try:

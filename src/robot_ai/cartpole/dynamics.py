@@ -64,6 +64,14 @@ class CartPoleDynamics(object):
         """The dynamics of env_id, built once per process (gym.make is not free)."""
         return _dynamics_of(env_id)
 
+    def resolve_max_steps(self, max_steps):
+        """A request's max_steps: 0 = the environment's limit; above it or negative, RequestError."""
+        max_steps = int(max_steps or self.max_episode_steps)
+        if not 1 <= max_steps <= self.max_episode_steps:
+            raise RequestError('max_steps must be 1 to %s\'s limit %d (0 = %d), got %d' % (
+                self.env_id, self.max_episode_steps, self.max_episode_steps, max_steps))
+        return max_steps
+
     def step(self, state, action):
         """One step of one episode: (the next state as a tuple of floats, terminated).
 

@@ -39,17 +39,13 @@ def resolve(env_id='', iterations=0, episodes=0, max_steps=0, final_episodes=0, 
     iterations = int(iterations or d['iterations'])
     episodes = int(episodes or d['episodes'])
     final_episodes = int(final_episodes or d['final_episodes'])
-    limit = dynamics.max_episode_steps
-    max_steps = int(max_steps or limit)
+    max_steps = dynamics.resolve_max_steps(max_steps)
     if not 1 <= iterations <= MAX_ITERATIONS:
         raise RequestError('iterations must be 1 to %d (0 = %d), got %d' % (MAX_ITERATIONS, d['iterations'],
                                                                            iterations))
     for name, value in (('episodes', episodes), ('final_episodes', final_episodes)):
         if not 1 <= value <= MAX_EPISODES:
             raise RequestError('%s must be 1 to %d (0 = %d), got %d' % (name, MAX_EPISODES, d[name], value))
-    if not 1 <= max_steps <= limit:
-        raise RequestError('max_steps must be 1 to %s\'s limit %d (0 = %d), got %d' % (
-            dynamics.env_id, limit, limit, max_steps))
     if iterations * episodes + final_episodes > MAX_WORK:
         raise RequestError('iterations x episodes = %d episodes is more than the limit of %d; use fewer '
                            'iterations or episodes' % (iterations * episodes, MAX_WORK))

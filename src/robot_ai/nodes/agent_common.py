@@ -1,4 +1,4 @@
-"""What the CartPole agent nodes share: the output folder parameter and the plot process.
+"""What the CartPole agent nodes share: parameters, the plot process, and how requests and goals are answered.
 
 Plots are drawn by ``robot_ai.plot_worker`` in a process of its own, so that a response never waits for
 matplotlib nor shares the GIL with it. The response therefore arrives before its plot: ``plot_path`` names
@@ -13,6 +13,7 @@ import threading
 import rospy
 
 from robot_ai.cartpole.artifacts import default_output_dir
+from robot_ai.cartpole.dynamics import RequestError
 from robot_ai.plot_worker import job_line
 
 
@@ -79,3 +80,35 @@ class PlotProcess(object):
             self.proc.wait(10)
         except (OSError, subprocess.TimeoutExpired):
             self.proc.kill()
+
+
+def answer(work, response_class, what):
+    """A service's response: work() returns (the response's fields, result); a RequestError or any other
+    failure becomes success: false with the reason, and the node keeps serving."""
+    try:
+        fields, _ = work()
+        return response_class(**fields)
+    except RequestError as e:
+        return response_class(success=False, message=str(e))
+    except Exception as e:
+        rospy.logerr('%s failed: %s', what, e)
+        return response_class(success=False, message='%s failed: %s' % (what, e))
+
+
+def answer_goal(server, work, result_class, what, cancelled):
+    """An action goal's end: work() returns (fields, result), fields None if the goal was cancelled, when
+    cancelled(result) gives (message, the partial result's fields)."""
+    try:
+        fields, result = work()
+    except RequestError as e:
+        server.set_aborted(result_class(success=False, message=str(e)), str(e))
+        return
+    except Exception as e:
+        rospy.logerr('%s failed: %s', what, e)
+        server.set_aborted(result_class(success=False, message='%s failed: %s' % (what, e)))
+        return
+    if fields is None:
+        message, partial = cancelled(result)
+        server.set_preempted(result_class(success=False, message=message, **partial), message)
+        return
+    server.set_succeeded(result_class(**fields), fields['message'])

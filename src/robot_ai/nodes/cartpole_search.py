@@ -27,7 +27,8 @@ import rospy
 
 from robot_ai.cartpole import artifacts, linear_search
 from robot_ai.cartpole.dynamics import RequestError
-from robot_ai.nodes.agent_common import PlotProcess, defaults_from_params, output_dir_param
+from robot_ai.nodes.agent_common import (PlotProcess, answer, answer_goal, defaults_from_params,
+                                         output_dir_param)
 from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchResult, SearchProgress
 from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, RandomSearch,
                           RandomSearchResponse)
@@ -93,35 +94,19 @@ class CartPoleSearchNode(object):
 
     # ------------------------------------------------------------------------------------- handlers
     def _on_random_search(self, req):
-        try:
-            fields, _ = self._search(req)
-            return RandomSearchResponse(**fields)
-        except RequestError as e:
-            return RandomSearchResponse(success=False, message=str(e))
-        except Exception as e:
-            rospy.logerr('random_search failed: %s', e)
-            return RandomSearchResponse(success=False, message='search failed: %s' % e)
+        return answer(lambda: self._search(req), RandomSearchResponse, 'search')
 
     def _on_goal(self, goal):
         def feedback(i, n, best, elapsed):
             self.action.publish_feedback(RandomSearchFeedback(iteration=i, iterations=n, best_avg_length=best,
                                                               elapsed=elapsed))
-        try:
-            fields, result = self._search(goal, feedback, should_stop=self.action.is_preempt_requested)
-        except RequestError as e:
-            self.action.set_aborted(RandomSearchResult(success=False, message=str(e)), str(e))
-            return
-        except Exception as e:
-            rospy.logerr('search goal failed: %s', e)
-            self.action.set_aborted(RandomSearchResult(success=False, message='search failed: %s' % e))
-            return
-        if fields is None:
-            msg = 'cancelled after %d of %d candidates' % (len(result.avg_lengths), result.iterations)
-            self.action.set_preempted(RandomSearchResult(
-                success=False, message=msg, avg_lengths=list(result.avg_lengths),
-                best_avg_length=float(result.avg_lengths.max()) if len(result.avg_lengths) else 0.0), msg)
-            return
-        self.action.set_succeeded(RandomSearchResult(**fields), fields['message'])
+
+        def cancelled(result):
+            avgs = result.avg_lengths
+            return ('cancelled after %d of %d candidates' % (len(avgs), result.iterations),
+                    dict(avg_lengths=list(avgs), best_avg_length=float(avgs.max()) if len(avgs) else 0.0))
+        answer_goal(self.action, lambda: self._search(goal, feedback, self.action.is_preempt_requested),
+                    RandomSearchResult, 'search', cancelled)
 
     def _on_evaluate(self, req):
         try:
