@@ -81,6 +81,7 @@ bench: build
 	mkdir -p $(OUT)
 	$(RUN) python $(ROOT)/bench/fk_load.py
 	$(RUN) python $(ROOT)/bench/search_speed.py
+	$(RUN) python $(ROOT)/bench/q_learning_speed.py
 
 clean:
 	rm -rf $(WS) $(VENV) $(OUT)

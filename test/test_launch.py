@@ -4,6 +4,7 @@ under Xvfb, a screenshot of rviz's 3D view shows the robot and its frames, not o
 
 Each launch gets its own master on a free port, so it does not disturb rostest's."""
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -33,8 +34,10 @@ def free_display():
 def launch(args, env=None, launch_file='demo.launch'):
     port = free_port()
     env = dict(env or os.environ, ROS_MASTER_URI='http://127.0.0.1:%d' % port)
-    return subprocess.Popen(['roslaunch', '-p', str(port), 'robot_ai', launch_file] + args, env=env,
+    proc = subprocess.Popen(['roslaunch', '-p', str(port), 'robot_ai', launch_file] + args, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=os.setsid)
+    proc.env = env
+    return proc
 
 
 def stop(proc):
@@ -84,6 +87,7 @@ class TestLaunch(unittest.TestCase):
 
     def test_ros_home_moves_every_artifact(self):
         ros_home = os.path.abspath(os.path.join(ARTIFACTS, 'ros_home'))
+        shutil.rmtree(ros_home, ignore_errors=True)
         proc = launch([], dict(os.environ, ROS_HOME=ros_home))
         try:
             out, _ = proc.communicate(timeout=120)
@@ -91,10 +95,10 @@ class TestLaunch(unittest.TestCase):
             stop(proc)
         text = out.decode(errors='replace')
         self.assertIn('verdict: OK', text, text[-3000:])
-        paths = [l.split()[-1] for l in text.splitlines() if l.strip().startswith(('video ', 'learning curve '))]
-        self.assertEqual(len(paths), 4, text[-3000:])  # the search's and the Q-learning agent's
-        for path in paths:
-            self.assertTrue(path.startswith(os.path.join(ros_home, 'robot_ai') + '/') and os.path.isfile(path), path)
+        # the search's and the Q-learning agent's plot and video, all under $ROS_HOME/robot_ai
+        files = sorted(os.listdir(os.path.join(ros_home, 'robot_ai')))
+        self.assertEqual([f.split('_')[0] + os.path.splitext(f)[1] for f in files],
+                         ['qlearning.mp4', 'qlearning.png', 'search.mp4', 'search.png'], files)
         self.assertNotIn('Traceback', text)
 
     def test_ctrl_c_prints_no_traceback(self):
@@ -109,6 +113,33 @@ class TestLaunch(unittest.TestCase):
             text = out.decode(errors='replace')
             self.assertNotIn('Traceback', text, '%s after %d s:\n%s' % (launch_file, wait, text[-3000:]))
             self.assertNotIn('KeyboardInterrupt', text, launch_file)
+
+    def test_ctrl_c_during_a_training_ends_it_at_once(self):
+        """The learners run in worker processes: a Ctrl-C ends them and the node, the caller is told."""
+        proc = launch(['output_dir:=' + os.path.join(ARTIFACTS, 'ctrl_c')], launch_file='cartpole_q_learning.launch')
+        call = None
+        try:
+            deadline = time.time() + 60
+            while subprocess.run(['rosservice', 'info', '/cartpole_q_learning/train'], env=proc.env,
+                                 capture_output=True).returncode != 0 and time.time() < deadline:
+                time.sleep(0.5)
+            call = subprocess.Popen(['rosservice', 'call', '/cartpole_q_learning/train', '{learners: 8, episodes: 4000}'],
+                                    env=proc.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+            time.sleep(4.0)
+            self.assertIsNone(call.poll(), 'the training ended before the Ctrl-C')
+            t = time.time()
+            os.killpg(proc.pid, signal.SIGINT)
+            out, _ = proc.communicate(timeout=30)
+            self.assertLess(time.time() - t, 10.0, 'roslaunch had to escalate to SIGTERM/SIGKILL')
+            answer, _ = call.communicate(timeout=10)
+        finally:
+            stop(proc)
+            if call is not None and call.poll() is None:
+                call.kill()
+        text = out.decode(errors='replace')
+        self.assertNotIn('Traceback', text, text[-3000:])
+        self.assertNotIn('ERROR', text, text[-3000:])
+        self.assertIn('cancelled: the node is shutting down', answer.decode(errors='replace'))
 
     def test_rviz_screenshot_shows_robot_and_frames(self):
         display = ':%d' % free_display()

@@ -27,6 +27,7 @@ import math
 import multiprocessing
 import os
 import queue
+import signal
 import time
 
 import numpy as np
@@ -302,7 +303,12 @@ def _context():
 
 
 def _worker(training, seed, tasks, results, stop):
-    """Train learners taken from tasks until it is empty; report every episode and each learner's end."""
+    """Train learners taken from tasks until it is empty; report every episode and each learner's end.
+
+    A forked worker inherits its parent's signal handlers (a ROS node's would only flag a shutdown): it takes
+    the default ones, so a Ctrl-C or a SIGTERM ends it at once, quietly; the parent then ends the training."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
         while True:
             try:
@@ -314,6 +320,17 @@ def _worker(training, seed, tasks, results, stop):
             results.put(('done', j, totals, agent.q.w if j == 0 else None))
     except KeyboardInterrupt:
         return
+
+
+def _stopping(should_stop, grace=1.0):
+    """Whether should_stop() says yes within grace seconds: the signal that ended the workers may reach the
+    caller a moment later."""
+    deadline = time.time() + grace
+    while should_stop is not None and time.time() < deadline:
+        if should_stop():
+            return True
+        time.sleep(0.05)
+    return False
 
 
 def _train_in_processes(training, seed, workers, progress, should_stop):
@@ -335,6 +352,9 @@ def _train_in_processes(training, seed, workers, progress, should_stop):
                 msg = results.get(timeout=0.1)
             except queue.Empty:
                 if not any(p.is_alive() for p in procs) and results.empty():
+                    if stop.is_set() or _stopping(should_stop):  # a Ctrl-C ends the workers and the caller
+                        cancelled = True
+                        break
                     raise RuntimeError('the learner processes ended before their learners (%d of %d done)'
                                        % (len(rewards), training.learners))
                 continue
@@ -351,11 +371,13 @@ def _train_in_processes(training, seed, workers, progress, should_stop):
             p.join(5)
             if p.is_alive():
                 p.terminate()
+    ordered = [rewards.get(j, np.zeros(0)) for j in range(training.learners)]
+    cancelled = cancelled or any(len(r) < training.episodes for r in ordered)
+    if weights0 is None:
+        return ordered, None, cancelled
     # learner 0's agent, rebuilt here from its seed (the same draws) and the weights it learned
     rng = rng_for(seed)
     features = RBFFeatures(rng, training.components)
     q = LinearQ(training.regressor, features.dimensions, rng)
     q.w = weights0
-    ordered = [rewards[j] for j in range(training.learners)]
-    cancelled = cancelled or any(len(r) < training.episodes for r in ordered)
     return ordered, Agent(features, q), cancelled

@@ -83,10 +83,13 @@ class PlotProcess(object):
 
 
 def answer(work, response_class, what):
-    """A service's response: work() returns (the response's fields, result); a RequestError or any other
+    """A service's response: work() returns (the response's fields, result), fields None if the node's shutdown
+    stopped the work; a RequestError or any other
     failure becomes success: false with the reason, and the node keeps serving."""
     try:
         fields, _ = work()
+        if fields is None:
+            return response_class(success=False, message='cancelled: the node is shutting down')
         return response_class(**fields)
     except RequestError as e:
         return response_class(success=False, message=str(e))
@@ -96,7 +99,8 @@ def answer(work, response_class, what):
 
 
 def answer_goal(server, work, result_class, what, cancelled):
-    """An action goal's end: work() returns (fields, result), fields None if the goal was cancelled, when
+    """An action goal's end: work() returns (fields, result), fields None if the goal was cancelled (or the node
+    shut down), when
     cancelled(result) gives (message, the partial result's fields)."""
     try:
         fields, result = work()

@@ -85,7 +85,8 @@ class CartPoleQLearningNode(object):
 
         with self.train_lock:
             t0 = time.time()
-            result = q_learning.train(training, req.seed, progress=progress, should_stop=should_stop)
+            result = q_learning.train(training, req.seed, progress=progress,
+                                      should_stop=lambda: rospy.is_shutdown() or bool(should_stop and should_stop()))
             if result.cancelled:
                 return None, result
             self.agent, self.agent_env = result.agent, training.dynamics.env_id

@@ -69,7 +69,8 @@ class CartPoleSearchNode(object):
             t0 = time.time()
             result = linear_search.random_search(search.dynamics, iterations, search.episodes, search.max_steps,
                                                  req.seed, search.final_episodes, progress=progress,
-                                                 should_stop=should_stop)
+                                                 should_stop=lambda: rospy.is_shutdown() or bool(
+                                                     should_stop and should_stop()))
             if result.cancelled:
                 return None, result
             self.best_weights = result.best_weights.copy()
