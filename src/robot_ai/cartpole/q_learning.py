@@ -302,8 +302,8 @@ def _context():
     return multiprocessing.get_context('fork')
 
 
-def _worker(training, seed, tasks, results, stop):
-    """Train learners taken from tasks until it is empty; report every episode and each learner's end.
+def _worker(training, seed, next_learner, results, stop):
+    """Train the learners next_learner hands out until none is left; report every episode and each learner's end.
 
     A forked worker inherits its parent's signal handlers (a ROS node's would only flag a shutdown): it takes
     the default ones, so a Ctrl-C or a SIGTERM ends it at once, quietly; the parent then ends the training."""
@@ -311,9 +311,10 @@ def _worker(training, seed, tasks, results, stop):
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     try:
         while True:
-            try:
-                j = tasks.get_nowait()
-            except queue.Empty:
+            with next_learner.get_lock():  # a shared counter: a queue's items may not have arrived yet
+                j = next_learner.value
+                next_learner.value += 1
+            if j >= training.learners:
                 return
             totals, agent = train_one(training, seed + j,
                                       lambda e, r, eps: results.put(('episode', j, e, r, eps)), stop.is_set)
@@ -335,10 +336,8 @@ def _stopping(should_stop, grace=1.0):
 
 def _train_in_processes(training, seed, workers, progress, should_stop):
     ctx = _context()
-    tasks, results, stop = ctx.Queue(), ctx.Queue(), ctx.Event()
-    for j in range(training.learners):
-        tasks.put(j)
-    procs = [ctx.Process(target=_worker, args=(training, seed, tasks, results, stop), daemon=True)
+    next_learner, results, stop = ctx.Value('l', 0), ctx.Queue(), ctx.Event()
+    procs = [ctx.Process(target=_worker, args=(training, seed, next_learner, results, stop), daemon=True)
              for _ in range(workers)]
     for p in procs:
         p.start()
