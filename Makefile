@@ -19,7 +19,7 @@ APT_PACKAGES := ros-core-dev catkin catkin-lint ros-message-generation rosbash r
 	python3-sensor-msgs python3-geometry-msgs python3-std-msgs python3-std-srvs libstd-msgs-dev \
 	python3-actionlib python3-actionlib-msgs ros-actionlib-msgs libactionlib-msgs-dev \
 	ros-robot-state-publisher joint-state-publisher joint-state-publisher-gui rviz \
-	xvfb imagemagick python3-venv python3-numpy
+	tf-tools tf2-tools xvfb x11-utils imagemagick python3-venv python3-numpy
 
 # Everything a target runs sees the venv first on PATH (ROS nodes start with `#!/usr/bin/env python3`), the
 # workspace sourced, and caches kept inside the repository.
@@ -77,11 +77,17 @@ demo: build
 	@# roslaunch exits 0 when its required client ends, whatever the client's status: the verdict decides
 	@grep -q '^verdict: OK' $(OUT)/demo.log
 
+# The README's figures first, then today's; the scripts' stderr (ROS's own log lines, warnings) goes to a log file
+# so that the tables hold only figures.
 bench: build
 	mkdir -p $(OUT)
-	$(RUN) python $(ROOT)/bench/fk_load.py
-	$(RUN) python $(ROOT)/bench/search_speed.py
-	$(RUN) python $(ROOT)/bench/q_learning_speed.py
+	@python3 $(ROOT)/bench/readme_figures.py
+	@echo "load average at start: $$(cut -d' ' -f1-3 /proc/loadavg)"
+	@for b in fk_load search_speed q_learning_speed; do \
+	  $(RUN) python $(ROOT)/bench/$$b.py 2>>$(OUT)/bench-stderr.log \
+	    || { echo "bench/$$b.py failed; its stderr: $(OUT)/bench-stderr.log"; tail -n 20 $(OUT)/bench-stderr.log; exit 1; }; \
+	done
+	@echo "load average at end: $$(cut -d' ' -f1-3 /proc/loadavg)   (ROS log lines and warnings: $(OUT)/bench-stderr.log)"
 
 clean:
 	rm -rf $(WS) $(VENV) $(OUT)

@@ -40,6 +40,25 @@ def launch(args, env=None, launch_file='demo.launch'):
     return proc
 
 
+def start_xvfb():
+    """(display name, Xvfb process) of a new virtual screen."""
+    display = ':%d' % free_display()
+    xvfb = subprocess.Popen(['Xvfb', display, '-screen', '0', '1024x768x24', '-nolisten', 'tcp'],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    time.sleep(1.0)
+    return display, xvfb
+
+
+def run_to_end(args, env=None, launch_file='demo.launch', timeout=120):
+    """(exit status, output) of a launch that ends by itself."""
+    proc = launch(args, env, launch_file)
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    finally:
+        stop(proc)
+    return proc.returncode, out.decode(errors='replace')
+
+
 def stop(proc):
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGINT)
@@ -71,13 +90,8 @@ class TestLaunch(unittest.TestCase):
     def test_demo_ends_cleanly_with_a_summary(self):
         out_dir = os.path.abspath(os.path.join(ARTIFACTS, 'demo'))
         t0 = time.time()
-        proc = launch(['output_dir:=' + out_dir])
-        try:
-            out, _ = proc.communicate(timeout=120)
-        finally:
-            stop(proc)
-        text = out.decode(errors='replace')
-        self.assertEqual(proc.returncode, 0, text[-3000:])
+        status, text = run_to_end(['output_dir:=' + out_dir])
+        self.assertEqual(status, 0, text[-3000:])
         self.assertIn('verdict: OK', text, text[-3000:])
         self.assertIn('the end effector moves', text)
         self.assertIn('best average', text)
@@ -88,12 +102,7 @@ class TestLaunch(unittest.TestCase):
     def test_ros_home_moves_every_artifact(self):
         ros_home = os.path.abspath(os.path.join(ARTIFACTS, 'ros_home'))
         shutil.rmtree(ros_home, ignore_errors=True)
-        proc = launch([], dict(os.environ, ROS_HOME=ros_home))
-        try:
-            out, _ = proc.communicate(timeout=120)
-        finally:
-            stop(proc)
-        text = out.decode(errors='replace')
+        _, text = run_to_end([], dict(os.environ, ROS_HOME=ros_home))
         self.assertIn('verdict: OK', text, text[-3000:])
         # the search's and the Q-learning agent's plot and video, all under $ROS_HOME/robot_ai
         files = sorted(os.listdir(os.path.join(ros_home, 'robot_ai')))
@@ -141,13 +150,62 @@ class TestLaunch(unittest.TestCase):
         self.assertNotIn('ERROR', text, text[-3000:])
         self.assertIn('cancelled: the node is shutting down', answer.decode(errors='replace'))
 
-    def test_rviz_screenshot_shows_robot_and_frames(self):
-        display = ':%d' % free_display()
-        xvfb = subprocess.Popen(['Xvfb', display, '-screen', '0', '1024x768x24', '-nolisten', 'tcp'],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    def test_every_package_robot_and_one_never_seen(self):
+        """robot:=kuka_lwr, and the Panda (not a package robot) by model:=: the client finds the root and the
+        end effector from the URDF, the frames move, rviz gets a fixed frame that exists."""
+        panda = os.path.join(rospkg.RosPack().get_path('robot_ai'), '..', '..', '..', '..', 'shared', 'robots',
+                             'panda.urdf')
+        for args, frames in ((['robot:=kuka_lwr'], 'world_link -> lwr_arm_7_link'),
+                             (['model:=' + os.path.realpath(panda)], 'panda_link0 -> panda_leftfinger')):
+            _, text = run_to_end(args + ['q_learners:=1', 'record_video:=false',
+                                         'output_dir:=' + os.path.join(ARTIFACTS, 'robots')])
+            self.assertIn('verdict: OK', text, text[-3000:])
+            self.assertIn('forward_kinematics: %s from /tf' % frames, text)
+            self.assertIn('the end effector moves', text)
+        for args, fixed in ((['robot:=kuka_lwr'], 'world_link'), ([], 'base_link'), (['robot:=ur5'], 'base_link')):
+            cmd = subprocess.run(['roslaunch', '--args', 'rviz', 'robot_ai', 'demo.launch', 'rviz:=true'] + args,
+                                 capture_output=True, text=True, timeout=60).stdout
+            self.assertIn('-f %s' % fixed, cmd, args)
+        # a package-relative model, as the README's table suggested, loads; a robot that does not exist says so
+        bad = subprocess.run(['roslaunch', '--args', 'forward_kinematics', 'robot_ai', 'forward_kinematics.launch',
+                              'model:=urdf/kuka_lwr_arm.urdf'], capture_output=True, text=True, timeout=60)
+        self.assertEqual(bad.returncode, 0, bad.stdout + bad.stderr)
+        status, text = run_to_end(['robot:=ur6'], launch_file='forward_kinematics.launch', timeout=60)
+        self.assertNotEqual(status, 0)
+        self.assertIn('robot:=ur6 is not one of ur5 kuka_lwr', text)
+        self.assertNotIn('Traceback (most recent call last)', text)
+
+    def test_sliders_under_xvfb(self):
+        """gui:=true: the sliders' window opens (Debian 12's joint_state_publisher_gui crashed) and joint_states
+        flows from it."""
+        display, xvfb = start_xvfb()
         proc = None
         try:
-            time.sleep(1.0)
+            proc = launch(['gui:=true'], dict(os.environ, DISPLAY=display), launch_file='forward_kinematics.launch')
+            deadline, windows = time.time() + 60, ''
+            while 'Joint State Publisher' not in windows and time.time() < deadline:
+                time.sleep(1.0)
+                self.assertIsNone(proc.poll(), proc.stdout.read().decode(errors='replace')[-3000:] if proc.poll()
+                                  is not None else '')
+                windows = subprocess.run(['xwininfo', '-display', display, '-root', '-tree'], capture_output=True,
+                                         text=True, timeout=30).stdout
+            self.assertIn('Joint State Publisher', windows)
+            echo = subprocess.run(['rostopic', 'echo', '-n', '1', '/joint_states'], env=proc.env, capture_output=True,
+                                  text=True, timeout=30).stdout
+            self.assertIn('shoulder_pan_joint', echo)
+            self.assertIn('position: [', echo)
+        finally:
+            if proc is not None:
+                stop(proc)
+                text = proc.stdout.read().decode(errors='replace')
+                self.assertNotIn('TypeError', text)
+            xvfb.terminate()
+            xvfb.wait(10)
+
+    def test_rviz_screenshot_shows_robot_and_frames(self):
+        display, xvfb = start_xvfb()
+        proc = None
+        try:
             # rviz writes ~/.rviz and Mesa ~/.cache: keep them in the build folder, ROS's logs where they are
             home = os.path.abspath(os.path.join(ARTIFACTS, 'home'))
             os.makedirs(home, exist_ok=True)

@@ -245,6 +245,18 @@ class KinematicTree(object):
         resolved = self.resolve_positions(positions)
         return {n: self.joints[n].transform(resolved[n]) for n in self.moving_joints if n in resolved}
 
+    def end_effector(self):
+        """A tip link for a robot nobody named one for: the link below the most moving joints (mimic joints
+        excluded), the deepest of those (a tool frame below the last wrist), the first in link order on a tie."""
+        depth = {self.root: (0, 0)}  # (moving non-mimic joints, joints) from the root
+        for name in self.joint_order:
+            j = self.joints[name]
+            if j.parent in depth:
+                moving, total = depth[j.parent]
+                depth[j.child] = (moving + (name in self.active_joints), total + 1)
+        best = max(depth.values())
+        return next(link for link in self.links if depth.get(link) == best)
+
     def static_transforms(self):
         """{joint: 4x4} for the fixed (and planar) joints."""
         return {n: self.joints[n].transform(0.0) for n in self.static_joints}

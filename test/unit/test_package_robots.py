@@ -30,3 +30,30 @@ def test_package_robot_matches_reference(ours, reference, root, tip, zero):
             np.testing.assert_allclose(a[link], b[link], atol=1e-9, err_msg=link)
     for n in mine.active_joints:
         assert (mine.joints[n].lower, mine.joints[n].upper) == (ref.joints[n].lower, ref.joints[n].upper)
+
+
+@pytest.mark.parametrize('urdf, tip', [
+    (os.path.join(URDF_DIR, 'ur5_arm.urdf'), 'tool0'),
+    (os.path.join(URDF_DIR, 'kuka_lwr_arm.urdf'), 'lwr_arm_7_link'),
+    (robot_path('ur5.urdf'), 'tool0'),
+    (robot_path('panda.urdf'), 'panda_leftfinger'),     # 7 arm joints + a finger; the mimic finger is not counted
+    (robot_path('pr2.urdf'), None),
+    (robot_path('fixtures/one_link.urdf'), None),
+])
+def test_end_effector_found_from_the_urdf(urdf, tip):
+    """What demo_client shows when no tip_frame is given: the link below the most driven joints."""
+    tree = KinematicTree.from_file(urdf)
+    found = tree.end_effector()
+    if tip is not None:
+        assert found == tip
+    # whatever the robot, the tip is a link whose path from the root crosses the most driven joints
+    poses = tree.link_poses()
+    assert found in poses
+    def driven(link):
+        n = 0
+        while link != tree.root:
+            j = next(j for j in tree.joints.values() if j.child == link)
+            n += j.name in tree.active_joints
+            link = j.parent
+        return n
+    assert driven(found) == max(driven(l) for l in poses)

@@ -3,7 +3,8 @@ the course's random search through the cartpole_search service and its Q-learnin
 cartpole_q_learning service, prints a readable summary and a verdict.
 
 ROS Parameters
-    ~base_frame (str, base_link), ~tip_frame (str, tool0): the pose printed.
+    ~base_frame (str, ""), ~tip_frame (str, ""): the pose printed; empty: the robot's root link, and the link
+        below the most driven joints (KinematicTree.end_effector), found from robot_description.
     ~samples (int, 3): instants of the pose, ~interval (float, 0.5) seconds apart.
     ~record_video (bool, true): ask the search for a video of the best policy.
     ~search_service (str, /cartpole_search/random_search)
@@ -19,6 +20,7 @@ import time
 import rospy
 import tf2_ros
 
+from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.srv import QLearning, RandomSearch
 
 
@@ -30,10 +32,20 @@ def wait_plot(path, timeout=10.0):
     return bool(path) and os.path.isfile(path)
 
 
+def frames(base, tip):
+    """The frames to show: as given, or found from robot_description (its root, and the link below the most
+    driven joints) for any robot."""
+    if base and tip:
+        return base, tip
+    tree, _ = wait_for_tree()
+    if tree is None:  # shut down while waiting
+        sys.exit(1)
+    return base or tree.root, tip or tree.end_effector()
+
+
 def main():
     rospy.init_node('demo_client')
-    base = rospy.get_param('~base_frame', 'base_link')
-    tip = rospy.get_param('~tip_frame', 'tool0')
+    base, tip = frames(rospy.get_param('~base_frame', ''), rospy.get_param('~tip_frame', ''))
     samples = int(rospy.get_param('~samples', 3))
     interval = float(rospy.get_param('~interval', 0.5))
     record_video = bool(rospy.get_param('~record_video', True))
@@ -84,7 +96,7 @@ def main():
         ok = ok and plot_ok and (not record_video or os.path.isfile(res.video_path))
 
     lines.append('cartpole_q_learning: the course\'s Q-learning with RBF features (CartPole-v0, 500 episodes), '
-                 '%d learners' % q_learners)
+                 '%d learner%s' % (q_learners, 's' if q_learners > 1 else ''))
     try:
         rospy.wait_for_service(q_service, 60)
         res = rospy.ServiceProxy(q_service, QLearning)(learners=q_learners, record_video=record_video)

@@ -1,0 +1,45 @@
+"""sliders: joint_state_publisher_gui as Debian 12 ships it (1.15.1), with the upstream fix for Python 3.10+.
+
+Debian 12's joint_state_publisher_gui passes floats to QSlider.setValue, which PyQt5 on Python 3.10 and newer
+refuses (``TypeError: setValue(self, a0: int): argument 1 has unexpected type 'float'``), so its window never
+opens. Upstream later rounded those values to int; this node gives the module a QSlider that does the same,
+then starts the GUI exactly as its own script does. Its ROS interface is joint_state_publisher_gui's.
+"""
+import signal
+import sys
+import threading
+
+import rospy
+
+
+def patched_gui_module():
+    """joint_state_publisher_gui, whose sliders take the float positions it computes, rounded."""
+    import joint_state_publisher_gui
+    from python_qt_binding.QtWidgets import QSlider
+
+    class IntSlider(QSlider):
+        def setValue(self, value):
+            super(IntSlider, self).setValue(int(round(value)))
+
+    joint_state_publisher_gui.QSlider = IntSlider
+    return joint_state_publisher_gui
+
+
+def main():
+    import joint_state_publisher
+    from python_qt_binding.QtWidgets import QApplication
+    gui_module = patched_gui_module()
+    try:
+        rospy.init_node('joint_state_publisher_gui')
+        app = QApplication(sys.argv)
+        app.setApplicationDisplayName('Joint State Publisher')
+        num_rows = joint_state_publisher.get_param('num_rows', 0)
+        gui = gui_module.JointStatePublisherGui('Node: ' + rospy.get_name(), joint_state_publisher.JointStatePublisher(),
+                                                num_rows)
+        gui.show()
+        gui.sliderUpdateTrigger.emit()
+        threading.Thread(target=gui.jsp.loop, daemon=True).start()
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        sys.exit(app.exec_())
+    except rospy.ROSInterruptException:
+        pass
