@@ -133,6 +133,22 @@ class TestCartPoleSearchNode(unittest.TestCase):
         self.assertLess(len(result.avg_lengths), 10000)
         self.assertTrue(self.search(iterations=5, episodes=5).success)  # serving again
 
+    def test_5_a_small_search_does_not_replace_a_good_policy(self):
+        """Issue 10: a 5 x 5 test search used to replace the course policy (evaluate fell from ~492 to 9.5)."""
+        course = self.search(seed=0)  # final 492.37: at least the current policy's, so it is the policy now
+        self.assertIn('now the node\'s policy', course.message)
+        small = self.search(iterations=5, episodes=5, seed=0)
+        self.assertTrue(small.success)
+        self.assertLess(small.final_avg_length, course.final_avg_length)
+        self.assertIn('the node keeps its policy from search', small.message)
+        ev = self.evaluate(weights=[], episodes=20, seed=5, env_id='', max_steps=0)
+        want = linear_search.evaluate(CartPoleDynamics.of('CartPole-v1'), course.best_weights, 20, 500, 5)
+        self.assertEqual(list(ev.lengths), [int(v) for v in want])
+        self.assertIn('final 492.4', ev.message)
+        act = self.act(state=[0, 0, 0.05, 0])
+        self.assertIn('final 492.4', act.message)
+        self.assertEqual(act.action, linear_search.act(np.array(course.best_weights), [0, 0, 0.05, 0]))
+
 
 if __name__ == '__main__':
     rospy.init_node('test_cartpole_search_node')

@@ -6,9 +6,11 @@ ROS Parameters
     ~output_dir (str, "" = $ROS_HOME/robot_ai): where plots and videos are written; requests never name paths.
 
 ROS Services
-    ~random_search (robot_ai/RandomSearch): run a search; its best weights become the current policy.
-    ~evaluate (robot_ai/EvaluatePolicy): play episodes with given weights (empty: the current policy).
-    ~act (robot_ai/Act): the current policy's action for one state.
+    ~random_search (robot_ai/RandomSearch): run a search; its best weights become the node's policy if their
+        final average is at least the current policy's (so a small test search does not replace a good policy).
+    ~evaluate (robot_ai/EvaluatePolicy): play episodes with given weights (empty: the node's policy).
+    ~act (robot_ai/Act): the node's policy's action for one state.
+    Every response that uses the node's policy says which search it came from.
 
 ROS Actions
     ~search (robot_ai/RandomSearchAction): the same search as a preemptable goal, feedback per candidate.
@@ -40,7 +42,8 @@ class CartPoleSearchNode(object):
         self.defaults = defaults_from_params(linear_search.DEFAULTS)
         self.output_dir = output_dir_param()
         linear_search.resolve(defaults=self.defaults)  # a bad default is a clear error at start
-        self.best_weights = None
+        self.policy = None         # the best policy of any search so far: weights, final average, origin
+        self.searches = 0
         self.search_lock = threading.Lock()  # one search at a time; later requests wait their turn
         self.plots = PlotProcess()
         self.progress_pub = rospy.Publisher('~progress', SearchProgress, queue_size=100)
@@ -73,7 +76,8 @@ class CartPoleSearchNode(object):
                                                      should_stop and should_stop()))
             if result.cancelled:
                 return None, result
-            self.best_weights = result.best_weights.copy()
+            self.searches += 1
+            kept = self._keep_better(result)
             stem = artifacts.artifact_stem(self.output_dir, 'search', env_id, req.seed)
             plot_path = stem + '.png'
             plotting = self.plots.draw(artifacts.search_plot_job(result), plot_path)
@@ -83,15 +87,24 @@ class CartPoleSearchNode(object):
                 video_path, _ = artifacts.record_video(env_id, lambda obs: linear_search.act(weights, obs),
                                                        search.max_steps, req.seed, stem + '.mp4')
             elapsed = time.time() - t0
-        message = ('best average %.1f of %d candidates x %d episodes (%s, seed %d); final %.1f over %d episodes; %s'
+        message = ('best average %.1f of %d candidates x %d episodes (%s, seed %d); final %.1f over %d episodes; %s; %s'
                    % (result.best_avg_length, iterations, search.episodes, env_id, req.seed,
-                      result.final_avg_length, search.final_episodes,
+                      result.final_avg_length, search.final_episodes, kept,
                       'learning curve being drawn to plot_path' if plotting else 'learning curve NOT drawn'))
         rospy.loginfo(message)
         return dict(success=True, message=message, best_weights=list(result.best_weights),
                     best_avg_length=result.best_avg_length, avg_lengths=list(result.avg_lengths),
                     final_avg_length=result.final_avg_length, plot_path=plot_path if plotting else '',
                     video_path=video_path, elapsed=elapsed), result
+
+    def _keep_better(self, result):
+        """Make the search's best the node's policy if its final average is at least the current policy's."""
+        origin = 'search %d (%s, seed %d, %d x %d, final %.1f)' % (
+            self.searches, result.env_id, result.seed, result.iterations, result.episodes, result.final_avg_length)
+        if self.policy is not None and result.final_avg_length < self.policy['final']:
+            return 'the node keeps its policy from %s' % self.policy['origin']
+        self.policy = dict(weights=result.best_weights.copy(), final=result.final_avg_length, origin=origin)
+        return 'its best is now the node\'s policy'
 
     # ------------------------------------------------------------------------------------- handlers
     def _on_random_search(self, req):
@@ -112,24 +125,25 @@ class CartPoleSearchNode(object):
     def _on_evaluate(self, req):
         try:
             if len(req.weights) == 0:
-                if self.best_weights is None:
-                    raise RequestError('no current policy yet: run a search first or give 4 weights')
-                weights = self.best_weights
+                if self.policy is None:
+                    raise RequestError('no policy yet: run a search first or give 4 weights')
+                weights, whose = self.policy['weights'], 'the node\'s policy, from %s' % self.policy['origin']
             else:
-                weights = linear_search.check_weights(req.weights)
+                weights, whose = linear_search.check_weights(req.weights), 'the given weights'
             search = linear_search.resolve(req.env_id, 1, req.episodes, req.max_steps, 1, self.defaults)
             lengths = linear_search.evaluate(search.dynamics, weights, search.episodes, search.max_steps, req.seed)
-            return EvaluatePolicyResponse(success=True, message='%d episodes of %s' % (
-                                              search.episodes, search.dynamics.env_id),
+            return EvaluatePolicyResponse(success=True, message='%d episodes of %s with %s' % (
+                                              search.episodes, search.dynamics.env_id, whose),
                                           lengths=[int(v) for v in lengths], avg_length=float(lengths.mean()))
         except RequestError as e:
             return EvaluatePolicyResponse(success=False, message=str(e))
 
     def _on_act(self, req):
-        if self.best_weights is None:
-            return ActResponse(success=False, message='no current policy yet: run a search first', action=-1)
+        if self.policy is None:
+            return ActResponse(success=False, message='no policy yet: run a search first', action=-1)
         try:
-            return ActResponse(success=True, message='', action=linear_search.act(self.best_weights, req.state))
+            return ActResponse(success=True, message='the node\'s policy, from %s' % self.policy['origin'],
+                               action=linear_search.act(self.policy['weights'], req.state))
         except RequestError as e:
             return ActResponse(success=False, message=str(e), action=-1)
 
