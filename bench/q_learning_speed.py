@@ -12,7 +12,6 @@
 """
 import argparse
 import json
-import os
 import subprocess
 import sys
 import time
@@ -137,7 +136,6 @@ def main():
     import gymnasium  # noqa: F401  its logger sets its own warning filters at import: override them after
     warnings.filterwarnings('ignore')
     from robot_ai.cartpole import q_learning
-    print('load average at start: %s' % ' '.join('%.2f' % v for v in os.getloadavg()))
     results = {k: batch(k) for k in (1, 8, 32)}  # before the course loop: its 1.3 GB would blur the machine
     singles = sum(batch(1, seed)['wall'] for seed in range(8))
 
@@ -167,7 +165,6 @@ def main():
     print('result, tf regressor, CartPole-v0, seeds 0-7: %s' % ', '.join('%.2f' % v for v in r['last100']))
     print('  mean %.2f, 95%% interval ± %.2f (%.2f to %.2f); the course printed 198.79 for one run' % (
         r['mean'], r['ci95'], r['mean'] - r['ci95'], r['mean'] + r['ci95']))
-    print('load average at end: %s' % ' '.join('%.2f' % v for v in os.getloadavg()))
 
 
 if __name__ == '__main__':

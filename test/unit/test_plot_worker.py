@@ -1,5 +1,4 @@
 """robot_ai.plot_worker: one JSON line a plot; bad lines reported; quiet at end of input and on signals."""
-import os
 import signal
 import subprocess
 import sys
