@@ -1,0 +1,74 @@
+"""robot_ai.fk_grading: configurations within limits, the comparison frame, errors, the report and verdict."""
+import math
+import os
+
+import numpy as np
+from tf import transformations as tft
+
+from fk_helpers import robot_path
+from robot_ai.fk_grading import Grade, comparison_frame, configurations, rotation_error
+from robot_ai.kinematics import KinematicTree
+
+TILTED = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', 'urdf', 'tilted_axis_arm.urdf')
+
+
+def test_configurations_zero_first_then_within_limits():
+    tree = KinematicTree.from_file(robot_path('pr2.urdf'))
+    configs = configurations(tree, 30, seed=1)
+    assert len(configs) == 30 and set(configs[0].values()) == {0.0}
+    assert all(set(c) == set(tree.active_joints) for c in configs)   # mimic joints are left to the nodes
+    for name in tree.active_joints:
+        j = tree.joints[name]
+        values = [c[name] for c in configs[1:]]
+        if j.type == 'continuous':
+            assert max(abs(v) for v in values) > 2 * math.pi  # over more than one turn
+        elif j.lower is not None and j.upper is not None and j.lower < j.upper:
+            assert all(j.lower <= v <= j.upper for v in values)
+    assert configurations(tree, 30, seed=1) == configs and configurations(tree, 30, seed=2) != configs
+
+
+def test_comparison_frame():
+    tree = KinematicTree.from_file(TILTED)
+    assert comparison_frame(tree, {'base', 'shoulder', 'tool'}) == ('base', '')
+    frame, note = comparison_frame(tree, {'world', 'shoulder', 'forearm'})  # the skeleton: links under 'world'
+    assert frame == 'shoulder' and 'does not publish the root link base' in note
+    assert comparison_frame(tree, {'world'})[0] is None
+
+
+def test_grade_names_the_first_wrong_link_and_its_joint():
+    tree = KinematicTree.from_file(TILTED)
+    grade = Grade(tree, 'base', 1e-6)
+    for k, q in enumerate(configurations(tree, 5, seed=0)):
+        want = tree.link_poses(q)
+        got = {l: m.copy() for l, m in want.items()}
+        if k == 3:  # the elbow's child and what hangs below it are off
+            twist = tft.rotation_matrix(0.01, [0, 0, 1])
+            got['forearm'] = got['forearm'].dot(twist)
+            got['tool'] = got['forearm'].dot(tree.joints['tool_mount'].matrix)
+        grade.add(k, want, got)
+    assert grade.failing() == ['forearm', 'tool']
+    verdict = grade.verdict()
+    assert verdict.startswith('FAIL: forearm, rotation off by 0.01 rad in configuration 3; check joint elbow')
+    report = '\n'.join(grade.report())
+    assert 'forearm' in report and '<- wrong' in report and report.endswith(verdict)
+
+
+def test_grade_pass_missing_and_non_finite():
+    tree = KinematicTree.from_file(TILTED)
+    q = configurations(tree, 2, seed=0)[1]
+    want = tree.link_poses(q)
+    ok = Grade(tree, 'base', 1e-6)
+    ok.add(0, want, {l: m + 1e-9 for l, m in want.items()})
+    assert ok.verdict() == 'PASS' and ok.failing() == []
+    missing = Grade(tree, 'base', 1e-6)
+    missing.add(0, want, {l: m for l, m in want.items() if l != 'tool'})
+    assert missing.verdict().startswith('FAIL: publish a transform for tool')
+    bad = Grade(tree, 'base', 1e-6)
+    bad.add(0, want, dict(want, forearm=np.full((4, 4), np.nan)))
+    assert 'not finite' in bad.verdict()
+
+
+def test_rotation_error():
+    a = tft.rotation_matrix(0.3, [0, 0.6, 0.8])
+    assert abs(rotation_error(a, np.identity(4)) - 0.3) < 1e-12
+    assert rotation_error(a, a) < 1e-7
