@@ -19,14 +19,16 @@ APT_PACKAGES := ros-core-dev catkin catkin-lint ros-message-generation rosbash r
 	python3-sensor-msgs python3-geometry-msgs python3-std-msgs python3-std-srvs libstd-msgs-dev \
 	python3-actionlib python3-actionlib-msgs ros-actionlib-msgs libactionlib-msgs-dev \
 	ros-robot-state-publisher joint-state-publisher joint-state-publisher-gui rviz \
-	tf-tools tf2-tools xvfb x11-utils imagemagick python3-venv python3-numpy
+	tf-tools tf2-tools xvfb x11-utils iproute2 imagemagick python3-venv python3-numpy
 
 # Everything a target runs sees the venv first on PATH (ROS nodes start with `#!/usr/bin/env python3`), the
 # workspace sourced, and caches kept inside the repository.
 export PIP_CACHE_DIR := $(VENV)/.pip-cache
 export MPLCONFIGDIR := $(VENV)/.mplconfig
 export PYTHONDONTWRITEBYTECODE := 1
-RUN := source $(WS)/devel/setup.bash && export PATH="$(VENV)/bin:$$PATH" &&
+# ROS 1 has no authentication: ROS_HOSTNAME=localhost makes the master and every node bind to loopback only.
+RUN := source $(WS)/devel/setup.bash && export PATH="$(VENV)/bin:$$PATH" ROS_HOSTNAME=localhost \
+	ROS_MASTER_URI=http://localhost:11311 &&
 
 .PHONY: build test demo bench clean apt venv
 

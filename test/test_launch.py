@@ -40,6 +40,20 @@ def launch(args, env=None, launch_file='demo.launch'):
     return proc
 
 
+def descendants(pid):
+    """pid and every process below it, as strings (roslaunch starts each node in a session of its own)."""
+    children = {}
+    for line in subprocess.run(['ps', '-eo', 'pid=,ppid='], capture_output=True, text=True).stdout.splitlines():
+        child, parent = line.split()
+        children.setdefault(parent, []).append(child)
+    out, todo = set(), [str(pid)]
+    while todo:
+        p = todo.pop()
+        out.add(p)
+        todo.extend(children.get(p, []))
+    return out
+
+
 def start_xvfb():
     """(display name, Xvfb process) of a new virtual screen."""
     display = ':%d' % free_display()
@@ -201,6 +215,30 @@ class TestLaunch(unittest.TestCase):
                 self.assertNotIn('TypeError', text)
             xvfb.terminate()
             xvfb.wait(10)
+
+    def test_everything_listens_on_loopback_only(self):
+        """ROS 1 has no authentication: make demo and make test (ROS_HOSTNAME=localhost) bind to loopback."""
+        self.assertEqual(os.environ.get('ROS_HOSTNAME'), 'localhost', 'the Makefile sets ROS_HOSTNAME=localhost')
+        proc = launch(['output_dir:=' + os.path.join(ARTIFACTS, 'loopback')], launch_file='cartpole_search.launch')
+        try:
+            deadline = time.time() + 60
+            while subprocess.run(['rosservice', 'info', '/cartpole_search/random_search'], env=proc.env,
+                                 capture_output=True).returncode != 0 and time.time() < deadline:
+                time.sleep(0.5)
+            pids = descendants(proc.pid)
+            listening = [l for l in subprocess.run(['ss', '-ltnpH'], capture_output=True, text=True).stdout.splitlines()
+                         if any('pid=%s,' % p in l for p in pids)]
+        finally:
+            stop(proc)
+        self.assertGreaterEqual(len(listening), 4, listening)  # the master, rosout, the node (XML-RPC and TCPROS)
+        for line in listening:
+            local = line.split()[3]
+            if '"rosout"' in line:
+                # roscpp's TCPROS server listens on every interface and itself refuses peers that are not local
+                # when ROS_HOSTNAME is localhost ("set to only allow local connections")
+                continue
+            self.assertTrue(local.startswith(('127.0.0.1:', '[::1]:')), line)
+        self.assertTrue(any('"cartpole_search"' in l or 'python' in l for l in listening), listening)
 
     def test_rviz_screenshot_shows_robot_and_frames(self):
         display, xvfb = start_xvfb()
