@@ -174,6 +174,43 @@ def run_case(label, urdf, rate, seconds, warmup=2.0):
     return len(sent) / seconds, rows
 
 
+def rss_mib(pid):
+    with open('/proc/%d/status' % pid) as f:
+        return next(int(l.split()[1]) for l in f if l.startswith('VmRSS')) / 1024.0
+
+
+def name_flood(seconds=20.0, rate=1000.0):
+    """forward_kinematics fed JointStates whose 20 names are new every time (plus one real joint): its resident
+    memory at the start, after half the flood and at the end (issue 12: it grew from 89 to 957 MB in 60 s)."""
+    import rospy
+    from sensor_msgs.msg import JointState
+    with open(os.path.join(ROBOTS, 'kuka_lwr_arm.urdf')) as f:
+        rospy.set_param('/bench_flood/robot_description', f.read())
+    proc = subprocess.Popen(['rosrun', 'robot_ai', 'forward_kinematics', '__ns:=/bench_flood', '__name:=fk',
+                             '/tf:=/bench_flood/tf', '/tf_static:=/bench_flood/tf_static', '_ignore_timestamp:=true'],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid)
+    pub = rospy.Publisher('/bench_flood/joint_states', JointState, queue_size=100)
+    try:
+        deadline = time.time() + 30
+        while pub.get_num_connections() < 1 and time.time() < deadline:
+            time.sleep(0.05)
+        time.sleep(1.0)
+        samples, n, t0 = [rss_mib(proc.pid)], 0, time.time()
+        while time.time() - t0 < seconds:
+            names = ['flood_%d_%d' % (n, i) for i in range(20)] + ['lwr_arm_0_joint']
+            pub.publish(JointState(name=names, position=[0.0] * 21))
+            n += 1
+            if n == int(rate * seconds / 2):
+                samples.append(rss_mib(proc.pid))
+            time.sleep(1.0 / rate)
+        time.sleep(1.0)
+        samples.append(rss_mib(proc.pid))
+        return n, time.time() - t0, samples
+    finally:
+        os.killpg(proc.pid, signal.SIGINT)
+        proc.wait(10)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--seconds', type=float, default=10.0)
@@ -204,6 +241,9 @@ def main():
         print('  JointState deserialise: genpy %.1f, robot_ai.tf_wire %.1f' % (c['genpy_in'], c['ours_in']))
         print('  TFMessage serialise:    genpy %.1f, robot_ai.tf_wire %.1f' % (c['genpy_out'], c['ours_out']))
         print('  kinematics (TransformPlan.message_transforms, the node\'s path): %.1f' % c['fk'])
+        n, took, rss = name_flood()
+        print('\nflood of ever-new joint names (%d JointStates of 21 names in %.0f s): forward_kinematics resident '
+              'memory %.0f MiB at the start, %.0f halfway, %.0f at the end' % (n, took, rss[0], rss[1], rss[-1]))
     finally:
         os.killpg(master.pid, signal.SIGINT)
         master.wait(10)

@@ -154,3 +154,16 @@ def rotation_angle_between(r1, r2):
     s = np.linalg.norm([d[2, 1] - d[1, 2], d[0, 2] - d[2, 0], d[1, 0] - d[0, 1]]) / 2.0
     c = (np.trace(d) - 1.0) / 2.0
     return abs(math.atan2(s, c))
+
+
+def mimic_chain(n, offset=0.0):
+    """A URDF chain of n revolute joints l0 -> l1 -> ... -> ln, each after the first a mimic of the one before
+    it (multiplier 1, the given offset)."""
+    joints = ['<joint name="j0" type="revolute"><parent link="l0"/><child link="l1"/><axis xyz="0 0 1"/>'
+              '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>']
+    for i in range(1, n):
+        joints.append('<joint name="j%d" type="revolute"><parent link="l%d"/><child link="l%d"/><axis xyz="0 0 1"/>'
+                      '<limit lower="-1" upper="1" effort="1" velocity="1"/><mimic joint="j%d" multiplier="1" '
+                      'offset="%r"/></joint>' % (i, i, i + 1, i - 1, offset))
+    return '<robot name="chain">%s%s</robot>' % (''.join('<link name="l%d"/>' % i for i in range(n + 1)),
+                                                  ''.join(joints))

@@ -12,7 +12,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
-from fk_helpers import robot_path  # noqa: E402
+from fk_helpers import mimic_chain, robot_path  # noqa: E402
 from ros_helpers import NodePair, rotation_angle, to_matrix, wait_for  # noqa: E402
 
 UR5 = ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_joint', 'wrist_2_joint',
@@ -99,6 +99,61 @@ class TestForwardKinematicsNode(unittest.TestCase):
             self.assertTrue(pair.alive('fk'))
         finally:
             pair.close()
+
+    def test_hostile_urdfs_params_and_names(self):
+        """Issue 12: URDFs that ended the node (inf rpy, a 1,500-joint mimic chain), NaN in a URDF, bad
+        parameters, a JointState with 100,000 unknown names: one clear line each, and the node keeps running."""
+        tilted = ('<robot name="hostile"><link name="a"/><link name="b"/><joint name="elbow" type="revolute">'
+                  '<parent link="a"/><child link="b"/><origin xyz="0 0 0" rpy="0 inf 0"/><axis xyz="0 0 1"/>'
+                  '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>')
+        pair = NodePair('/hostile', tilted, params={'publish_frequency': 'abc', 'use_tf_static': 'maybe'},
+                        who=('fk',))
+        try:
+            rospy.sleep(3.0)  # the inf rpy is refused: it waits for a valid robot_description, it does not exit
+            self.assertTrue(pair.alive('fk'))
+            rospy.set_param('/hostile/robot_description', mimic_chain(1500))
+            pair.wait_connected()
+            fk = pair.recorders['fk']
+            stamp = pair.send({'j0': 0.5})
+            self.assertTrue(wait_for(lambda: stamp in fk.stamps, 20))
+            # tf2 walks at most 1,000 frames of a chain: look at a link 900 joints down
+            self.assertTrue(wait_for(lambda: fk.buffer.can_transform('l0', 'l900', stamp), 10))
+            pose = fk.buffer.lookup_transform('l0', 'l900', stamp).transform.rotation  # 900 joints at 0.5 rad
+            self.assertAlmostEqual(abs(pose.w), abs(np.cos(900 * 0.5 / 2)), places=6)
+
+            rospy.wait_for_service('/hostile/fk/reload', 10)
+            reload = rospy.ServiceProxy('/hostile/fk/reload', Trigger)
+            for bad, message in ((tilted.replace('0 inf 0', '0 0 0').replace('xyz="0 0 0"', 'xyz="nan 0 0"'),
+                                  "joint 'elbow': origin xyz must be finite numbers"),
+                                 (42, 'holds int 42, not text'),
+                                 (tilted, "joint 'elbow': origin rpy must be finite numbers")):
+                rospy.set_param('/hostile/robot_description', bad)
+                res = reload()
+                self.assertFalse(res.success)
+                self.assertIn(message, res.message)
+                self.assertIn('kept the current robot', res.message)
+
+            # 100,000 unknown names beside a known one: published, and the warning stays one short line
+            names = ['ghost_%d' % i for i in range(100000)] + ['j0']
+            rospy.sleep(0.1)
+            msg = JointState(name=names, position=[0.0] * 100000 + [0.25])
+            msg.header.stamp = rospy.Time.now()
+            pair.pub.publish(msg)
+            self.assertTrue(wait_for(lambda: msg.header.stamp in fk.stamps, 20))
+            rospy.sleep(0.05)
+            stamp = pair.send({'j0': 0.1})  # and the next message too
+            self.assertTrue(wait_for(lambda: stamp in fk.stamps, 10))
+            self.assertTrue(pair.alive('fk'))
+        finally:
+            pair.close()
+        err = pair.procs['fk'].stderr.read().decode(errors='replace')
+        self.assertIn("~publish_frequency must be a positive number (Hz), got 'abc': using 50.0", err)
+        self.assertIn("~use_tf_static must be true or false, got 'maybe'", err)
+        self.assertIn("origin rpy must be finite numbers", err)
+        self.assertIn('100000 joints that are not in the URDF, ignored: ghost_0', err)
+        self.assertIn('and 99990 more', err)
+        self.assertLess(max(len(line) for line in err.splitlines()), 2000)
+        self.assertNotIn('Traceback', err)
 
 
 if __name__ == '__main__':

@@ -20,6 +20,8 @@ stop a robot from loading.
 """
 import xml.etree.ElementTree as ET
 
+import math
+
 import numpy as np
 from tf import transformations as tft
 from urdf_parser_py import xml_reflection
@@ -105,6 +107,18 @@ def _parse_quietly(xml_string):
         xml_reflection.core.on_error = saved
 
 
+def _check_finite(joint, *values):
+    """URDFError naming the joint and the element, as robot_state_publisher refuses such a file."""
+    for what, v in values:
+        try:
+            numbers = [float(x) for x in v]
+        except (TypeError, ValueError):
+            raise URDFError('joint %r: %s must be numbers, got %r' % (joint, what, v))
+        if not all(math.isfinite(x) for x in numbers):
+            raise URDFError('joint %r: %s must be finite numbers, got %s' % (
+                joint, what, ' '.join(repr(x) for x in numbers)))
+
+
 class KinematicTree(object):
     """The kinematic tree of a URDF: joints in parent-before-child order from the single root link."""
 
@@ -185,6 +199,8 @@ class KinematicTree(object):
                     mimic = (j.mimic.joint,
                              1.0 if j.mimic.multiplier is None else float(j.mimic.multiplier),
                              0.0 if j.mimic.offset is None else float(j.mimic.offset))
+                _check_finite(j.name, ('origin xyz', xyz), ('origin rpy', rpy), ('axis', axis),
+                              ('mimic multiplier and offset', mimic[1:] if mimic else ()))
                 joints[j.name] = Joint(j.name, j.type, j.parent, j.child, xyz, rpy, axis, lower, upper, mimic)
         tree = cls(robot.name, root, links, joints, floating)
         tree._check_mimics()
@@ -192,22 +208,32 @@ class KinematicTree(object):
 
     def _check_mimics(self):
         """A mimic joint must follow a moving joint, through a chain without cycles. robot_state_publisher
-        loads such a file anyway, so an invalid mimic is dropped with a warning, not a load failure."""
+        loads such a file anyway, so an invalid mimic is dropped with a warning, not a load failure.
+        Linear in the number of joints, however long the chains (each joint is walked once)."""
         self.warnings, dropped = [], []
-        for name in list(self.mimic_joints):
-            seen, src, problem = [name], self.joints[name].mimic[0], None
-            while problem is None:
+        verdict = {}  # mimic name -> None (valid) or the problem
+        for name in self.mimic_joints:
+            chain, on_chain, src, problem = [name], {name}, self.joints[name].mimic[0], None
+            while True:
+                if src in verdict:
+                    problem = None if verdict[src] is None else 'follows %r, which is an invalid mimic' % src
+                    break
                 if src not in self.joints or not self.joints[src].moving:
                     problem = 'follows %r, which is not a moving joint' % src
-                elif src in seen:
-                    problem = 'is part of a cycle of mimics: %s' % ' -> '.join(seen + [src])
-                elif self.joints[src].mimic is None:
                     break
-                else:
-                    seen.append(src)
-                    src = self.joints[src].mimic[0]
-            if problem:
-                self.warnings.append('mimic joint %r %s; it is treated as an ordinary joint' % (name, problem))
+                if src in on_chain:
+                    problem = 'is part of a cycle of mimics: %s' % ' -> '.join(chain[chain.index(src):] + [src])
+                    break
+                if self.joints[src].mimic is None:
+                    break
+                chain.append(src)
+                on_chain.add(src)
+                src = self.joints[src].mimic[0]
+            for n in chain:
+                verdict.setdefault(n, problem)
+        for name in self.mimic_joints:
+            if verdict[name] is not None:
+                self.warnings.append('mimic joint %r %s; it is treated as an ordinary joint' % (name, verdict[name]))
                 dropped.append(name)
         for name in dropped:
             self.joints[name].mimic = None
@@ -228,13 +254,19 @@ class KinematicTree(object):
         return resolved
 
     def _mimic_value(self, name, positions):
-        if name in positions:
-            return positions[name]
-        joint = self.joints[name]
-        if joint.mimic is None:
-            return None
-        src = self._mimic_value(joint.mimic[0], positions)
-        return None if src is None else joint.mimic[1] * src + joint.mimic[2]
+        """The value of a (mimic) joint: given, or its source's through the chain; None if nothing is given.
+        A loop, not recursion: chains may be thousands of joints long."""
+        steps = []
+        while name not in positions:
+            joint = self.joints[name]
+            if joint.mimic is None:
+                return None
+            steps.append(joint.mimic)
+            name = joint.mimic[0]
+        value = positions[name]
+        for _, mult, off in reversed(steps):
+            value = mult * value + off
+        return value
 
     def joint_transform(self, name, position=0.0):
         """4x4 parent link -> child link transform of one joint."""
@@ -359,17 +391,13 @@ class TransformPlan(object):
         self.slide[self.revolute] = 0.0
         # mimic joints in an order where every source comes before the mimics that follow it
         order, placed = [], set()
-
-        def place(name):
-            if name in placed:
-                return
-            src = tree.joints[name].mimic
-            if src is not None and tree.joints[src[0]].mimic is not None:
-                place(src[0])
-            placed.add(name)
-            order.append(name)
-        for name in tree.mimic_joints:
-            place(name)
+        for name in tree.mimic_joints:  # a loop, not recursion: chains may be thousands of joints long
+            pending = []
+            while name not in placed and tree.joints[name].mimic is not None:
+                pending.append(name)
+                placed.add(name)
+                name = tree.joints[name].mimic[0]
+            order.extend(reversed(pending))
         self.mimic_steps = [(self.index[n], self.index[tree.joints[n].mimic[0]],
                              tree.joints[n].mimic[1], tree.joints[n].mimic[2]) for n in order]
         self.static_names = list(tree.static_joints)
@@ -419,12 +447,14 @@ class MessageLayout(object):
 
     def __init__(self, plan, names):
         tree = plan.tree
-        value_of, unknown = {}, []          # plan index -> message index, first occurrence wins
+        value_of, unknown, seen = {}, [], set()   # plan index -> message index, first occurrence wins
+        floating = set(tree.floating_joints)
         for i, name in enumerate(names):
             k = plan.index.get(name)
             if k is not None:
                 value_of.setdefault(k, i)
-            elif name not in tree.joints and name not in tree.floating_joints and name not in unknown:
+            elif name not in tree.joints and name not in floating and name not in seen:
+                seen.add(name)
                 unknown.append(name)
         self.unknown = unknown
         out, gather, scale, shift = [], [], [], []

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from tf import transformations as tft
 
-from fk_helpers import (REFERENCE_ROBOTS, random_urdf, reference_link_poses, robot_path,
+from fk_helpers import (REFERENCE_ROBOTS, mimic_chain, random_urdf, reference_link_poses, robot_path,
                         rotation_angle_between)
 from robot_ai.kinematics import KinematicTree, URDFError, prefix_frame
 
@@ -221,3 +221,48 @@ def test_message_layout_equals_single_form(seed):
         m[:3, 3] = out[k, :3]
         np.testing.assert_allclose(m, want[plan.names[i]], atol=1e-12)
         assert abs(np.linalg.norm(out[k, 3:]) - 1.0) < 1e-12
+
+
+ONE_JOINT = """<robot name="t"><link name="a"/><link name="b"/>
+  <joint name="elbow" type="revolute"><parent link="a"/><child link="b"/>
+    <origin xyz="{xyz}" rpy="{rpy}"/><axis xyz="{axis}"/>
+    <limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>"""
+
+
+@pytest.mark.parametrize('values, message', [
+    (dict(rpy='0 inf 0'), "joint 'elbow': origin rpy must be finite numbers, got 0.0 inf 0.0"),
+    (dict(xyz='nan 0 0'), "joint 'elbow': origin xyz must be finite numbers"),
+    (dict(axis='0 0 -inf'), "joint 'elbow': axis must be finite numbers"),
+])
+def test_non_finite_numbers_are_refused_naming_the_joint(values, message):
+    """Issue 12: rpy="0 inf 0" ended the node with 'math domain error'; NaN was published as NaN frames."""
+    fields = dict(dict(xyz='0 0 0', rpy='0 0 0', axis='0 0 1'), **values)
+    with pytest.raises(URDFError, match=message.replace('(', r'\(')):
+        KinematicTree.from_xml_string(ONE_JOINT.format(**fields))
+
+
+def test_non_finite_mimic_is_refused():
+    xml = MIMIC_CHAIN.replace('multiplier="-1"', 'multiplier="nan"')
+    with pytest.raises(URDFError, match="mimic multiplier and offset must be finite numbers"):
+        KinematicTree.from_xml_string(xml)
+
+
+def test_a_1500_joint_mimic_chain_loads_and_resolves():
+    """Issue 12: RecursionError in TransformPlan.place (and a cubic mimic check) on such a chain."""
+    tree = KinematicTree.from_xml_string(mimic_chain(1500, offset=0.001))
+    assert tree.active_joints == ['j0'] and len(tree.mimic_joints) == 1499 and not tree.warnings
+    r = tree.resolve_positions({'j0': 0.5})
+    assert r['j1499'] == pytest.approx(0.5 + 1499 * 0.001)
+    plan = tree.transform_plan()
+    layout = plan.message_layout(('j0',))
+    data = plan.message_transforms(layout, np.array([0.5]))
+    assert len(data) == 1500 and np.isfinite(data).all()
+
+
+def test_a_message_of_100000_unknown_names():
+    """Issue 12: one JointState with 100,000 unknown names took 40 s (a list lookup per name)."""
+    tree = KinematicTree.from_file(robot_path('ur5.urdf'))
+    names = tuple('ghost_%d' % i for i in range(100000)) + ('shoulder_pan_joint',)
+    layout = tree.transform_plan().message_layout(names)
+    assert len(layout.unknown) == 100000 and layout.unknown[:2] == ['ghost_0', 'ghost_1']
+    assert list(layout.out_idx) == [tree.transform_plan().index['shoulder_pan_joint']]

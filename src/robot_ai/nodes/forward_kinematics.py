@@ -7,7 +7,9 @@ joints once on the latched ``/tf_static``.
 ROS Parameters
     robot_description (str): the URDF, searched up the namespaces. Waited for if missing or invalid.
     ~publish_frequency (float, 50.0): a JointState is published only if its stamp is at least
-        1/frequency newer than the last published one of the same joints.
+        1/frequency newer than the last published one of the same joints. A value that is not a positive number
+        (and a ~use_tf_static or ~ignore_timestamp that is not true or false) falls back to the default with a
+        warning that says what is allowed.
     ~use_tf_static (bool, true): fixed joints latched on /tf_static; false: on /tf at publish_frequency.
     ~ignore_timestamp (bool, false): publish every JointState whatever its stamp.
     ~tf_prefix (str, ""): searched up the namespaces; put before frame names as robot_state_publisher does.
@@ -22,6 +24,7 @@ ROS Publishers
 ROS Services
     ~reload (std_srvs/Trigger): re-read robot_description; on failure the current robot is kept.
 """
+import math
 import threading
 
 import numpy as np
@@ -30,8 +33,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger, TriggerResponse
 from tf2_msgs.msg import TFMessage
 
-from robot_ai.kinematics import URDFError
-from robot_ai.nodes.robot_description import MissingDescription, load_tree, wait_for_tree
+from robot_ai.nodes.robot_description import load_tree, wait_for_tree
 from robot_ai.tf_wire import JointStateDecoder, TFMessageEncoder, WireError, raw_message_class
 
 THROTTLE = 10.0  # seconds between repeats of one input warning or error
@@ -39,6 +41,30 @@ THROTTLE = 10.0  # seconds between repeats of one input warning or error
 
 RawJointState = raw_message_class(JointState)   # decoded by JointStateDecoder in the callback
 RawTFMessage = raw_message_class(TFMessage)     # written by TFMessageEncoder
+
+
+def number_param(name, default, allowed, valid):
+    """A numeric private parameter; a value that is not `allowed` falls back to the default with one warning."""
+    value = rospy.get_param(name, default)
+    try:
+        number = float(value)
+        if isinstance(value, bool) or not math.isfinite(number) or not valid(number):
+            raise ValueError
+    except (TypeError, ValueError):
+        rospy.logwarn('%s must be %s, got %r: using %r' % (name, allowed, value, default))
+        return default
+    return number
+
+
+def bool_param(name, default):
+    """A boolean private parameter: true/false (or 1/0); anything else falls back to the default with a warning."""
+    value = rospy.get_param(name, default)
+    if isinstance(value, bool):
+        return value
+    if value in (0, 1) or str(value).lower() in ('true', 'false'):
+        return value in (1, True) or str(value).lower() == 'true'
+    rospy.logwarn('%s must be true or false, got %r: using %r' % (name, value, default))
+    return default
 
 
 class Robot(object):
@@ -64,9 +90,10 @@ class Robot(object):
 class ForwardKinematicsNode(object):
 
     def __init__(self):
-        self.publish_frequency = float(rospy.get_param('~publish_frequency', 50.0))
-        self.use_tf_static = bool(rospy.get_param('~use_tf_static', True))
-        self.ignore_timestamp = bool(rospy.get_param('~ignore_timestamp', False))
+        self.publish_frequency = number_param('~publish_frequency', 50.0, 'a positive number (Hz)',
+                                              lambda v: v > 0)
+        self.use_tf_static = bool_param('~use_tf_static', True)
+        self.ignore_timestamp = bool_param('~ignore_timestamp', False)
         self.tf_prefix = self._tf_prefix()
         self.interval_ns = int(round(1e9 / max(self.publish_frequency, 1.0)))
 
@@ -127,7 +154,7 @@ class ForwardKinematicsNode(object):
     def _on_reload(self, _req):
         try:
             robot, key = self._load()
-        except (MissingDescription, URDFError) as e:
+        except Exception as e:  # a URDF the parser or the kinematics cannot take: say why, keep the robot
             rospy.logerr('reload failed, keeping the current robot: %s' % e)
             return TriggerResponse(success=False, message='reload failed, kept the current robot: %s' % e)
         with self.lock:
@@ -167,9 +194,13 @@ class ForwardKinematicsNode(object):
             self._publish(names, positions, secs, nsecs)
 
     def _slots(self, names):
+        """Gate slots of the message's joints that the URDF has: names it does not have get none, so that
+        ever-new names cannot grow what the node keeps (memory stays bounded by the URDF)."""
         slots = self.slots.get(names)
         if slots is None:
-            for n in names:
+            joints = self.robot.tree.joints
+            known = [n for n in names if n in joints]
+            for n in known:
                 self.slot_of.setdefault(n, len(self.slot_of))
             if len(self.slot_of) > len(self.last_publish):
                 grown = np.zeros(2 * len(self.slot_of), np.int64)
@@ -177,15 +208,18 @@ class ForwardKinematicsNode(object):
                 self.last_publish = grown
             if len(self.slots) > 64:
                 self.slots.clear()
-            slots = self.slots[names] = np.array([self.slot_of[n] for n in names], np.intp)
+            slots = self.slots[names] = np.array([self.slot_of[n] for n in known], np.intp)
         return slots
 
     def _publish(self, names, positions, secs, nsecs):
         robot = self.robot
         layout = robot.layout(names)
         if layout.unknown:
-            rospy.logwarn_throttle(THROTTLE, 'joint_states names joints that are not in the URDF, ignored: %s'
-                                   % layout.unknown)
+            shown = ', '.join(n[:80] for n in layout.unknown[:10])
+            more = len(layout.unknown) - 10
+            rospy.logwarn_throttle(THROTTLE, 'joint_states names %d joint%s that are not in the URDF, ignored: %s%s'
+                                   % (len(layout.unknown), 's' if len(layout.unknown) > 1 else '', shown,
+                                      ' and %d more' % more if more > 0 else ''))
         now_ns = rospy.Time.now().to_nsec()
         stamp_ns = secs * 1000000000 + nsecs
         if now_ns < self.last_callback_ns:

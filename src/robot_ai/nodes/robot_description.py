@@ -14,7 +14,14 @@ def load_tree():
     if key is None:
         raise MissingDescription('no robot_description parameter in %s or above' % rospy.get_namespace())
     xml = rospy.get_param(key)
-    return KinematicTree.from_xml_string(xml if isinstance(xml, str) else ''), key
+    if not isinstance(xml, str):
+        raise URDFError('%s is not a URDF: it holds %s %r, not text' % (key, type(xml).__name__, xml))
+    try:
+        return KinematicTree.from_xml_string(xml), key
+    except URDFError:
+        raise
+    except Exception as e:  # whatever the parser meets: one clear line, never a traceback
+        raise URDFError('%s could not be read: %s: %s' % (key, type(e).__name__, e))
 
 
 def wait_for_tree():
