@@ -68,6 +68,20 @@ print('%.1f %.1f %.2f' % (time.time() - t, resource.getrusage(resource.RUSAGE_SE
 """
 
 
+VIDEO = """
+import resource, time
+import numpy as np
+from robot_ai.cartpole import artifacts
+from robot_ai.cartpole.linear_search import act
+w = np.array([-0.1707, 0.4690, 0.4223, 0.8641])
+before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+t = time.time()
+path, steps = artifacts.record_video('CartPole-v1', lambda obs: act(w, obs), 500, 0, '%s')
+print('%%.1f %%.0f %%.0f %%d' %% (time.time() - t, before / 1024.0,
+                             resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, steps))
+"""
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--skip-large', action='store_true', help='skip the 10,000 x 1,000 run')
@@ -124,6 +138,14 @@ def main():
             node.wait(10)
         os.killpg(master.pid, signal.SIGINT)
         master.wait(10)
+
+    video = os.path.join(out_dir, 'bench_video.mp4')
+    os.makedirs(out_dir, exist_ok=True)
+    out = subprocess.run([sys.executable, '-W', 'ignore', '-c', VIDEO % video], capture_output=True, text=True,
+                         check=True).stdout.split()
+    print('video of a %s-step episode              %8.1f s   peak memory %s MiB (%s before recording)' % (
+        out[3], float(out[0]), out[2], out[1]))
+    os.unlink(video)
 
     if not args.skip_large:
         out = subprocess.run([sys.executable, '-c', LARGE], capture_output=True, text=True, check=True).stdout.split()

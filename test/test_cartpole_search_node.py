@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
 """cartpole_search node: every service and the action, bad input, artifacts, reproducibility through ROS."""
 import os
+import signal
+import subprocess
 import sys
 import time
 import unittest
@@ -148,6 +150,82 @@ class TestCartPoleSearchNode(unittest.TestCase):
         act = self.act(state=[0, 0, 0.05, 0])
         self.assertIn('final 492.4', act.message)
         self.assertEqual(act.action, linear_search.act(np.array(course.best_weights), [0, 0, 0.05, 0]))
+
+    def test_6_a_hung_plot_process_never_blocks_a_search(self):
+        """Issue 12: with the plot process stopped, a big plot job blocked every search forever."""
+        worker = plot_worker_of('cartpole_search')
+        os.kill(worker, signal.SIGSTOP)
+        try:
+            first = self.search(iterations=20000, episodes=1, seed=1)  # its ~0.4 MB job fills the pipe
+            self.assertTrue(first.success, first.message)
+            answers = []
+            for seed in range(2, 14):
+                t = time.time()
+                res = self.search(iterations=3, episodes=3, seed=seed)
+                answers.append((time.time() - t, res))
+            self.assertTrue(all(r.success for _, r in answers))
+            self.assertLess(max(t for t, _ in answers), 5.0)
+            skipped = [r for _, r in answers if 'learning curve skipped: the plot process is behind' in r.message]
+            self.assertTrue(skipped, [r.message for _, r in answers])
+            self.assertTrue(all(r.plot_path == '' for r in skipped))
+        finally:
+            os.kill(worker, signal.SIGCONT)
+        deadline = time.time() + 60  # the plot process catches up with its backlog, then draws again
+        later = self.search(iterations=3, episodes=3, seed=99)
+        while not later.plot_path and time.time() < deadline:
+            time.sleep(1.0)
+            later = self.search(iterations=3, episodes=3, seed=99)
+        self.assertTrue(wait_file(later.plot_path, 60), later.message)
+
+    def test_7_leftovers_removed_and_links_not_followed(self):
+        """Issue 12: kill -9 during a video left its temporary files; a planted link led a plot outside."""
+        from robot_ai.cartpole.artifacts import TEMP_PREFIX
+        dead = os.path.join(self.output_dir, '%s999999999_x.mp4' % TEMP_PREFIX)
+        alive = os.path.join(self.output_dir, '%s%d_x.mp4' % (TEMP_PREFIX, os.getpid()))
+        for path in (dead, alive):
+            with open(path, 'wb') as f:
+                f.write(b'partial')
+        outside = os.path.join(self.output_dir, '..', 'outside_target.png')
+        if os.path.lexists(outside):
+            os.unlink(outside)
+        planted = []
+        now = time.time()
+        for dt in range(0, 4):  # the names the next search may take, for the next few seconds
+            stamp = time.strftime('%Y%m%d-%H%M%S', time.localtime(now + dt))
+            link = os.path.join(self.output_dir, 'search_%s_CartPole-v1_seed77.png' % stamp)
+            os.symlink(outside, link)
+            planted.append(link)
+        try:
+            res = self.search(iterations=3, episodes=3, seed=77)
+            self.assertTrue(res.success)
+            self.assertNotIn(res.plot_path, planted)
+            self.assertTrue(wait_file(res.plot_path))
+            self.assertFalse(os.path.lexists(outside), 'a plot was written through a planted link')
+            self.assertFalse(os.path.exists(dead))
+            self.assertTrue(os.path.exists(alive))   # a running process's file is left alone
+        finally:
+            for path in planted + [alive]:
+                if os.path.lexists(path):
+                    os.unlink(path)
+
+    def test_8_unwritable_output_dir_the_numbers_still_come_back(self):
+        rospy.wait_for_service('/cartpole_search_nowhere/random_search', 60)
+        res = rospy.ServiceProxy('/cartpole_search_nowhere/random_search', RandomSearch)(
+            iterations=5, episodes=5, seed=3, record_video=True)
+        self.assertTrue(res.success, res.message)
+        self.assertEqual((res.plot_path, res.video_path), ('', ''))
+        self.assertIn('no files written: cannot create /proc/robot_ai_cannot_be_here', res.message)
+        self.assertEqual(len(res.avg_lengths), 5)
+
+
+def plot_worker_of(node):
+    """The pid of the plot process the node started."""
+    table = [l.split(None, 2) for l in subprocess.run(['ps', '-eo', 'pid=,ppid=,args='], capture_output=True,
+                                                      text=True).stdout.splitlines()]
+    nodes = {pid for pid, _, args in table if '__name:=%s' % node in args.split()}
+    workers = [int(pid) for pid, ppid, args in table if 'robot_ai.plot_worker' in args and ppid in nodes]
+    assert len(workers) == 1, workers
+    return workers[0]
 
 
 if __name__ == '__main__':

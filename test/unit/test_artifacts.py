@@ -55,7 +55,39 @@ def test_video(tmp_path):
     assert os.path.getsize(path) > 1000 and steps == 40  # a balancing policy lasts to the 40-step limit
     with open(path, 'rb') as f:
         assert b'ftyp' in f.read(64)
-    assert os.listdir(str(tmp_path)) == ['best.mp4']  # the temporary folder is gone
+    import imageio_ffmpeg
+    frames, seconds = imageio_ffmpeg.count_frames_and_secs(path)
+    assert frames == steps + 1 and abs(seconds - frames / 50.0) < 0.05   # the start and every step, at 50 fps
+    assert os.listdir(str(tmp_path)) == ['best.mp4']  # no temporary file left
+    assert os.stat(path).st_mode & 0o777 == 0o666 & ~current_umask()
+
+
+def current_umask():
+    umask = os.umask(0)
+    os.umask(umask)
+    return umask
+
+
+def test_leftovers_of_dead_writers_are_removed(tmp_path):
+    mine = '%s%d_x.mp4' % (artifacts.TEMP_PREFIX, os.getpid())
+    dead = '%s%d_abc.mp4' % (artifacts.TEMP_PREFIX, 999999999)  # above Linux's largest pid: never running
+    names = [dead, mine, 'search_1.png', '.other']
+    for n in names:
+        (tmp_path / n).write_bytes(b'x')
+    assert artifacts.remove_leftovers(str(tmp_path)) == [names[0]]
+    assert sorted(os.listdir(str(tmp_path))) == sorted(names[1:])
+
+
+def test_failed_video_leaves_nothing(tmp_path):
+    def broken_policy(obs):
+        raise RuntimeError('the policy broke')
+    try:
+        artifacts.record_video('CartPole-v1', broken_policy, 40, 1, str(tmp_path / 'v.mp4'))
+    except RuntimeError as e:
+        assert 'the policy broke' in str(e)
+    else:
+        raise AssertionError('the error must reach the caller')
+    assert os.listdir(str(tmp_path)) == []
 
 
 def test_q_learning_plot(tmp_path):

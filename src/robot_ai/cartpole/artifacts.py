@@ -10,10 +10,10 @@ A plot is described by a job, a plain dict that crosses a pipe as JSON (the node
            'ylim': [low, high] (optional), 'integer_x': true}
     write_plot(search_plot_job(result), stem + '.png')
 
-A plot file is written whole or not at all: it is drawn into a hidden temporary file beside it and renamed.
+Plot and video files are written whole or not at all: into a hidden temporary file beside them, named after the
+writing process (so that ``remove_leftovers`` can tell a dead writer's leftovers), then renamed into place.
 """
 import os
-import shutil
 import tempfile
 import threading
 import time
@@ -21,6 +21,7 @@ import time
 import numpy as np
 
 FIGSIZE_INCHES, DPI = (10.0, 5.6), 100   # 1000 x 560 pixels: reads well in a README
+TEMP_PREFIX = '.robot_ai_tmp_'          # + <pid>_...: files being written; see remove_leftovers
 _reserved = set()                       # stems handed out by this process whose files may not exist yet
 _reserved_lock = threading.Lock()
 
@@ -126,10 +127,11 @@ def write_plot(job, path):
             fig.legend(*zip(*keep), loc='outside lower center', ncols=min(3 if len(keep) > 4 else 4, len(keep)), fontsize=9,
                        frameon=False)
         folder = os.path.dirname(os.path.abspath(path))
-        fd, tmp = tempfile.mkstemp(prefix='.plot_', suffix='.png', dir=folder)
+        fd, tmp = tempfile.mkstemp(prefix='%s%d_' % (TEMP_PREFIX, os.getpid()), suffix='.png', dir=folder)
         try:
             with os.fdopen(fd, 'wb') as f:
                 fig.savefig(f, format='png')
+            _readable(tmp)
             os.replace(tmp, path)
         except BaseException:
             os.unlink(tmp)
@@ -140,32 +142,91 @@ def write_plot(job, path):
 
 
 def record_video(env_id, policy, max_steps, seed, path):
-    """mp4 of one episode, rendered by gymnasium (rgb_array) and written by its RecordVideo.
+    """mp4 of one episode rendered by gymnasium (rgb_array), written whole or not at all; returns (path, steps).
 
-    policy(observation) -> action (0 or 1); the start state comes from gymnasium's reset(seed).
-    Returns (path, steps)."""
+    policy(observation) -> action (0 or 1); the start state comes from gymnasium's reset(seed). Frames are
+    streamed to ffmpeg one at a time (memory stays flat however long the episode) into a hidden temporary file
+    beside path, named after this process, and renamed into place when complete."""
     os.environ.setdefault('SDL_VIDEODRIVER', 'dummy')
     os.environ.setdefault('SDL_AUDIODRIVER', 'dummy')
     import gymnasium as gym
-    from gymnasium.wrappers import RecordVideo
-    work = tempfile.mkdtemp(prefix='video_', dir=os.path.dirname(path))
-    folder = os.path.join(work, 'frames')  # a folder RecordVideo creates itself
+    import imageio_ffmpeg
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix='%s%d_' % (TEMP_PREFIX, os.getpid()), suffix='.mp4', dir=folder)
+    os.close(fd)
+    env = gym.make(env_id, render_mode='rgb_array', max_episode_steps=max_steps)
+    writer = None
     try:
-        env = RecordVideo(gym.make(env_id, render_mode='rgb_array', max_episode_steps=max_steps), folder,
-                          episode_trigger=lambda i: i == 0, name_prefix='episode', disable_logger=True)
-        try:
-            obs, _ = env.reset(seed=int(seed) % (2 ** 32))
-            steps, done = 0, False
-            while not done:
-                obs, _, terminated, truncated, _ = env.step(policy(obs))
-                steps += 1
-                done = terminated or truncated
-        finally:
-            env.close()
-        videos = [f for f in os.listdir(folder) if f.endswith('.mp4')] if os.path.isdir(folder) else []
-        if not videos:
-            raise RuntimeError('RecordVideo wrote no video')
-        shutil.move(os.path.join(folder, videos[0]), path)
+        obs, _ = env.reset(seed=int(seed) % (2 ** 32))
+        frame = env.render()
+        writer = imageio_ffmpeg.write_frames(tmp, (frame.shape[1], frame.shape[0]), fps=env.metadata['render_fps'],
+                                             macro_block_size=1, output_params=['-y'])
+        writer.send(None)  # start ffmpeg
+        writer.send(frame)
+        steps, done = 0, False
+        while not done:
+            obs, _, terminated, truncated, _ = env.step(policy(obs))
+            steps += 1
+            done = terminated or truncated
+            writer.send(env.render())
+        writer.close()
+        writer = None
+        if os.path.getsize(tmp) == 0:
+            raise RuntimeError('ffmpeg wrote an empty video')
+        _readable(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if writer is not None:
+            writer.close()
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
     finally:
-        shutil.rmtree(work, ignore_errors=True)
+        env.close()
     return path, steps
+
+
+def remove_leftovers(output_dir):
+    """Delete the temporary files (videos and plots being written) that processes which no longer run left in
+    output_dir, after a kill -9 say; return their names. Files of running processes are left alone."""
+    removed = []
+    try:
+        names = os.listdir(output_dir)
+    except OSError:
+        return removed
+    for name in names:
+        if not name.startswith(TEMP_PREFIX):
+            continue
+        try:
+            pid = int(name[len(TEMP_PREFIX):].split('_')[0])
+        except ValueError:
+            continue
+        if _running(pid):
+            continue
+        try:
+            os.unlink(os.path.join(output_dir, name))
+            removed.append(name)
+        except OSError:
+            pass
+    return removed
+
+
+def _readable(path):
+    """The permissions a file created the ordinary way would have (mkstemp makes it 0600)."""
+    umask = 0o022
+    try:
+        with open('/proc/self/status') as f:
+            umask = next(int(l.split()[1], 8) for l in f if l.startswith('Umask:'))
+    except (OSError, StopIteration, ValueError):
+        pass
+    os.chmod(path, 0o666 & ~umask)
+
+
+def _running(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

@@ -6,13 +6,15 @@ the file the plot process is drawing, which appears whole (it is renamed into pl
 within a second; the response's message says so.
 """
 import os
+import queue
 import subprocess
 import sys
 import threading
+import time
 
 import rospy
 
-from robot_ai.cartpole.artifacts import default_output_dir
+from robot_ai.cartpole.artifacts import artifact_stem, default_output_dir, remove_leftovers
 from robot_ai.cartpole.dynamics import RequestError
 from robot_ai.plot_worker import job_line
 
@@ -39,12 +41,18 @@ def output_dir_param():
 
 
 class PlotProcess(object):
-    """The node's plot process: started at once, restarted if it dies, ended with the node."""
+    """The node's plot process, fed by a thread of its own: draw() never waits for it.
+
+    A job waits in a queue of PENDING; a writer thread hands it to the plot process (restarted if it died). A
+    plot process that hangs only stalls that thread: once PENDING jobs wait, draw() says no and the plot is
+    skipped, never a search or a training."""
+    PENDING = 8
 
     def __init__(self):
-        self.lock = threading.Lock()
+        self.jobs = queue.Queue(maxsize=self.PENDING)
         self.proc = None
         self._start()
+        threading.Thread(target=self._hand_over, name='plot jobs', daemon=True).start()
         rospy.on_shutdown(self.close)
 
     def _start(self):
@@ -58,8 +66,20 @@ class PlotProcess(object):
             rospy.loginfo('plot %s', line.strip())
 
     def draw(self, job, path):
-        """Hand a plot job to the plot process; False (and a logged reason) if it could not be handed over."""
-        with self.lock:
+        """Queue a plot job; '' if queued, else why the plot is skipped."""
+        try:
+            self.jobs.put_nowait((job, path))
+            return ''
+        except queue.Full:
+            rospy.logwarn_throttle(10.0, 'plot skipped: the plot process is behind (%d plots waiting)' % self.PENDING)
+            return 'the plot process is behind (%d plots waiting)' % self.PENDING
+
+    def _hand_over(self):
+        while True:
+            item = self.jobs.get()
+            if item is None:
+                return
+            job, path = item
             for _ in range(2):
                 if self.proc.poll() is not None:
                     rospy.logwarn('the plot process ended (status %s); starting another', self.proc.returncode)
@@ -67,19 +87,66 @@ class PlotProcess(object):
                 try:
                     self.proc.stdin.write(job_line(job, path))
                     self.proc.stdin.flush()
-                    return True
-                except (BrokenPipeError, OSError) as e:
+                    break
+                except (BrokenPipeError, OSError, ValueError) as e:
                     rospy.logwarn('could not hand the plot %s to the plot process: %s', path, e)
-        rospy.logerr('plot not written: %s', path)
-        return False
+            else:
+                rospy.logerr('plot not written: %s', path)
 
     def close(self):
-        """End of input: the plot process finishes the plots it has and ends."""
+        """End of input once the queued plots are handed over: the plot process draws them and ends (bounded)."""
+        try:
+            self.jobs.put(None, timeout=2.0)
+        except queue.Full:
+            pass
+        deadline = time.time() + 10
+        while not self.jobs.empty() and time.time() < deadline:
+            time.sleep(0.05)
         try:
             self.proc.stdin.close()
-            self.proc.wait(10)
+            self.proc.wait(max(0.1, deadline - time.time()))
         except (OSError, subprocess.TimeoutExpired):
             self.proc.kill()
+
+
+def prepare_output_dir(output_dir):
+    """Create output_dir and remove what writers killed earlier left in it; a reason string if it is not
+    writable (the agents then answer without files), else ''."""
+    try:
+        os.makedirs(output_dir, exist_ok=True)
+    except OSError as e:
+        return 'cannot create %s: %s' % (output_dir, e.strerror or e)
+    removed = remove_leftovers(output_dir)
+    if removed:
+        rospy.loginfo('removed %d temporary files that killed writers left in %s', len(removed), output_dir)
+    if not os.access(output_dir, os.W_OK | os.X_OK):
+        return '%s is not writable' % output_dir
+    return ''
+
+
+def write_files(plots, output_dir, kind, env_id, seed, plot_job, video=None):
+    """A response's files: (plot_path, video_path, a note for its message). Never raises: the numbers are worth
+    returning whatever happens to the files; a path is '' unless its file is written (the video) or queued
+    for drawing (the plot), and the note says what failed and why.
+
+    video: None, or a function of the mp4 path that writes it."""
+    problem = prepare_output_dir(output_dir)
+    if problem:
+        return '', '', 'no files written: %s' % problem
+    try:
+        stem = artifact_stem(output_dir, kind, env_id, seed)
+    except OSError as e:
+        return '', '', 'no files written: %s' % e
+    skipped = plots.draw(plot_job, stem + '.png')
+    notes = ['learning curve skipped: %s' % skipped if skipped else 'learning curve being drawn to plot_path']
+    video_path = ''
+    if video is not None:
+        try:
+            video_path = video(stem + '.mp4')
+        except Exception as e:  # ffmpeg, a full disk, a read-only folder: the search's numbers still go back
+            rospy.logerr('video not written: %s', e)
+            notes.append('video not written: %s' % e)
+    return '' if skipped else stem + '.png', video_path, '; '.join(notes)
 
 
 def answer(work, response_class, what):

@@ -33,7 +33,7 @@ from robot_ai.cartpole import artifacts, q_learning
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.msg import QLearningAction, QLearningFeedback, QLearningProgress, QLearningResult
 from robot_ai.nodes.agent_common import (PlotProcess, answer, answer_goal, defaults_from_params,
-                                         output_dir_param)
+                                         output_dir_param, prepare_output_dir, write_files)
 from robot_ai.srv import Act, ActResponse, EvaluateAgent, EvaluateAgentResponse, QLearning, QLearningResponse
 
 EVALUATE_EPISODES = 100
@@ -44,6 +44,9 @@ class CartPoleQLearningNode(object):
     def __init__(self):
         self.defaults = defaults_from_params(q_learning.DEFAULTS)
         self.output_dir = output_dir_param()
+        problem = prepare_output_dir(self.output_dir)
+        if problem:
+            rospy.logwarn('%s: trainings will answer without plots and videos', problem)
         q_learning.resolve(defaults=self.defaults)  # a bad default is a clear error at start
         self.agent, self.agent_env = None, None
         self.train_lock = threading.Lock()  # one training at a time; later requests wait their turn
@@ -90,21 +93,18 @@ class CartPoleQLearningNode(object):
             if result.cancelled:
                 return None, result
             self.agent, self.agent_env = result.agent, training.dynamics.env_id
-            stem = artifacts.artifact_stem(self.output_dir, 'qlearning', training.dynamics.env_id, req.seed)
-            plot_path = stem + '.png'
-            plotting = self.plots.draw(artifacts.q_learning_plot_job(result), plot_path)
-            video_path = ''
-            if req.record_video:
-                video_path, _ = artifacts.record_video(training.dynamics.env_id, result.agent.act, training.max_steps,
-                                                       req.seed, stem + '.mp4')
+            env_id = training.dynamics.env_id
+            video = None if not req.record_video else (lambda path: artifacts.record_video(
+                env_id, result.agent.act, training.max_steps, req.seed, path)[0])
+            plot_path, video_path, files = write_files(self.plots, self.output_dir, 'qlearning', env_id, req.seed,
+                                                       artifacts.q_learning_plot_job(result), video)
             elapsed = time.time() - t0
-        message = '%s; %s' % (q_learning.summary(result), 'learning curves being drawn to plot_path' if plotting
-                              else 'learning curves NOT drawn')
+        message = '%s; %s' % (q_learning.summary(result), files)
         rospy.loginfo(message)
         return dict(success=True, message=message, total_rewards=list(result.total_rewards[0]),
                     last100_averages=list(result.last100_averages), mean_last100=result.mean_last100,
-                    ci95_last100=result.ci95_last100, plot_path=plot_path if plotting else '',
-                    video_path=video_path, elapsed=elapsed), result
+                    ci95_last100=result.ci95_last100, plot_path=plot_path, video_path=video_path,
+                    elapsed=elapsed), result
 
     # ------------------------------------------------------------------------------------- handlers
     def _on_train(self, req):

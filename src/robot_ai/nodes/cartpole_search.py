@@ -30,7 +30,7 @@ import rospy
 from robot_ai.cartpole import artifacts, linear_search
 from robot_ai.cartpole.dynamics import RequestError
 from robot_ai.nodes.agent_common import (PlotProcess, answer, answer_goal, defaults_from_params,
-                                         output_dir_param)
+                                         output_dir_param, prepare_output_dir, write_files)
 from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchResult, SearchProgress
 from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, RandomSearch,
                           RandomSearchResponse)
@@ -41,6 +41,9 @@ class CartPoleSearchNode(object):
     def __init__(self):
         self.defaults = defaults_from_params(linear_search.DEFAULTS)
         self.output_dir = output_dir_param()
+        problem = prepare_output_dir(self.output_dir)
+        if problem:
+            rospy.logwarn('%s: searches will answer without plots and videos', problem)
         linear_search.resolve(defaults=self.defaults)  # a bad default is a clear error at start
         self.policy = None         # the best policy of any search so far: weights, final average, origin
         self.searches = 0
@@ -78,24 +81,20 @@ class CartPoleSearchNode(object):
                 return None, result
             self.searches += 1
             kept = self._keep_better(result)
-            stem = artifacts.artifact_stem(self.output_dir, 'search', env_id, req.seed)
-            plot_path = stem + '.png'
-            plotting = self.plots.draw(artifacts.search_plot_job(result), plot_path)
-            video_path = ''
-            if req.record_video:
-                weights = result.best_weights
-                video_path, _ = artifacts.record_video(env_id, lambda obs: linear_search.act(weights, obs),
-                                                       search.max_steps, req.seed, stem + '.mp4')
+            weights = result.best_weights
+            video = None if not req.record_video else (lambda path: artifacts.record_video(
+                env_id, lambda obs: linear_search.act(weights, obs), search.max_steps, req.seed, path)[0])
+            plot_path, video_path, files = write_files(self.plots, self.output_dir, 'search', env_id, req.seed,
+                                                       artifacts.search_plot_job(result), video)
             elapsed = time.time() - t0
         message = ('best average %.1f of %d candidates x %d episodes (%s, seed %d); final %.1f over %d episodes; %s; %s'
                    % (result.best_avg_length, iterations, search.episodes, env_id, req.seed,
-                      result.final_avg_length, search.final_episodes, kept,
-                      'learning curve being drawn to plot_path' if plotting else 'learning curve NOT drawn'))
+                      result.final_avg_length, search.final_episodes, kept, files))
         rospy.loginfo(message)
         return dict(success=True, message=message, best_weights=list(result.best_weights),
                     best_avg_length=result.best_avg_length, avg_lengths=list(result.avg_lengths),
-                    final_avg_length=result.final_avg_length, plot_path=plot_path if plotting else '',
-                    video_path=video_path, elapsed=elapsed), result
+                    final_avg_length=result.final_avg_length, plot_path=plot_path, video_path=video_path,
+                    elapsed=elapsed), result
 
     def _keep_better(self, result):
         """Make the search's best the node's policy if its final average is at least the current policy's."""
