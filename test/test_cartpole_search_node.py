@@ -217,6 +217,20 @@ class TestCartPoleSearchNode(unittest.TestCase):
         self.assertIn('no files written: cannot create /proc/robot_ai_cannot_be_here', res.message)
         self.assertEqual(len(res.avg_lengths), 5)
 
+    def test_9_a_bad_parameter_is_one_line_not_a_traceback(self):
+        for k, (args, message) in enumerate(((['_iterations:=abc'], "~iterations must be int (like 100), got 'abc'"),
+                                             (['_env_id:=MountainCar-v0'], 'is not a CartPole environment'),
+                                             (['_output_dir:=42'], '~output_dir must be a folder path, got 42'))):
+            name = 'bad_params_%d' % k  # private parameters stay on the server: a node name per case
+            proc = subprocess.run(['rosrun', 'robot_ai', 'cartpole_search', '__name:=' + name] + args,
+                                  capture_output=True, text=True, timeout=60)
+            out = proc.stdout + proc.stderr
+            self.assertEqual(proc.returncode, 1, out)
+            self.assertIn('cartpole_search: bad parameter: ', out)
+            self.assertIn(message, out)
+            self.assertNotIn('Traceback', out)
+            rospy.delete_param('/' + name)
+
 
 def plot_worker_of(node):
     """The pid of the plot process the node started."""

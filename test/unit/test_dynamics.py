@@ -90,7 +90,7 @@ def test_start_states_check_state_and_seeds():
     s = start_states(np.random.default_rng(0), 3, 7)
     assert s.shape == (3, 7, 4) and (np.abs(s) <= 0.05).all()
     assert check_state([0, 1, 2, 3]).tolist() == [0, 1, 2, 3]
-    for bad, message in (([1, 2, 3], '4 numbers'), ([0, 0, float('nan'), 0], 'finite')):
+    for bad, message in (([1, 2, 3], '4 numbers'), ([0, 0, float('nan'), 0], r'finite numbers, got \[0.0, 0.0, nan')):
         with pytest.raises(RequestError, match=message):
             check_state(bad)
     assert rng_for(7).random() == np.random.default_rng(7).random()

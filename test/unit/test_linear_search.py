@@ -77,6 +77,13 @@ def test_bad_requests_say_what_is_allowed(kwargs, message):
         resolve(**kwargs)
 
 
+def test_work_limit_message_shows_the_sum():
+    """Issue 12: the message showed the same number on both sides ('= 20000000 ... limit of 20000000')."""
+    with pytest.raises(RequestError) as e:
+        resolve(iterations=100000, episodes=200)
+    assert '100000 x 200 + 100 = 20000100 episodes is more than the limit of 20000000' in str(e.value)
+
+
 def test_defaults_are_the_course_experiment():
     search = resolve()
     assert (search.dynamics.env_id, search.iterations, search.episodes, search.max_steps,

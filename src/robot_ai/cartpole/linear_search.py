@@ -47,8 +47,9 @@ def resolve(env_id='', iterations=0, episodes=0, max_steps=0, final_episodes=0, 
         if not 1 <= value <= MAX_EPISODES:
             raise RequestError('%s must be 1 to %d (0 = %d), got %d' % (name, MAX_EPISODES, d[name], value))
     if iterations * episodes + final_episodes > MAX_WORK:
-        raise RequestError('iterations x episodes = %d episodes is more than the limit of %d; use fewer '
-                           'iterations or episodes' % (iterations * episodes, MAX_WORK))
+        raise RequestError('iterations x episodes + final_episodes = %d x %d + %d = %d episodes is more than the '
+                           'limit of %d; use fewer iterations or episodes' % (
+                               iterations, episodes, final_episodes, iterations * episodes + final_episodes, MAX_WORK))
     return Search(dynamics, iterations, episodes, max_steps, final_episodes)
 
 

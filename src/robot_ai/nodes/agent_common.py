@@ -37,7 +37,10 @@ def defaults_from_params(defaults):
 
 def output_dir_param():
     """~output_dir, expanded; empty or unset: $ROS_HOME/robot_ai (~/.ros/robot_ai when ROS_HOME is unset)."""
-    return os.path.abspath(os.path.expanduser(rospy.get_param('~output_dir', '') or default_output_dir()))
+    value = rospy.get_param('~output_dir', '')
+    if not isinstance(value, str):
+        raise ValueError('~output_dir must be a folder path, got %r' % (value,))
+    return os.path.abspath(os.path.expanduser(value or default_output_dir()))
 
 
 class PlotProcess(object):

@@ -20,6 +20,7 @@ import time
 import rospy
 import tf2_ros
 
+from robot_ai.nodes.params import bool_param, int_param, number_param, str_param
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.srv import QLearning, RandomSearch
 
@@ -45,13 +46,13 @@ def frames(base, tip):
 
 def main():
     rospy.init_node('demo_client')
-    base, tip = frames(rospy.get_param('~base_frame', ''), rospy.get_param('~tip_frame', ''))
-    samples = int(rospy.get_param('~samples', 3))
-    interval = float(rospy.get_param('~interval', 0.5))
-    record_video = bool(rospy.get_param('~record_video', True))
-    service = rospy.get_param('~search_service', '/cartpole_search/random_search')
-    q_service = rospy.get_param('~q_learning_service', '/cartpole_q_learning/train')
-    q_learners = int(rospy.get_param('~q_learners', 4))
+    base, tip = frames(str_param('~base_frame', ''), str_param('~tip_frame', ''))
+    samples = int_param('~samples', 3, 'a whole number of at least 2', lambda v: v >= 2)
+    interval = number_param('~interval', 0.5, 'a positive number (s)', lambda v: v > 0)
+    record_video = bool_param('~record_video', True)
+    service = str_param('~search_service', '/cartpole_search/random_search')
+    q_service = str_param('~q_learning_service', '/cartpole_q_learning/train')
+    q_learners = int_param('~q_learners', 4, 'a whole number from 1 to 64', lambda v: 1 <= v <= 64)
     buf = tf2_ros.Buffer()
     tf2_ros.TransformListener(buf)
     ok = True

@@ -24,7 +24,6 @@ ROS Publishers
 ROS Services
     ~reload (std_srvs/Trigger): re-read robot_description; on failure the current robot is kept.
 """
-import math
 import threading
 
 import numpy as np
@@ -33,6 +32,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger, TriggerResponse
 from tf2_msgs.msg import TFMessage
 
+from robot_ai.nodes.params import bool_param, number_param
 from robot_ai.nodes.robot_description import load_tree, wait_for_tree
 from robot_ai.tf_wire import JointStateDecoder, TFMessageEncoder, WireError, raw_message_class
 
@@ -41,30 +41,6 @@ THROTTLE = 10.0  # seconds between repeats of one input warning or error
 
 RawJointState = raw_message_class(JointState)   # decoded by JointStateDecoder in the callback
 RawTFMessage = raw_message_class(TFMessage)     # written by TFMessageEncoder
-
-
-def number_param(name, default, allowed, valid):
-    """A numeric private parameter; a value that is not `allowed` falls back to the default with one warning."""
-    value = rospy.get_param(name, default)
-    try:
-        number = float(value)
-        if isinstance(value, bool) or not math.isfinite(number) or not valid(number):
-            raise ValueError
-    except (TypeError, ValueError):
-        rospy.logwarn('%s must be %s, got %r: using %r' % (name, allowed, value, default))
-        return default
-    return number
-
-
-def bool_param(name, default):
-    """A boolean private parameter: true/false (or 1/0); anything else falls back to the default with a warning."""
-    value = rospy.get_param(name, default)
-    if isinstance(value, bool):
-        return value
-    if value in (0, 1) or str(value).lower() in ('true', 'false'):
-        return value in (1, True) or str(value).lower() == 'true'
-    rospy.logwarn('%s must be true or false, got %r: using %r' % (name, value, default))
-    return default
 
 
 class Robot(object):

@@ -16,6 +16,7 @@ import math
 import rospy
 from sensor_msgs.msg import JointState
 
+from robot_ai.nodes.params import number_param
 from robot_ai.nodes.robot_description import wait_for_tree
 
 
@@ -36,9 +37,9 @@ def sweep_ranges(tree, amplitude):
 
 def main():
     rospy.init_node('joint_sweep')
-    rate = float(rospy.get_param('~rate', 50.0))
-    period = float(rospy.get_param('~period', 8.0))
-    amplitude = float(rospy.get_param('~amplitude', 0.8))
+    rate = number_param('~rate', 50.0, 'a positive number (Hz)', lambda v: v > 0)
+    period = number_param('~period', 8.0, 'a positive number (s)', lambda v: v > 0)
+    amplitude = number_param('~amplitude', 0.8, 'a number from 0 to 1', lambda v: 0 <= v <= 1)
     tree, _ = wait_for_tree()
     if tree is None:
         return
