@@ -217,6 +217,26 @@ class TestCartPoleSearchNode(unittest.TestCase):
         self.assertIn('no files written: cannot create /proc/robot_ai_cannot_be_here', res.message)
         self.assertEqual(len(res.avg_lengths), 5)
 
+    def test_8b_a_full_disk_the_numbers_still_come_back(self):
+        """Issue 12: on a full disk a 0-byte PNG and a broken mp4 were reported with success."""
+        rospy.wait_for_service('/cartpole_search_full/random_search', 60)
+        folder = os.path.abspath(rospy.get_param('/cartpole_search_full/output_dir'))
+        os.makedirs(folder, exist_ok=True)
+        mount = subprocess.run(['mount', '-t', 'tmpfs', '-o', 'size=256k', 'tmpfs', folder], capture_output=True,
+                               text=True)
+        self.assertEqual(mount.returncode, 0, 'this test mounts a small tmpfs (as root): %s' % mount.stderr)
+        try:
+            res = rospy.ServiceProxy('/cartpole_search_full/random_search', RandomSearch)(
+                iterations=5, episodes=5, seed=3, record_video=True)
+            self.assertTrue(res.success, res.message)
+            self.assertEqual((res.plot_path, res.video_path), ('', ''))
+            self.assertIn('no files written: the disk where %s is is full: 256 KiB free' % folder, res.message)
+            self.assertEqual(len(res.avg_lengths), 5)
+            time.sleep(1.0)
+            self.assertEqual(os.listdir(folder), [])   # nothing partial left behind
+        finally:
+            subprocess.run(['umount', folder])
+
     def test_9_a_bad_parameter_is_one_line_not_a_traceback(self):
         for k, (args, message) in enumerate(((['_iterations:=abc'], "~iterations must be int (like 100), got 'abc'"),
                                              (['_env_id:=MountainCar-v0'], 'is not a CartPole environment'),

@@ -101,3 +101,13 @@ def test_q_learning_plot(tmp_path):
     assert [h['y'] for h in job['hlines']] == [result.baseline_total_reward, 199]
     path = artifacts.write_plot(job, str(tmp_path / 'q.png'))
     assert Image.open(path).size == (1000, 560)
+
+
+def test_unwritable_reason_for_a_full_disk(tmp_path, monkeypatch):
+    assert artifacts.unwritable_reason(str(tmp_path)) == ''
+
+    class Full(object):
+        f_bavail, f_frsize = 50, 4096     # 200 KiB left
+    monkeypatch.setattr(os, 'statvfs', lambda path: Full())
+    reason = artifacts.unwritable_reason(str(tmp_path))
+    assert reason == 'the disk where %s is is full: 200 KiB free (at least 32 MiB wanted)' % tmp_path

@@ -186,6 +186,24 @@ def record_video(env_id, policy, max_steps, seed, path):
     return path, steps
 
 
+MIN_FREE_BYTES = 32 * 1024 * 1024   # a plot is ~60 KB, a video ~100 KB: below this, a disk is as good as full
+
+
+def unwritable_reason(output_dir, min_free=MIN_FREE_BYTES):
+    """Why files cannot be written in output_dir (not writable, or a nearly full disk), or '' if they can."""
+    if not os.access(output_dir, os.W_OK | os.X_OK):
+        return '%s is not writable' % output_dir
+    try:
+        st = os.statvfs(output_dir)
+    except OSError as e:
+        return 'cannot tell the free space where %s is: %s' % (output_dir, e)
+    free = st.f_bavail * st.f_frsize
+    if free < min_free:
+        return 'the disk where %s is is full: %d KiB free (at least %d MiB wanted)' % (
+            output_dir, free // 1024, min_free // (1024 * 1024))
+    return ''
+
+
 def remove_leftovers(output_dir):
     """Delete the temporary files (videos and plots being written) that processes which no longer run left in
     output_dir, after a kill -9 say; return their names. Files of running processes are left alone."""

@@ -14,7 +14,7 @@ import time
 
 import rospy
 
-from robot_ai.cartpole.artifacts import artifact_stem, default_output_dir, remove_leftovers
+from robot_ai.cartpole.artifacts import artifact_stem, default_output_dir, remove_leftovers, unwritable_reason
 from robot_ai.cartpole.dynamics import RequestError
 from robot_ai.plot_worker import job_line
 
@@ -114,7 +114,7 @@ class PlotProcess(object):
 
 def prepare_output_dir(output_dir):
     """Create output_dir and remove what writers killed earlier left in it; a reason string if it is not
-    writable (the agents then answer without files), else ''."""
+    writable or its disk is full (the agents then answer without files), else ''."""
     try:
         os.makedirs(output_dir, exist_ok=True)
     except OSError as e:
@@ -122,9 +122,7 @@ def prepare_output_dir(output_dir):
     removed = remove_leftovers(output_dir)
     if removed:
         rospy.loginfo('removed %d temporary files that killed writers left in %s', len(removed), output_dir)
-    if not os.access(output_dir, os.W_OK | os.X_OK):
-        return '%s is not writable' % output_dir
-    return ''
+    return unwritable_reason(output_dir)
 
 
 def write_files(plots, output_dir, kind, env_id, seed, plot_job, video=None):
