@@ -19,6 +19,18 @@ from robot_ai.cartpole.dynamics import RequestError
 from robot_ai.plot_worker import job_line
 
 
+def agent_settings(module, what):
+    """(defaults, output_dir) of an agent node whose pure module has DEFAULTS and resolve(defaults=...): read
+    from the ~ parameters, checked at start (a bad one raises, with a message), the folder prepared."""
+    defaults = defaults_from_params(module.DEFAULTS)
+    output_dir = output_dir_param()
+    problem = prepare_output_dir(output_dir)
+    if problem:
+        rospy.logwarn('%s: %s will answer without plots and videos', problem, what)
+    module.resolve(defaults=defaults)  # a bad default is a clear error at start, not at the first request
+    return defaults, output_dir
+
+
 def defaults_from_params(defaults):
     """The node's defaults for zero/empty request fields: each ~<name> parameter, where it is set and not
     zero or empty, else the pure module's default. A value of the wrong kind is a ValueError naming it."""

@@ -32,8 +32,7 @@ import rospy
 from robot_ai.cartpole import artifacts, q_learning
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.msg import QLearningAction, QLearningFeedback, QLearningProgress, QLearningResult
-from robot_ai.nodes.agent_common import (PlotProcess, answer, answer_goal, defaults_from_params,
-                                         output_dir_param, prepare_output_dir, write_files)
+from robot_ai.nodes.agent_common import PlotProcess, agent_settings, answer, answer_goal, write_files
 from robot_ai.srv import Act, ActResponse, EvaluateAgent, EvaluateAgentResponse, QLearning, QLearningResponse
 
 EVALUATE_EPISODES = 100
@@ -42,12 +41,7 @@ EVALUATE_EPISODES = 100
 class CartPoleQLearningNode(object):
 
     def __init__(self):
-        self.defaults = defaults_from_params(q_learning.DEFAULTS)
-        self.output_dir = output_dir_param()
-        problem = prepare_output_dir(self.output_dir)
-        if problem:
-            rospy.logwarn('%s: trainings will answer without plots and videos', problem)
-        q_learning.resolve(defaults=self.defaults)  # a bad default is a clear error at start
+        self.defaults, self.output_dir = agent_settings(q_learning, 'trainings')
         self.agent, self.agent_env = None, None
         self.train_lock = threading.Lock()  # one training at a time; later requests wait their turn
         self.plots = PlotProcess()

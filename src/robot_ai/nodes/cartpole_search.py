@@ -29,8 +29,7 @@ import rospy
 
 from robot_ai.cartpole import artifacts, linear_search
 from robot_ai.cartpole.dynamics import RequestError
-from robot_ai.nodes.agent_common import (PlotProcess, answer, answer_goal, defaults_from_params,
-                                         output_dir_param, prepare_output_dir, write_files)
+from robot_ai.nodes.agent_common import PlotProcess, agent_settings, answer, answer_goal, write_files
 from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchResult, SearchProgress
 from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, RandomSearch,
                           RandomSearchResponse)
@@ -39,12 +38,7 @@ from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyRespon
 class CartPoleSearchNode(object):
 
     def __init__(self):
-        self.defaults = defaults_from_params(linear_search.DEFAULTS)
-        self.output_dir = output_dir_param()
-        problem = prepare_output_dir(self.output_dir)
-        if problem:
-            rospy.logwarn('%s: searches will answer without plots and videos', problem)
-        linear_search.resolve(defaults=self.defaults)  # a bad default is a clear error at start
+        self.defaults, self.output_dir = agent_settings(linear_search, 'searches')
         self.policy = None         # the best policy of any search so far: weights, final average, origin
         self.searches = 0
         self.search_lock = threading.Lock()  # one search at a time; later requests wait their turn
