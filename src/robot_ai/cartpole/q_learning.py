@@ -154,14 +154,20 @@ class Agent(object):
         return dynamics.episode_lengths(starts, max_steps, policy=self.push_right)[0]
 
 
+def new_learner(training, seed):
+    """(rng, features, regressors) of a learner before its first episode: its random parameters, drawn from
+    rng_for(seed) in the fixed order every run of that seed draws them."""
+    rng = rng_for(seed)
+    features = RBFFeatures(rng, training.components)
+    return rng, features, LinearQ(training.regressor, features.dimensions, rng)
+
+
 def train_one(training, seed, progress=None, should_stop=None):
     """One learner, the course's loop. Returns (total rewards (episodes played,), Agent).
 
     progress(episode, total_reward, epsilon) after every episode (1-based); should_stop() is asked before
     every episode, and a learner it stops returns the episodes played so far."""
-    rng = rng_for(seed)
-    features = RBFFeatures(rng, training.components)
-    q = LinearQ(training.regressor, features.dimensions, rng)
+    rng, features, q = new_learner(training, seed)
     step, gamma, max_steps = training.dynamics.step, training.gamma, training.max_steps
     bootstrap = training.bootstrap_at_time_limit
     totals = np.zeros(training.episodes)
@@ -285,8 +291,7 @@ def train(training, seed=0, progress=None, should_stop=None, workers=None):
 
 
 def _result(training, seed, rewards, agent, cancelled, elapsed):
-    complete = [r for r in rewards if len(r) == training.episodes]
-    last100 = np.array([r[-100:].mean() for r in complete]) if not cancelled else np.zeros(0)
+    last100 = np.array([r[-100:].mean() for r in rewards]) if not cancelled else np.zeros(0)  # all complete
     return TrainingResult(
         env_id=training.dynamics.env_id, seed=seed, training=training,
         total_rewards=rewards, last100_averages=last100,
@@ -309,18 +314,15 @@ def _worker(training, seed, next_learner, results, stop):
     the default ones, so a Ctrl-C or a SIGTERM ends it at once, quietly; the parent then ends the training."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    try:
-        while True:
-            with next_learner.get_lock():  # a shared counter: a queue's items may not have arrived yet
-                j = next_learner.value
-                next_learner.value += 1
-            if j >= training.learners:
-                return
-            totals, agent = train_one(training, seed + j,
-                                      lambda e, r, eps: results.put(('episode', j, e, r, eps)), stop.is_set)
-            results.put(('done', j, totals, agent.q.w if j == 0 else None))
-    except KeyboardInterrupt:
-        return
+    while True:
+        with next_learner.get_lock():  # a shared counter: a queue's items may not have arrived yet
+            j = next_learner.value
+            next_learner.value += 1
+        if j >= training.learners:
+            return
+        totals, agent = train_one(training, seed + j,
+                                  lambda e, r, eps: results.put(('episode', j, e, r, eps)), stop.is_set)
+        results.put(('done', j, totals, agent.q.w if j == 0 else None))
 
 
 def _stopping(should_stop, grace=1.0):
@@ -375,8 +377,6 @@ def _train_in_processes(training, seed, workers, progress, should_stop):
     if weights0 is None:
         return ordered, None, cancelled
     # learner 0's agent, rebuilt here from its seed (the same draws) and the weights it learned
-    rng = rng_for(seed)
-    features = RBFFeatures(rng, training.components)
-    q = LinearQ(training.regressor, features.dimensions, rng)
+    _, features, q = new_learner(training, seed)
     q.w = weights0
     return ordered, Agent(features, q), cancelled

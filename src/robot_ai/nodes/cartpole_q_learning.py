@@ -59,7 +59,6 @@ class CartPoleQLearningNode(object):
         training = q_learning.resolve(req.env_id, req.episodes, req.gamma, req.regressor, req.components,
                                       req.learners, req.bootstrap_at_time_limit, self.defaults)
         n, k = training.episodes, training.learners
-        t0 = time.time()
         recent = [[] for _ in range(k)]     # the last 100 totals of each learner, for the running averages
         done = [0]
 
@@ -86,8 +85,8 @@ class CartPoleQLearningNode(object):
                                       should_stop=lambda: rospy.is_shutdown() or bool(should_stop and should_stop()))
             if result.cancelled:
                 return None, result
-            self.agent, self.agent_env = result.agent, training.dynamics.env_id
             env_id = training.dynamics.env_id
+            self.agent, self.agent_env = result.agent, env_id
             video = None if not req.record_video else (lambda path: artifacts.record_video(
                 env_id, result.agent.act, training.max_steps, req.seed, path)[0])
             plot_path, video_path, files = write_files(self.plots, self.output_dir, 'qlearning', env_id, req.seed,
