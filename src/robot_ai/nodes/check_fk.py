@@ -234,7 +234,9 @@ def tf_name(link):
 
 def grade(tree, a, trees, procs, pub, JointState):
     """Drive both nodes through the configurations; (report lines, exit status)."""
-    names = {l: tf_name(l) for l in tree.links}
+    names = {l: tf_name(l) for l in tree.links}     # URDF link -> the frame tf2 keeps
+    link_of = {f: l for l, f in names.items()}
+    all_frames = [names[l] for l in tree.links]
     if len(tree.links) == 1:
         return ['%s is a single link with no joint: there is no transform to publish or to grade' % tree.root,
                 'PASS'], 0
@@ -257,10 +259,10 @@ def grade(tree, a, trees, procs, pub, JointState):
             send(pub, JointState, q)
             time.sleep(0.05)
             root = names[tree.root]
-            if not trees['reference'].has_all(root, [names[l] for l in tree.links]):
+            if not trees['reference'].has_all(root, all_frames):
                 continue
             candidate = trees['candidate']
-            if k == 0 and candidate.has_all(root, [names[l] for l in tree.links]):
+            if k == 0 and candidate.has_all(root, all_frames):
                 break
             if k > 0 and candidate.has_all(names[result.frame], [names[l] for l in known]):
                 break
@@ -274,20 +276,16 @@ def grade(tree, a, trees, procs, pub, JointState):
             if not candidate.frames:
                 return ['FAIL: the candidate published nothing on /tf or /tf_static within %g s of the first '
                         'joint_states' % a.timeout], 1
-            by_frame = {names[l]: l for l in tree.links}
-            frame, note = comparison_frame(tree, {by_frame[f] for f in candidate.frames if f in by_frame})
+            frame, note = comparison_frame(tree, {link_of[f] for f in candidate.frames if f in link_of})
             result = Grade(tree, frame, a.tolerance, note)
-            result.extra = {f for f in candidate.frames if f not in by_frame}
+            result.extra = {f for f in candidate.frames if f not in link_of}
             if frame is None:
                 return result.report(), 1
-        reference = relabel(trees['reference'].poses(names[result.frame], [names[l] for l in result.links]), names)
-        got = relabel(candidate.poses(names[result.frame], [names[l] for l in result.links]), names)
+            graded = [names[l] for l in result.links]
+        # {tf frame: pose} -> {URDF link: pose}
+        reference = {link_of[f]: m for f, m in trees['reference'].poses(names[result.frame], graded).items()}
+        got = {link_of[f]: m for f, m in candidate.poses(names[result.frame], graded).items()}
         known.update(got)
         result.add(k, reference, got)
     return result.report(), 0 if result.verdict() == 'PASS' else 1
 
-
-def relabel(poses, names):
-    """{tf frame: pose} -> {URDF link: pose}."""
-    back = {v: k for k, v in names.items()}
-    return {back[f]: m for f, m in poses.items()}
