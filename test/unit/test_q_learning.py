@@ -97,7 +97,8 @@ def test_the_course_result_for_seed_0():
     assert 190 < result.mean_last100 <= 199 and result.ci95_last100 == 0.0
     assert result.total_rewards[0][:20].mean() < 100          # it starts near random actions
     assert 15 < result.baseline_total_reward < 30
-    assert result.agent.evaluate(CartPoleDynamics.of('CartPole-v0'), 50, 200, 1).mean() > 190  # greedy balances
+    assert result.agents[0].evaluate(CartPoleDynamics.of('CartPole-v0'), 50, 200, 1).mean() > 190  # greedy balances
+    assert result.greedy_averages[0] == ql.greedy_average(result.agents[0], result.training, 0) > 190
     assert 'avg reward for last 100 episodes: %.2f' % result.mean_last100 in ql.summary(result)
 
 
@@ -108,10 +109,14 @@ def test_learner_in_a_batch_is_the_single_run_with_its_seed_and_seeds_repeat():
     for k in range(3):
         single, agent = ql.train_one(training, 10 + k)
         assert batch.total_rewards[k].tobytes() == single.tobytes() == inline.total_rewards[k].tobytes()
-        if k == 0:
-            assert batch.agent.q.w.tobytes() == agent.q.w.tobytes()
-            assert batch.agent.features.folded_weights32.tobytes() == agent.features.folded_weights32.tobytes()
+        for name in ('q_weights', 'feature_weights', 'feature_offsets'):  # every learner's agent comes back whole
+            assert getattr(batch.agents[k], name).tobytes() == getattr(agent, name).tobytes()
+        assert batch.greedy_averages[k] == inline.greedy_averages[k] == ql.greedy_average(agent, training, 10)
     assert list(batch.last100_averages) == [r[-100:].mean() for r in batch.total_rewards]
+    assert batch.finished == [0, 1, 2] and batch.learner_seeds == [10, 11, 12]
+    best = batch.best_learner()
+    assert (batch.greedy_averages[best], batch.last100_averages[best]) == max(
+        zip(batch.greedy_averages, batch.last100_averages))
     other = ql.train(training, 11, workers=2)
     assert other.total_rewards[0].tobytes() == batch.total_rewards[1].tobytes()  # seed 11 = learner 1 of seed 10
     assert ql.train_one(training, -1)[0].tobytes() != ql.train_one(training, 1)[0].tobytes()
@@ -122,16 +127,17 @@ def test_progress_and_cancel_in_processes():
     seen, asked = [], []
     result = ql.train(training, 0, progress=lambda *a: seen.append(a), workers=2,
                       should_stop=lambda: asked.append(1) or len(seen) > 30)
-    assert result.cancelled and len(result.last100_averages) == 0
-    assert all(len(r) < 400 for r in result.total_rewards)
+    assert result.cancelled and len(result.last100_averages) == 0 and result.finished == []
+    assert all(len(r) < 400 for r in result.total_rewards) and result.best_learner() == -1
     learner0 = [s[1] for s in seen if s[0] == 0]
     assert learner0 == list(range(1, len(learner0) + 1))       # learner 0's episodes in order
 
 
 def test_greedy_agent_acts_and_evaluates():
     _, agent = ql.train_one(small(), 0)
+    features = ql.new_learner(small(), 0)[1]        # the learner's features, drawn again from its seed
     for state in ([0, 0, 0.1, 0], [0, 0, -0.1, 0]):
-        values = agent.q.predict(agent.features.transform(state))
+        values = features.transform(state).dot(agent.q_weights.T)
         assert agent.act(state) == int(np.argmax(values))
     with pytest.raises(RequestError, match='4 numbers'):
         agent.act([1, 2])
@@ -183,3 +189,25 @@ def test_defaults_are_the_course():
     t = ql.resolve()
     assert (t.dynamics.env_id, t.episodes, t.gamma, t.regressor, t.components, t.learners, t.max_steps,
             t.bootstrap_at_time_limit) == ('CartPole-v0', 500, 0.99, 'tf', 1000, 1, 200, False)
+
+
+def test_cancel_keeps_the_learners_that_finished():
+    """A training stopped after two of its learners finished returns theirs: averages, seeds, agents."""
+    training = small(episodes=60, learners=5)
+    done = []
+    result = ql.train(training, 3, progress=lambda j, e, r, eps: done.append(j) if e == 60 else None, workers=2,
+                      should_stop=lambda: len(done) >= 2)
+    assert result.cancelled and len(result.finished) >= 2 and len(result.finished) < 5
+    for i, j in enumerate(result.finished):
+        single, agent = ql.train_one(training, 3 + j)
+        assert result.last100_averages[i] == single[-100:].mean()
+        assert result.agents[j].q_weights.tobytes() == agent.q_weights.tobytes()
+    assert result.learner_seeds == [3 + j for j in result.finished]
+    assert all(result.agents[j] is None for j in range(5) if j not in result.finished)
+
+
+def test_agent_refuses_states_float32_cannot_hold():
+    _, agent = ql.train_one(small(episodes=2), 0)
+    assert agent.act([0.0, 0.0, 0.01, 0.0]) in (0, 1)
+    with pytest.raises(RequestError, match='float32 range'):
+        agent.act([1e308, 0.0, 0.0, 0.0])

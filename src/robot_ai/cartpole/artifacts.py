@@ -10,9 +10,11 @@ A plot is described by a job, a plain dict that crosses a pipe as JSON (the node
            'ylim': [low, high] (optional), 'integer_x': true}
     write_plot(search_plot_job(result), stem + '.png')
 
-Plot and video files are written whole or not at all: into a hidden temporary file beside them, named after the
+Plots, videos, policy files and CSV logs are written whole or not at all: into a hidden temporary file beside them, named after the
 writing process (so that ``remove_leftovers`` can tell a dead writer's leftovers), then renamed into place.
 """
+import csv
+import io
 import os
 import tempfile
 import threading
@@ -22,79 +24,80 @@ import numpy as np
 
 FIGSIZE_INCHES, DPI = (10.0, 5.6), 100   # 1000 x 560 pixels: reads well in a README
 TEMP_PREFIX = '.robot_ai_tmp_'          # + <pid>_...: files being written; see remove_leftovers
+EXTENSIONS = ('.png', '.mp4', '.npz', '.csv')   # one run's files: plot, video, policy, log
 _reserved = set()                       # stems handed out by this process whose files may not exist yet
 _reserved_lock = threading.Lock()
 
 
-def default_output_dir():
+def default_output_dir() -> str:
     """$ROS_HOME/robot_ai, or ~/.ros/robot_ai when ROS_HOME is unset: where every agent's files go."""
     ros_home = os.environ.get('ROS_HOME') or os.path.join(os.path.expanduser('~'), '.ros')
     return os.path.join(ros_home, 'robot_ai')
 
 
-def artifact_stem(output_dir, kind, env_id, seed):
+def artifact_stem(output_dir: str, kind: str, env_id: str, seed: int) -> str:
     """A path without extension for one run's files, new in output_dir: <kind>_<time>_<env>_seed<seed>[_n].
 
     The seed is written as given (seed-1 for -1). Stems handed out earlier by this process are not handed out
     again, even before their files exist."""
     os.makedirs(output_dir, exist_ok=True)
-    base = os.path.join(output_dir, '%s_%s_%s_seed%d' % (kind, time.strftime('%Y%m%d-%H%M%S'), env_id, int(seed)))
+    base = os.path.join(output_dir, f'{kind}_{time.strftime("%Y%m%d-%H%M%S")}_{env_id}_seed{int(seed)}')
     with _reserved_lock:
         stem, n = base, 1
-        while stem in _reserved or any(os.path.lexists(stem + ext) for ext in ('.png', '.mp4')):
+        while stem in _reserved or any(os.path.lexists(stem + ext) for ext in EXTENSIONS):
             n += 1
-            stem = '%s_%d' % (base, n)
+            stem = f'{base}_{n}'
         _reserved.add(stem)
     return stem
 
 
-def search_plot_job(result):
+def search_plot_job(result) -> dict:
     """The learning curve of a linear_search.SearchResult: every candidate's average length, the best so far,
     the random-action baseline and the step limit."""
     avgs = [float(v) for v in result.avg_lengths]
     hlines = []
     if np.isfinite(result.baseline_avg_length):
-        hlines.append(dict(y=result.baseline_avg_length, label='random actions (%.1f)' % result.baseline_avg_length,
+        hlines.append(dict(y=result.baseline_avg_length, label=f'random actions ({result.baseline_avg_length:.1f})',
                            color='tab:gray', ls='--'))
-    hlines.append(dict(y=result.max_steps, label='step limit (%d)' % result.max_steps, color='tab:red', ls=':'))
+    hlines.append(dict(y=result.max_steps, label=f'step limit ({result.max_steps})', color='tab:red', ls=':'))
     return dict(
-        title='%s random search, seed %d: best %.1f, final %.1f' % (
-            result.env_id, result.seed, result.best_avg_length, result.final_avg_length),
-        xlabel='candidate (iteration)', ylabel='average episode length over %d episodes' % result.episodes,
+        title=f'{result.env_id} random search, seed {result.seed}: best {result.best_avg_length:.1f}, '
+              f'final {result.final_avg_length:.1f}',
+        xlabel='candidate (iteration)', ylabel=f'average episode length over {result.episodes} episodes',
         series=[dict(y=avgs, label='candidate average length', style='points', color='tab:blue'),
                 dict(y=[float(v) for v in np.maximum.accumulate(avgs)] if avgs else [], label='best so far',
                      style='step', color='tab:orange', lw=2)],
         hlines=hlines, ylim=[0, result.max_steps * 1.05], integer_x=True)
 
 
-def q_learning_plot_job(result):
+def q_learning_plot_job(result) -> dict:
     """The learning curves of a q_learning.TrainingResult: learner 0's total reward per episode and its running
     average of 100, every other learner's running average as a faint line, the random-action baseline."""
     from robot_ai.cartpole.q_learning import running_average, RBF_GAMMAS
     t = result.training
     rewards = [np.asarray(r, dtype=np.float64) for r in result.total_rewards]
     series = [dict(y=[float(v) for v in running_average(r)], style='line', color='tab:blue', alpha=0.3, lw=1,
-                   label='learners 1-%d: running average of 100' % (len(rewards) - 1) if j == 1 else None)
+                   label=f'learners 1-{len(rewards) - 1}: running average of 100' if j == 1 else None)
               for j, r in enumerate(rewards) if j > 0]
     series += [dict(y=[float(v) for v in rewards[0]], style='points', color='tab:gray', ms=3,
                     label='learner 0: total reward per episode'),
                dict(y=[float(v) for v in running_average(rewards[0])], style='line', color='tab:orange', lw=2.5,
                     label='learner 0: running average of 100')]
     best = t.max_steps if t.bootstrap_at_time_limit else t.max_steps - 1
-    spread = ('%d learners, last-100 average %.1f ± %.1f' % (len(result.last100_averages), result.mean_last100,
-                                                              result.ci95_last100)
-              if len(result.last100_averages) > 1 else 'last-100 average %.1f' % result.mean_last100)
+    spread = (f'{len(result.last100_averages)} learners, last-100 average {result.mean_last100:.1f} '
+              f'+/- {result.ci95_last100:.1f}' if len(result.last100_averages) > 1
+              else f'last-100 average {result.mean_last100:.1f}')
     return dict(
-        title='%s Q-learning, %s regressor, %d x %d RBF features, seed %d: %s' % (
-            result.env_id, t.regressor, len(RBF_GAMMAS), t.components, result.seed, spread),
+        title=f'{result.env_id} Q-learning, {t.regressor} regressor, {len(RBF_GAMMAS)} x {t.components} RBF features, '
+              f'seed {result.seed}: {spread}',
         xlabel='episode', ylabel='total reward (+1 steps)', series=series,
-        hlines=[dict(y=result.baseline_total_reward, label='random actions (%.1f)' % result.baseline_total_reward,
+        hlines=[dict(y=result.baseline_total_reward, label=f'random actions ({result.baseline_total_reward:.1f})',
                      color='tab:gray', ls='--'),
-                dict(y=best, label='most an episode totals (%d)' % best, color='tab:red', ls=':')],
+                dict(y=best, label=f'the most an episode can total ({best})', color='tab:red', ls=':')],
         ylim=[0, t.max_steps * 1.05], integer_x=True)
 
 
-def write_plot(job, path):
+def write_plot(job: dict, path: str) -> str:
     """Draw a plot job into the PNG file path (1000 x 560), whole or not at all; return path."""
     import matplotlib
     matplotlib.use('Agg')
@@ -127,21 +130,57 @@ def write_plot(job, path):
             fig.legend(*zip(*keep), loc='outside lower center', ncols=min(3 if len(keep) > 4 else 4, len(keep)), fontsize=9,
                        frameon=False)
         folder = os.path.dirname(os.path.abspath(path))
-        fd, tmp = tempfile.mkstemp(prefix='%s%d_' % (TEMP_PREFIX, os.getpid()), suffix='.png', dir=folder)
-        try:
-            with os.fdopen(fd, 'wb') as f:
-                fig.savefig(f, format='png')
-            _readable(tmp)
-            os.replace(tmp, path)
-        except BaseException:
-            os.unlink(tmp)
-            raise
+        write_whole(path, lambda f: fig.savefig(f, format='png'))
     finally:
         plt.close(fig)
     return path
 
 
-def record_video(env_id, policy, max_steps, seed, path):
+def write_whole(path: str, write) -> str:
+    """Write a file whole or not at all: write(f) fills a hidden temporary binary file beside path, named after
+    this process, which is then renamed into place; return path."""
+    folder = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(prefix=f'{TEMP_PREFIX}{os.getpid()}_', suffix=os.path.splitext(path)[1], dir=folder)
+    try:
+        with os.fdopen(fd, 'wb') as f:
+            write(f)
+        readable(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def write_csv(path: str, header: list, rows) -> str:
+    """A CSV file with a header row, whole or not at all; return path."""
+    def write(f):
+        text = io.TextIOWrapper(f, encoding='utf-8', newline='')
+        out = csv.writer(text)
+        out.writerow(header)
+        out.writerows(rows)
+        text.flush()
+        text.detach()
+    return write_whole(path, write)
+
+
+def search_log(result) -> tuple[list, list]:
+    """(header, rows) of a search's CSV log: one row per candidate evaluated."""
+    header = ['candidate', 'w_x', 'w_x_dot', 'w_theta', 'w_theta_dot', 'avg_length']
+    return header, [[i + 1] + [repr(float(v)) for v in w] + [repr(float(a))]
+                    for i, (w, a) in enumerate(zip(result.weights, result.avg_lengths))]
+
+
+def q_learning_log(result) -> tuple[list, list]:
+    """(header, rows) of a training's CSV log: one row per episode per learner, learners in order."""
+    from robot_ai.cartpole.q_learning import epsilon
+    header = ['learner', 'seed', 'episode', 'total_reward', 'epsilon']
+    return header, [[j, result.seed + j, n + 1, int(total), repr(epsilon(n))]
+                    for j, totals in enumerate(result.total_rewards) for n, total in enumerate(totals)]
+
+
+def record_video(env_id: str, policy, max_steps: int, seed: int, path: str) -> tuple[str, int]:
     """mp4 of one episode rendered by gymnasium (rgb_array), written whole or not at all; returns (path, steps).
 
     policy(observation) -> action (0 or 1); the start state comes from gymnasium's reset(seed). Frames are
@@ -152,7 +191,7 @@ def record_video(env_id, policy, max_steps, seed, path):
     import gymnasium as gym
     import imageio_ffmpeg
     folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix='%s%d_' % (TEMP_PREFIX, os.getpid()), suffix='.mp4', dir=folder)
+    fd, tmp = tempfile.mkstemp(prefix=f'{TEMP_PREFIX}{os.getpid()}_', suffix='.mp4', dir=folder)
     os.close(fd)
     env = gym.make(env_id, render_mode='rgb_array', max_episode_steps=max_steps)
     writer = None
@@ -173,7 +212,7 @@ def record_video(env_id, policy, max_steps, seed, path):
         writer = None
         if os.path.getsize(tmp) == 0:
             raise RuntimeError('ffmpeg wrote an empty video')
-        _readable(tmp)
+        readable(tmp)
         os.replace(tmp, path)
     except BaseException:
         if writer is not None:
@@ -189,22 +228,22 @@ def record_video(env_id, policy, max_steps, seed, path):
 MIN_FREE_BYTES = 32 * 1024 * 1024   # a plot is ~60 KB, a video ~100 KB: below this, a disk is as good as full
 
 
-def unwritable_reason(output_dir, min_free=MIN_FREE_BYTES):
+def unwritable_reason(output_dir: str, min_free: int = MIN_FREE_BYTES) -> str:
     """Why files cannot be written in output_dir (not writable, or a nearly full disk), or '' if they can."""
     if not os.access(output_dir, os.W_OK | os.X_OK):
-        return '%s is not writable' % output_dir
+        return f'{output_dir} is not writable'
     try:
         st = os.statvfs(output_dir)
     except OSError as e:
-        return 'cannot tell the free space where %s is: %s' % (output_dir, e)
+        return f'cannot tell the free space where {output_dir} is: {e}'
     free = st.f_bavail * st.f_frsize
     if free < min_free:
-        return 'the disk where %s is is full: %d KiB free (at least %d MiB wanted)' % (
-            output_dir, free // 1024, min_free // (1024 * 1024))
+        return (f'the disk where {output_dir} is is full: {free // 1024} KiB free '
+                f'(at least {min_free // (1024 * 1024)} MiB wanted)')
     return ''
 
 
-def remove_leftovers(output_dir):
+def remove_leftovers(output_dir: str) -> list[str]:
     """Delete the temporary files (videos and plots being written) that processes which no longer run left in
     output_dir, after a kill -9 say; return their names. Files of running processes are left alone."""
     removed = []
@@ -229,7 +268,7 @@ def remove_leftovers(output_dir):
     return removed
 
 
-def _readable(path):
+def readable(path: str) -> None:
     """The permissions a file created the ordinary way would have (mkstemp makes it 0600)."""
     umask = 0o022
     try:
@@ -240,7 +279,7 @@ def _readable(path):
     os.chmod(path, 0o666 & ~umask)
 
 
-def _running(pid):
+def _running(pid: int) -> bool:
     try:
         os.kill(pid, 0)
     except ProcessLookupError:

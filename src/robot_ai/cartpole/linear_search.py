@@ -14,9 +14,10 @@ numbers are drawn.
     result = random_search(search.dynamics, search.iterations, search.episodes, search.max_steps, seed=0)
     result.best_weights, result.best_avg_length, result.final_avg_length
 """
-import collections
 import math
 import time
+from dataclasses import dataclass
+from typing import Callable, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -28,10 +29,16 @@ MAX_EPISODES = 10000
 MAX_WORK = 20000000            # iterations * episodes (+ final episodes): about a minute or two on 2 cores
 BATCH_ENVS = 131072            # episodes stepped together: bounds memory (~40 MiB of state) whatever the size
 
-Search = collections.namedtuple('Search', 'dynamics iterations episodes max_steps final_episodes')
+class Search(NamedTuple):
+    dynamics: CartPoleDynamics
+    iterations: int
+    episodes: int
+    max_steps: int
+    final_episodes: int
 
 
-def resolve(env_id='', iterations=0, episodes=0, max_steps=0, final_episodes=0, defaults=None):
+def resolve(env_id: str = '', iterations: int = 0, episodes: int = 0, max_steps: int = 0, final_episodes: int = 0,
+            defaults: dict | None = None) -> Search:
     """A Search with zero/empty fields filled from defaults (DEFAULTS, then the given dict) and every value
     checked; RequestError says what is allowed."""
     d = dict(DEFAULTS, **(defaults or {}))
@@ -41,29 +48,28 @@ def resolve(env_id='', iterations=0, episodes=0, max_steps=0, final_episodes=0, 
     final_episodes = int(final_episodes or d['final_episodes'])
     max_steps = dynamics.resolve_max_steps(max_steps)
     if not 1 <= iterations <= MAX_ITERATIONS:
-        raise RequestError('iterations must be 1 to %d (0 = %d), got %d' % (MAX_ITERATIONS, d['iterations'],
-                                                                           iterations))
+        raise RequestError(f'iterations must be 1 to {MAX_ITERATIONS} (0 = {d["iterations"]}), got {iterations}')
     for name, value in (('episodes', episodes), ('final_episodes', final_episodes)):
         if not 1 <= value <= MAX_EPISODES:
-            raise RequestError('%s must be 1 to %d (0 = %d), got %d' % (name, MAX_EPISODES, d[name], value))
+            raise RequestError(f'{name} must be 1 to {MAX_EPISODES} (0 = {d[name]}), got {value}')
     if iterations * episodes + final_episodes > MAX_WORK:
-        raise RequestError('iterations x episodes + final_episodes = %d x %d + %d = %d episodes is more than the '
-                           'limit of %d; use fewer iterations or episodes' % (
-                               iterations, episodes, final_episodes, iterations * episodes + final_episodes, MAX_WORK))
+        raise RequestError(f'iterations x episodes + final_episodes = {iterations} x {episodes} + {final_episodes} = '
+                           f'{iterations * episodes + final_episodes} episodes is more than the limit of {MAX_WORK}; '
+                           'use fewer iterations or episodes')
     return Search(dynamics, iterations, episodes, max_steps, final_episodes)
 
 
-def check_weights(weights):
+def check_weights(weights) -> np.ndarray:
     """The policy's weights as 4 finite floats, or RequestError saying what is wrong."""
     return check_state(weights, 'weights')
 
 
-def act(weights, state):
+def act(weights, state) -> int:
     """The course's policy: 1 (push right) if state.w > 0, else 0."""
     return 1 if float(np.dot(check_state(state), weights)) > 0 else 0
 
 
-def evaluate(dynamics, weights, episodes, max_steps, seed):
+def evaluate(dynamics: CartPoleDynamics, weights, episodes: int, max_steps: int, seed: int) -> np.ndarray:
     """Lengths (episodes,) of one linear policy's episodes; start states from rng_for(seed).
 
     dynamics: a CartPoleDynamics; weights: 4 numbers; max_steps: at most the environment's limit."""
@@ -72,19 +78,55 @@ def evaluate(dynamics, weights, episodes, max_steps, seed):
     return dynamics.episode_lengths(start_states(rng, 1, episodes), max_steps, weights=w[None, :])[0]
 
 
-class SearchResult(object):
+@dataclass(frozen=True, eq=False)
+class LinearPolicy:
+    """The course's linear policy with given weights (4,): the same interface as q_learning.Agent."""
+    weights: np.ndarray
+    kind: ClassVar[str] = 'linear'
+
+    def act(self, state) -> int:
+        return act(self.weights, state)
+
+    def push_right(self, observations: np.ndarray) -> np.ndarray:
+        """observations (4, n) float32 -> (n,) bool, as episode_lengths computes it for weights."""
+        return np.einsum('ij,ij->j', observations, np.repeat(self.weights[:, None], observations.shape[1], 1)) > 0
+
+    def evaluate(self, dynamics: CartPoleDynamics, episodes: int, max_steps: int, seed: int) -> np.ndarray:
+        return evaluate(dynamics, self.weights, episodes, max_steps, seed)
+
+
+@dataclass
+class SearchResult:
     """What a search found: every candidate's weights and average length, the best, its final evaluation."""
-    __slots__ = ('env_id', 'seed', 'iterations', 'episodes', 'max_steps', 'weights', 'avg_lengths',
-                 'best_index', 'best_weights', 'best_avg_length', 'final_lengths', 'final_avg_length',
-                 'baseline_avg_length', 'elapsed', 'cancelled')
+    env_id: str
+    seed: int
+    iterations: int
+    episodes: int
+    max_steps: int
+    weights: np.ndarray                  # (candidates evaluated, 4)
+    avg_lengths: np.ndarray              # (candidates evaluated,)
+    best_index: int                      # -1 if no candidate was evaluated
+    best_weights: np.ndarray
+    best_avg_length: float
+    final_lengths: np.ndarray
+    final_avg_length: float
+    baseline_avg_length: float
+    elapsed: float
+    cancelled: bool
 
-    def __init__(self, **kw):
-        for k in self.__slots__:
-            setattr(self, k, kw.get(k))
+    def settings(self) -> dict:
+        """The settings that made the search, as plain values (a policy file's metadata keeps them)."""
+        return dict(env_id=self.env_id, iterations=self.iterations, episodes=self.episodes,
+                    max_steps=self.max_steps, final_episodes=len(self.final_lengths))
+
+    def figures(self) -> dict:
+        return dict(best_avg_length=self.best_avg_length, final_avg_length=self.final_avg_length,
+                    best_candidate=self.best_index + 1, candidates=len(self.avg_lengths))
 
 
-def random_search(dynamics, iterations=100, episodes=100, max_steps=None, seed=0, final_episodes=100,
-                  progress=None, should_stop=None, batch_envs=BATCH_ENVS):
+def random_search(dynamics: CartPoleDynamics, iterations: int = 100, episodes: int = 100, max_steps: int | None = None,
+                  seed: int = 0, final_episodes: int = 100, progress: Callable | None = None,
+                  should_stop: Callable[[], bool] | None = None, batch_envs: int = BATCH_ENVS) -> SearchResult:
     """The course's random search, batched.
 
     progress(i, avg, best, elapsed) is called for every candidate i (1-based) in order; should_stop() is

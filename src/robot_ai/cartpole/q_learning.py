@@ -18,17 +18,22 @@ learner uses comes from ``rng_for(seed)`` in a fixed order (scaler samples, RBF 
 step the epsilon draw and the random action, per episode the start state), so learner k of a batch (seed + k)
 is exactly the single run with seed + k, in this process or in a worker process.
 
-    training = resolve(episodes=500)                         # defaults filled in, every value checked
+When a learner finishes, its greedy agent plays GREEDY_EPISODES greedy episodes whose start states come from the
+training's seed (the same episodes for every learner), so that the learners can be compared:
+
+    training = resolve(episodes=500, learners=4)             # defaults filled in, every value checked
     result = train(training, seed=0)                         # result.total_rewards, result.last100_averages
-    result.agent.act(state)                                  # learner 0's greedy policy
+    best = result.best_learner()                             # greedy average first, then last-100 average
+    result.agents[best].act(state)                           # its greedy policy
 """
-import collections
 import math
 import multiprocessing
 import os
 import queue
 import signal
 import time
+from dataclasses import dataclass, field
+from typing import Callable, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -44,13 +49,29 @@ MAX_COMPONENTS = 10000           # per bank: 40,000 features, 0.5 MiB of weights
 MAX_LEARNERS = 64
 MAX_WORK = 64 * 1000             # learners x episodes: about two minutes on 2 cores at the default size
 MAX_EVAL_EPISODES = 1000         # greedy episodes stepped together: (1,000 x 4,000) float32 features a step
+GREEDY_EPISODES = 100            # greedy episodes that compare the learners when a training ends
+FLOAT32_MAX = float(np.finfo(np.float32).max)
 
-Training = collections.namedtuple('Training', 'dynamics episodes gamma regressor components learners '
-                                              'bootstrap_at_time_limit max_steps')
+
+class Training(NamedTuple):
+    dynamics: CartPoleDynamics
+    episodes: int
+    gamma: float
+    regressor: str
+    components: int
+    learners: int
+    bootstrap_at_time_limit: bool
+    max_steps: int
+
+    def settings(self) -> dict:
+        """The settings that made a training, as plain values (a policy file's metadata keeps them)."""
+        return dict(env_id=self.dynamics.env_id, episodes=self.episodes, gamma=self.gamma, regressor=self.regressor,
+                    components=self.components, learners=self.learners,
+                    bootstrap_at_time_limit=self.bootstrap_at_time_limit, max_steps=self.max_steps)
 
 
-def resolve(env_id='', episodes=0, gamma=0.0, regressor='', components=0, learners=0,
-            bootstrap_at_time_limit=False, defaults=None):
+def resolve(env_id: str = '', episodes: int = 0, gamma: float = 0.0, regressor: str = '', components: int = 0,
+            learners: int = 0, bootstrap_at_time_limit: bool = False, defaults: dict | None = None) -> Training:
     """A Training with zero/empty fields filled from defaults (DEFAULTS, then the given dict) and every value
     checked; RequestError says what is allowed."""
     d = dict(DEFAULTS, **(defaults or {}))
@@ -61,28 +82,37 @@ def resolve(env_id='', episodes=0, gamma=0.0, regressor='', components=0, learne
     components = int(components or d['components'])
     learners = int(learners or d['learners'])
     if regressor not in REGRESSORS:
-        raise RequestError('regressor must be one of %s ("" = %s), got %r' % (
-            ', '.join(sorted(REGRESSORS)), d['regressor'], regressor))
+        raise RequestError(f'regressor must be one of {", ".join(sorted(REGRESSORS))} ("" = {d["regressor"]}), '
+                           f'got {regressor!r}')
     if not 0.0 < gamma <= 1.0:  # NaN fails too
-        raise RequestError('gamma must be in (0, 1] (0 = %g), got %s' % (d['gamma'], gamma))
+        raise RequestError(f'gamma must be in (0, 1] (0 = {d["gamma"]:g}), got {gamma}')
     for name, value, limit in (('episodes', episodes, MAX_EPISODES), ('components', components, MAX_COMPONENTS),
                                ('learners', learners, MAX_LEARNERS)):
         if not 1 <= value <= limit:
-            raise RequestError('%s must be 1 to %d (0 = %d), got %d' % (name, limit, d[name], value))
+            raise RequestError(f'{name} must be 1 to {limit} (0 = {d[name]}), got {value}')
     if learners * episodes > MAX_WORK:
-        raise RequestError('learners x episodes = %d is more than the limit of %d; use fewer learners or '
-                           'episodes' % (learners * episodes, MAX_WORK))
+        raise RequestError(f'learners x episodes = {learners} x {episodes} = {learners * episodes} is more than the '
+                           f'limit of {MAX_WORK}; use fewer learners or episodes')
     return Training(dynamics, episodes, gamma, regressor, components, learners, bool(bootstrap_at_time_limit),
                     dynamics.max_episode_steps)
 
 
-class RBFFeatures(object):
+def rbf_transform(states, weights32: np.ndarray, offsets32: np.ndarray, amplitude: float) -> np.ndarray:
+    """amplitude * cos(states . weights + offsets) in float32: (n, D) for states (n, 4), (D,) for one state (4,)."""
+    z = np.asarray(states, dtype=np.float32).dot(weights32)
+    z += offsets32
+    np.cos(z, out=z)
+    z *= np.float32(amplitude)
+    return z
+
+
+class RBFFeatures:
     """The course's FeatureTransformer: StandardScaler, then a union of RBFSamplers, as one affine map and a cosine.
 
     mean, scale: the scaler's; weights (4, D), offsets (D,): the RBF banks side by side (scikit-learn's
     random_weights_ and random_offset_); D = len(gammas) * components."""
 
-    def __init__(self, rng, components, gammas=RBF_GAMMAS, samples=SCALER_SAMPLES):
+    def __init__(self, rng: np.random.Generator, components: int, gammas=RBF_GAMMAS, samples: int = SCALER_SAMPLES):
         examples = rng.random((samples, 4)) * 2 - 1          # the course: np.random.random((20000, 4))*2 - 1
         self.mean = examples.mean(axis=0)
         self.scale = examples.std(axis=0)                    # StandardScaler: population std
@@ -99,62 +129,81 @@ class RBFFeatures(object):
         self.folded_weights32 = folded_weights.astype(np.float32)
         self.folded_offsets32 = folded_offsets.astype(np.float32)
 
-    def transform(self, states):
+    def transform(self, states) -> np.ndarray:
         """Features (n, D) float32 of states (n, 4), or (D,) of one state (4,): the agent sees gymnasium's
         float32 observation."""
-        z = np.asarray(states, dtype=np.float32).dot(self.folded_weights32)
-        z += self.folded_offsets32
-        np.cos(z, out=z)
-        z *= np.float32(self.amplitude)
-        return z
+        return rbf_transform(states, self.folded_weights32, self.folded_offsets32, self.amplitude)
 
 
-class LinearQ(object):
+class LinearQ:
     """One linear regressor per action, Q(s, a) = x(s).w[a], trained one sample at a time.
 
     'tf': the warm-up's TensorFlow regressor: w ~ N(0, 1); gradient descent with rate 0.1 on the summed
     squared error (G - x.w)^2, whose gradient is -2 (G - x.w) x: w += 0.2 (G - x.w) x.
     'sgd': q_learning.py's numpy regressor: w ~ N(0, 1) / sqrt(D), w += 0.1 (G - x.w) x."""
 
-    def __init__(self, regressor, dimensions, rng, actions=2):
+    def __init__(self, regressor: str, dimensions: int, rng: np.random.Generator, actions: int = 2):
         w = rng.standard_normal((actions, dimensions))
         if regressor == 'sgd':
             w /= math.sqrt(dimensions)
         self.w = w.astype(np.float32)
         self.rate = REGRESSORS[regressor]
 
-    def predict(self, x):
+    def predict(self, x: np.ndarray) -> np.ndarray:
         """Q of every action (actions,) for features x (D,), or (n, actions) for x (n, D)."""
         return x.dot(self.w.T)
 
-    def update(self, x, action, target, prediction):
+    def update(self, x: np.ndarray, action: int, target: float, prediction: float) -> None:
         """w[action] += rate (target - prediction) x, where prediction is x.w[action] before the update."""
         self.w[action] += np.float32(self.rate * (target - prediction)) * x
 
 
-class Agent(object):
-    """A trained learner's greedy policy: features and regressors."""
+def check_observation(state) -> np.ndarray:
+    """A state the agent can see: 4 finite numbers whose float32 (gymnasium's observation) is finite too."""
+    s = check_state(state)
+    if np.abs(s).max() > FLOAT32_MAX:
+        raise RequestError(f'state must be within float32 range (|v| <= {FLOAT32_MAX:.3g}): the agent sees '
+                           f'gymnasium\'s float32 observation, got {[float(v) for v in s]}')
+    return s
 
-    def __init__(self, features, q):
-        self.features, self.q = features, q
 
-    def act(self, state):
+@dataclass(frozen=True, eq=False)
+class Agent:
+    """A learner's greedy policy: everything it needs to act, as arrays (a policy file holds exactly these).
+
+    feature_weights (4, D) and feature_offsets (D,) float32 are the RBF banks with the scaler folded in;
+    q_weights (2, D) float32 the regressors; Q(s) = q_weights . (amplitude cos(s . feature_weights + offsets))."""
+    feature_weights: np.ndarray
+    feature_offsets: np.ndarray
+    amplitude: float
+    q_weights: np.ndarray
+    kind: ClassVar[str] = 'q_learning'
+
+    @classmethod
+    def of(cls, features: RBFFeatures, q: LinearQ) -> 'Agent':
+        return cls(features.folded_weights32, features.folded_offsets32, features.amplitude, q.w.copy())
+
+    def values(self, states) -> np.ndarray:
+        """Q of both actions: (2,) for one state, (n, 2) for states (n, 4)."""
+        return rbf_transform(states, self.feature_weights, self.feature_offsets, self.amplitude).dot(self.q_weights.T)
+
+    def act(self, state) -> int:
         """The greedy action (0 or 1) for one state; ties go to action 0, as numpy's argmax."""
-        values = self.q.predict(self.features.transform(check_state(state)))
+        values = self.values(check_observation(state))
         return int(values[1] > values[0])
 
-    def push_right(self, observations):
+    def push_right(self, observations: np.ndarray) -> np.ndarray:
         """The greedy policy for CartPoleDynamics.episode_lengths: observations (4, n) -> (n,) bool."""
-        values = self.q.predict(self.features.transform(observations.T))
+        values = self.values(observations.T)
         return values[:, 1] > values[:, 0]
 
-    def evaluate(self, dynamics, episodes, max_steps, seed):
+    def evaluate(self, dynamics: CartPoleDynamics, episodes: int, max_steps: int, seed: int) -> np.ndarray:
         """Lengths (episodes,) of greedy episodes, start states from rng_for(seed), stepped together."""
         starts = start_states(rng_for(seed), 1, episodes)
         return dynamics.episode_lengths(starts, max_steps, policy=self.push_right)[0]
 
 
-def new_learner(training, seed):
+def new_learner(training: Training, seed: int) -> tuple[np.random.Generator, RBFFeatures, LinearQ]:
     """(rng, features, regressors) of a learner before its first episode: its random parameters, drawn from
     rng_for(seed) in the fixed order every run of that seed draws them."""
     rng = rng_for(seed)
@@ -162,7 +211,13 @@ def new_learner(training, seed):
     return rng, features, LinearQ(training.regressor, features.dimensions, rng)
 
 
-def train_one(training, seed, progress=None, should_stop=None):
+def epsilon(episode: int) -> float:
+    """The course's exploration rate in episode n (0-based): 1 / sqrt(n + 1)."""
+    return 1.0 / math.sqrt(episode + 1)
+
+
+def train_one(training: Training, seed: int, progress: Callable | None = None,
+              should_stop: Callable[[], bool] | None = None) -> tuple[np.ndarray, Agent]:
     """One learner, the course's loop. Returns (total rewards (episodes played,), Agent).
 
     progress(episode, total_reward, epsilon) after every episode (1-based); should_stop() is asked before
@@ -173,8 +228,8 @@ def train_one(training, seed, progress=None, should_stop=None):
     totals = np.zeros(training.episodes)
     for n in range(training.episodes):
         if should_stop is not None and should_stop():
-            return totals[:n], Agent(features, q)
-        eps = 1.0 / math.sqrt(n + 1)
+            return totals[:n], Agent.of(features, q)
+        eps = epsilon(n)
         state = tuple(float(v) for v in rng.uniform(-0.05, 0.05, 4))  # gymnasium's reset distribution
         x = features.transform(state)
         values = q.predict(x)
@@ -200,10 +255,16 @@ def train_one(training, seed, progress=None, should_stop=None):
         totals[n] = total
         if progress is not None:
             progress(n + 1, total, eps)
-    return totals, Agent(features, q)
+    return totals, Agent.of(features, q)
 
 
-def running_average(values, window=100):
+def greedy_average(agent: Agent, training: Training, seed: int, episodes: int = GREEDY_EPISODES) -> float:
+    """The average length of `episodes` greedy episodes of agent on the training's env and step limit, start states
+    from the training's seed: the same episodes for every learner of a training and for the agent it competes with."""
+    return float(agent.evaluate(training.dynamics, episodes, training.max_steps, seed).mean())
+
+
+def running_average(values, window: int = 100) -> np.ndarray:
     """Average of the last `window` values (fewer at the start) at every index."""
     c = np.concatenate(([0.0], np.cumsum(values, dtype=np.float64)))
     i = np.arange(1, len(values) + 1)
@@ -215,7 +276,7 @@ _T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 
          2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042)
 
 
-def ci95_half_width(values):
+def ci95_half_width(values) -> float:
     """Half-width of the 95% confidence interval of the mean of values (Student's t); 0 for one value."""
     n = len(values)
     if n < 2:
@@ -229,30 +290,63 @@ def ci95_half_width(values):
     return float(t * np.std(values, ddof=1) / math.sqrt(n))
 
 
-class TrainingResult(object):
-    """K learners' total rewards (K, episodes played), their last-100 averages, learner 0's agent."""
-    __slots__ = ('env_id', 'seed', 'training', 'total_rewards', 'last100_averages', 'mean_last100', 'ci95_last100',
-                 'agent', 'baseline_total_reward', 'elapsed', 'cancelled')
+@dataclass
+class TrainingResult:
+    """K learners' total rewards (K, episodes played); the learners that finished every episode, with their
+    last-100 averages, greedy averages and agents (indexed by learner; None where a learner did not finish)."""
+    env_id: str
+    seed: int
+    training: Training
+    total_rewards: list
+    finished: list                       # learner indices that played every episode, in order
+    last100_averages: np.ndarray         # of the finished learners, in the order of `finished`
+    greedy_averages: np.ndarray          # of the finished learners: GREEDY_EPISODES greedy episodes each
+    agents: list
+    baseline_total_reward: float
+    elapsed: float
+    cancelled: bool
+    mean_last100: float = field(init=False)
+    ci95_last100: float = field(init=False)
 
-    def __init__(self, **kw):
-        for k in self.__slots__:
-            setattr(self, k, kw.get(k))
+    def __post_init__(self):
+        self.mean_last100 = float(self.last100_averages.mean()) if len(self.last100_averages) else 0.0
+        self.ci95_last100 = ci95_half_width(self.last100_averages) if len(self.last100_averages) else 0.0
+
+    @property
+    def learner_seeds(self) -> list[int]:
+        """The seeds of the finished learners (learner k has seed + k)."""
+        return [self.seed + j for j in self.finished]
+
+    def best_learner(self) -> int:
+        """The finished learner with the best greedy average, then the best last-100 average (the first of equals);
+        -1 if none finished."""
+        if not self.finished:
+            return -1
+        order = max(range(len(self.finished)), key=lambda i: (self.greedy_averages[i], self.last100_averages[i], -i))
+        return self.finished[order]
+
+    def figures_of(self, learner: int) -> dict:
+        """A finished learner's figures, for its policy file."""
+        i = self.finished.index(learner)
+        return dict(last100_average=float(self.last100_averages[i]), greedy_average=float(self.greedy_averages[i]),
+                    greedy_episodes=GREEDY_EPISODES, learner=learner, batch_seed=self.seed)
 
 
-def summary(result):
+def summary(result: TrainingResult) -> str:
     """One line of what a training gave, ending as the course's script does."""
     t = result.training
-    head = '%s, %s regressor, %d x %d RBF features, gamma %g, %d episodes%s' % (
-        result.env_id, t.regressor, len(RBF_GAMMAS), t.components, t.gamma, t.episodes,
-        ', bootstrap at the time limit' if t.bootstrap_at_time_limit else '')
-    if len(result.last100_averages) == 1:
-        return '%s, seed %d: avg reward for last 100 episodes: %.2f' % (head, result.seed, result.mean_last100)
-    return '%s, %d learners (seeds %d to %d): avg reward for last 100 episodes: %.2f ± %.2f (95%%), from %.2f to %.2f' % (
-        head, len(result.last100_averages), result.seed, result.seed + len(result.last100_averages) - 1,
-        result.mean_last100, result.ci95_last100, result.last100_averages.min(), result.last100_averages.max())
+    head = (f'{result.env_id}, {t.regressor} regressor, {len(RBF_GAMMAS)} x {t.components} RBF features, '
+            f'gamma {t.gamma:g}, {t.episodes} episodes' + (', bootstrap at the time limit'
+                                                            if t.bootstrap_at_time_limit else ''))
+    avg = result.last100_averages
+    if len(avg) == 1:
+        return f'{head}, seed {result.seed}: avg reward for last 100 episodes: {result.mean_last100:.2f}'
+    return (f'{head}, {len(avg)} learners (seeds {result.seed} to {result.seed + len(avg) - 1}): avg reward for last '
+            f'100 episodes: {result.mean_last100:.2f} +/- {result.ci95_last100:.2f} (95%), '
+            f'from {avg.min():.2f} to {avg.max():.2f}')
 
 
-def random_baseline(training, episodes=1000):
+def random_baseline(training: Training, episodes: int = 1000) -> float:
     """The average total reward of random actions, counted as the training counts it (its own fixed draws)."""
     rng = np.random.default_rng(0)
     lengths = training.dynamics.episode_lengths(start_states(rng, 1, episodes), training.max_steps, rng=rng)[0]
@@ -260,44 +354,55 @@ def random_baseline(training, episodes=1000):
     return float(np.where(full & training.bootstrap_at_time_limit, lengths, lengths - 1).mean())
 
 
-def worker_count(learners):
+def worker_count(learners: int) -> int:
     """Processes for a batch: one per core this process may use, at most one per learner."""
-    return max(1, min(learners, len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity')
-                      else os.cpu_count() or 1))
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else os.cpu_count() or 1
+    return max(1, min(learners, cores))
 
 
-def train(training, seed=0, progress=None, should_stop=None, workers=None):
+def _finish(training: Training, batch_seed: int, j: int, totals: np.ndarray, agent: Agent):
+    """What a learner sends back: its totals, and its agent and greedy average if it played every episode."""
+    if len(totals) < training.episodes:
+        return totals, None, None
+    return totals, agent, greedy_average(agent, training, batch_seed)
+
+
+def train(training: Training, seed: int = 0, progress: Callable | None = None,
+          should_stop: Callable[[], bool] | None = None, workers: int | None = None) -> TrainingResult:
     """Train training.learners independent learners, seeds seed, seed + 1, ...; return a TrainingResult.
 
-    progress(learner, episode, total_reward, epsilon) after every episode of every learner (learner 0's in
+    progress(learner, episode, total_reward, epsilon) after every episode of every learner (each learner's in
     order); should_stop() is asked often, and a training it stops returns cancelled=True with the episodes
-    played. More than one learner: `workers` processes (default: one per core) share them."""
+    played and the learners that had finished. More than one learner: `workers` processes (default: one per
+    core) share them."""
     t0 = time.time()
     k = training.learners
     workers = worker_count(k) if workers is None else max(1, min(workers, k))
     if workers == 1:
-        rewards, agent, cancelled = [], None, False
+        learners, cancelled = {}, False
         for j in range(k):
             report = None if progress is None else (lambda e, r, eps, j=j: progress(j, e, r, eps))
-            totals, a = train_one(training, seed + j, report, should_stop)
-            rewards.append(totals)
-            agent = agent or a
-            if len(totals) < training.episodes:
+            learners[j] = _finish(training, seed, j, *train_one(training, seed + j, report, should_stop))
+            if learners[j][1] is None:
                 cancelled = True
                 break
     else:
-        rewards, agent, cancelled = _train_in_processes(training, seed, workers, progress, should_stop)
-    return _result(training, seed, rewards, agent, cancelled, time.time() - t0)
+        learners, cancelled = _train_in_processes(training, seed, workers, progress, should_stop)
+    return _result(training, seed, learners, cancelled, time.time() - t0)
 
 
-def _result(training, seed, rewards, agent, cancelled, elapsed):
-    last100 = np.array([r[-100:].mean() for r in rewards]) if not cancelled else np.zeros(0)  # all complete
+def _result(training: Training, seed: int, learners: dict, cancelled: bool, elapsed: float) -> TrainingResult:
+    """learners: {j: (totals, agent or None, greedy average or None)}."""
+    k = training.learners
+    rewards = [learners[j][0] if j in learners else np.zeros(0) for j in range(k)]
+    agents = [learners[j][1] if j in learners else None for j in range(k)]
+    finished = [j for j in range(k) if agents[j] is not None]
     return TrainingResult(
-        env_id=training.dynamics.env_id, seed=seed, training=training,
-        total_rewards=rewards, last100_averages=last100,
-        mean_last100=float(last100.mean()) if len(last100) else 0.0,
-        ci95_last100=ci95_half_width(last100) if len(last100) else 0.0,
-        agent=agent, baseline_total_reward=random_baseline(training), elapsed=elapsed, cancelled=cancelled)
+        env_id=training.dynamics.env_id, seed=seed, training=training, total_rewards=rewards, finished=finished,
+        last100_averages=np.array([rewards[j][-100:].mean() for j in finished]),
+        greedy_averages=np.array([learners[j][2] for j in finished]), agents=agents,
+        baseline_total_reward=random_baseline(training), elapsed=elapsed,
+        cancelled=cancelled or len(finished) < k)
 
 
 # ------------------------------------------------------------------------------------------ worker processes
@@ -322,7 +427,7 @@ def _worker(training, seed, next_learner, results, stop):
             return
         totals, agent = train_one(training, seed + j,
                                   lambda e, r, eps: results.put(('episode', j, e, r, eps)), stop.is_set)
-        results.put(('done', j, totals, agent.q.w if j == 0 else None))
+        results.put(('done', j) + _finish(training, seed, j, totals, agent))
 
 
 def _stopping(should_stop, grace=1.0):
@@ -343,9 +448,9 @@ def _train_in_processes(training, seed, workers, progress, should_stop):
              for _ in range(workers)]
     for p in procs:
         p.start()
-    rewards, weights0, cancelled = {}, None, False
+    learners, cancelled = {}, False
     try:
-        while len(rewards) < training.learners:
+        while len(learners) < training.learners:
             if should_stop is not None and not stop.is_set() and should_stop():
                 stop.set()
                 cancelled = True
@@ -356,27 +461,18 @@ def _train_in_processes(training, seed, workers, progress, should_stop):
                     if stop.is_set() or _stopping(should_stop):  # a Ctrl-C ends the workers and the caller
                         cancelled = True
                         break
-                    raise RuntimeError('the learner processes ended before their learners (%d of %d done)'
-                                       % (len(rewards), training.learners))
+                    raise RuntimeError(f'the learner processes ended before their learners '
+                                       f'({len(learners)} of {training.learners} done)')
                 continue
             if msg[0] == 'episode':
                 if progress is not None:
                     progress(*msg[1:])
             else:
-                rewards[msg[1]] = msg[2]
-                if msg[3] is not None:
-                    weights0 = msg[3]
+                learners[msg[1]] = msg[2:]
     finally:
         stop.set()
         for p in procs:
             p.join(5)
             if p.is_alive():
                 p.terminate()
-    ordered = [rewards.get(j, np.zeros(0)) for j in range(training.learners)]
-    cancelled = cancelled or any(len(r) < training.episodes for r in ordered)
-    if weights0 is None:
-        return ordered, None, cancelled
-    # learner 0's agent, rebuilt here from its seed (the same draws) and the weights it learned
-    _, features, q = new_learner(training, seed)
-    q.w = weights0
-    return ordered, Agent(features, q), cancelled
+    return learners, cancelled
