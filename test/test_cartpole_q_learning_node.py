@@ -66,14 +66,14 @@ class TestCartPoleQLearningNode(unittest.TestCase):
         # learner 0 becomes the node's agent: greedy episodes and actions as the library's agent gives them
         ev = self.evaluate(episodes=20, seed=5)
         self.assertTrue(ev.success, ev.message)
-        want = local.agent.evaluate(CartPoleDynamics.of('CartPole-v0'), 20, 200, 5)
+        want = local.agents[0].evaluate(CartPoleDynamics.of('CartPole-v0'), 20, 200, 5)
         self.assertEqual(list(ev.lengths), [int(v) for v in want])
         self.assertAlmostEqual(ev.avg_length, float(np.mean(want)))
         self.assertGreater(ev.avg_length, 190)
         for state in ([0, 0, 0.05, 0], [0, 0, -0.05, 0], [0.1, -0.4, 0.01, 0.3]):
             a = self.act(state=state)
             self.assertTrue(a.success, a.message)
-            self.assertEqual(a.action, local.agent.act(state))
+            self.assertEqual(a.action, local.agents[0].act(state))
 
     def test_2_learners_video_and_v1(self):
         res = self.train(env_id='CartPole-v1', episodes=150, components=200, learners=3, seed=-2, regressor='sgd',

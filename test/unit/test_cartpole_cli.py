@@ -1,5 +1,7 @@
 """`python -m robot_ai.cartpole` from the venv with nothing sourced, as the README shows it."""
+import csv
 import os
+import re
 import subprocess
 import sys
 
@@ -26,8 +28,28 @@ def test_random_search_with_nothing_sourced_writes_under_ros_home(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert 'best average      493.80' in proc.stdout and 'final average     492.37' in proc.stdout
     assert '100/100' in proc.stderr  # the progress bar
-    plot = [l.split()[-1] for l in proc.stdout.splitlines() if l.startswith('plot')][0]
+    plot = path_of(proc, 'plot')
     assert plot.startswith(str(tmp_path / 'rh' / 'robot_ai')) and os.path.isfile(plot)
+    # the policy file and the CSV log beside the plot; evaluate and show read the policy back
+    policy, log = path_of(proc, 'policy'), path_of(proc, 'log')
+    assert policy == plot[:-4] + '.npz' and log == plot[:-4] + '.csv'
+    with open(log) as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ['candidate', 'w_x', 'w_x_dot', 'w_theta', 'w_theta_dot', 'avg_length'] and len(rows) == 101
+    assert max(float(r[5]) for r in rows[1:]) == 493.8
+    shown = run(['show', policy], tmp_path)
+    assert shown.returncode == 0 and '"kind": "linear"' in shown.stdout and '"final_avg_length": 492.37' in shown.stdout
+    ev = run(['evaluate', policy, '--episodes', '100', '--seed', '0'], tmp_path)
+    assert ev.returncode == 0, ev.stderr
+    from robot_ai.cartpole import linear_search
+    from robot_ai.cartpole.dynamics import CartPoleDynamics
+    weights = [float(v) for v in rows[int(shown.stdout.split('"best_candidate": ')[1].split(',')[0])][1:5]]
+    want = linear_search.evaluate(CartPoleDynamics.of('CartPole-v1'), weights, 100, 500, 0).mean()
+    assert f'average length: {want:.2f}' in ev.stdout
+
+
+def path_of(proc, label):
+    return [l.split()[-1] for l in proc.stdout.splitlines() if l.split() and l.split()[0] == label][0]
 
 
 @pytest.mark.parametrize('args, message', [(['random-search', '--iterations', '-5'], 'iterations must be 1 to'),
@@ -43,12 +65,28 @@ def test_q_learning_ends_as_the_course_prints(tmp_path):
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.strip().splitlines()
     assert lines[-1].startswith('avg reward for last 100 episodes: ')
-    learners = [float(l.split()[-1]) for l in lines if l.startswith('learner ')]
+    learners = [float(re.search(r'last-100 average ([0-9.]+)', l).group(1)) for l in lines if l.startswith('learner ')]
     assert len(learners) == 2 and float(lines[-1].split()[-1]) == round(sum(learners) / 2, 2)
+    assert sum('<- best' in l for l in lines) == 1
     assert '240/240' in proc.stderr  # the progress bar counts every learner's episodes
-    plot = [l.split()[-1] for l in lines if l.startswith('plot')][0]
+    plot = path_of(proc, 'plot')
     assert os.path.isfile(plot) and '_CartPole-v0_seed4' in plot
+    with open(path_of(proc, 'log')) as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ['learner', 'seed', 'episode', 'total_reward', 'epsilon'] and len(rows) == 1 + 240
+    assert [r[:3] for r in rows[1:3]] == [['0', '4', '1'], ['0', '4', '2']] and rows[-1][:3] == ['1', '5', '120']
+    ev = run(['evaluate', path_of(proc, 'policy'), '--episodes', '30', '--seed', '4'], tmp_path)
+    assert ev.returncode == 0 and 'q_learning policy' in ev.stdout and 'average length: ' in ev.stdout
     help_text = run(['q-learning', '--help'], tmp_path).stdout.replace('\n', ' ')
     for option in ('--episodes', '--gamma', '--regressor', '--components', '--learners', '--bootstrap-at-time-limit',
                    '--video', '--seed', '--env-id'):
         assert option in help_text
+
+
+@pytest.mark.parametrize('args, message', [
+    (['evaluate', '/nonexistent.npz'], 'no policy file at /nonexistent.npz'),
+    (['show', '/etc/hostname'], 'not an .npz archive'),
+    (['q-learning', '--episodes', '5', '--output-dir', '/proc/nope'], '--output-dir: cannot create /proc/nope')])
+def test_bad_files_and_folders_are_one_line_before_any_work(tmp_path, args, message):
+    proc = run(args, tmp_path)
+    assert proc.returncode == 2 and message in proc.stderr and 'Traceback' not in proc.stderr, proc.stderr

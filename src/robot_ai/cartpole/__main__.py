@@ -1,106 +1,141 @@
-"""The CartPole agents without ROS: ``python -m robot_ai.cartpole <agent> [options]`` (see --help).
+"""The CartPole agents without ROS: ``python -m robot_ai.cartpole <command> [options]`` (see --help).
 
     python -m robot_ai.cartpole random-search --iterations 100 --episodes 100 --seed 0 --video
     python -m robot_ai.cartpole q-learning --episodes 500 --seed 0 --learners 8
+    python -m robot_ai.cartpole evaluate ~/.ros/robot_ai/qlearning_..._seed0.npz --episodes 100
+    python -m robot_ai.cartpole show ~/.ros/robot_ai/search_..._seed0.npz
+
+random-search and q-learning write the run's policy file (.npz), its CSV log and its plot side by side, and print
+their paths; evaluate and show take any policy file, of either kind.
 """
 import argparse
+import json
+import os
 import sys
 
 import numpy as np
 
-from robot_ai.cartpole import artifacts, linear_search, q_learning
-from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, RequestError
+from robot_ai.cartpole import artifacts, linear_search, policies, q_learning
+from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics, RequestError
+from robot_ai.cartpole.linear_search import LinearPolicy
 
 
-def progress_bar(total, unit):
+def progress_bar(total: int, unit: str):
     from tqdm import tqdm
     return tqdm(total=total, unit=unit, file=sys.stderr, dynamic_ncols=True)
 
 
-def add_common(p, default_env):
+def add_common(p: argparse.ArgumentParser, default_env: str) -> None:
     p.add_argument('--env-id', default=default_env, choices=SUPPORTED_ENVS, help='the CartPole environment')
     p.add_argument('--seed', type=int, default=0, help='random seed; the same seed gives the same result')
     p.add_argument('--video', action='store_true', help='also record an mp4 of one episode of the result')
     p.add_argument('--output-dir', default=artifacts.default_output_dir(),
-                   help='where the plot and the video go ($ROS_HOME/robot_ai, or ~/.ros/robot_ai)')
+                   help='where the policy, the CSV log, the plot and the video go ($ROS_HOME/robot_ai, or '
+                   '~/.ros/robot_ai)')
 
 
-def random_search_parser(sub):
+def output_folder(a, parser) -> str:
+    """The output folder, created and checked before any work: a run never ends in a traceback over its files."""
+    folder = os.path.abspath(os.path.expanduser(a.output_dir))
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as e:
+        parser.error(f'--output-dir: cannot create {folder}: {e.strerror or e}')
+    problem = artifacts.unwritable_reason(folder)
+    if problem:
+        parser.error(f'--output-dir: {problem}')
+    return folder
+
+
+def write_or_say(label: str, write) -> None:
+    """Print `label  path` once write() has written its file, or why it could not."""
+    try:
+        print(f'{label:<18}{write()}')
+    except Exception as e:  # the numbers above are printed already
+        print(f'{label:<18}not written: {e}')
+
+
+def random_search_parser(sub) -> None:
     d = linear_search.DEFAULTS
     p = sub.add_parser('random-search', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                        help='the course\'s random search of a linear policy',
                        description='The course\'s random search: draw linear policies w in [-1, 1]^4, keep the '
                        'best average episode length, evaluate it on final episodes.')
     add_common(p, d['env_id'])
-    p.add_argument('--iterations', type=int, default=d['iterations'], help='candidate policies to try (1 to %d)'
-                   % linear_search.MAX_ITERATIONS)
-    p.add_argument('--episodes', type=int, default=d['episodes'], help='episodes per candidate (1 to %d)'
-                   % linear_search.MAX_EPISODES)
+    p.add_argument('--iterations', type=int, default=d['iterations'],
+                   help=f'candidate policies to try (1 to {linear_search.MAX_ITERATIONS})')
+    p.add_argument('--episodes', type=int, default=d['episodes'],
+                   help=f'episodes per candidate (1 to {linear_search.MAX_EPISODES})')
     p.add_argument('--max-steps', type=int, default=0, help='step limit of an episode; 0 = the environment\'s own')
     p.add_argument('--final-episodes', type=int, default=d['final_episodes'],
                    help='episodes of the final evaluation of the best policy')
     p.set_defaults(run=run_random_search)
 
 
-def run_random_search(a, parser):
+def run_random_search(a, parser) -> int:
     try:
         search = linear_search.resolve(a.env_id, a.iterations, a.episodes, a.max_steps, a.final_episodes)
     except RequestError as e:
         parser.error(str(e))
+    folder = output_folder(a, parser)
     bar = progress_bar(search.iterations, 'candidate')
 
     def progress(i, avg, best, elapsed):
         bar.update(1)
         if i % 10 == 0 or i == search.iterations:
-            bar.set_postfix(best='%.1f' % best)
+            bar.set_postfix(best=f'{best:.1f}')
     result = linear_search.random_search(search.dynamics, search.iterations, search.episodes, search.max_steps,
                                          a.seed, search.final_episodes, progress=progress)
     bar.close()
-    stem = artifacts.artifact_stem(a.output_dir, 'search', result.env_id, a.seed)
-    print('best weights      %s' % np.array2string(result.best_weights, precision=4))
-    print('best average      %.2f (candidate %d of %d)' % (result.best_avg_length, result.best_index + 1,
-                                                            search.iterations))
-    print('final average     %.2f over %d episodes' % (result.final_avg_length, search.final_episodes))
-    print('random actions    %.2f' % result.baseline_avg_length)
-    print('search time       %.3f s' % result.elapsed)
-    print('plot              %s' % artifacts.write_plot(artifacts.search_plot_job(result), stem + '.png'))
+    print(f'best weights      {np.array2string(result.best_weights, precision=4)}')
+    print(f'best average      {result.best_avg_length:.2f} (candidate {result.best_index + 1} of {search.iterations})')
+    print(f'final average     {result.final_avg_length:.2f} over {search.final_episodes} episodes')
+    print(f'random actions    {result.baseline_avg_length:.2f}')
+    print(f'search time       {result.elapsed:.3f} s')
+    stem = artifacts.artifact_stem(folder, 'search', result.env_id, a.seed)
+    weights = result.best_weights
+    write_or_say('policy', lambda: policies.save(stem + '.npz', LinearPolicy(weights), result.env_id, a.seed,
+                                                 result.settings(), result.figures(), 'random-search (CLI)'))
+    write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *artifacts.search_log(result)))
+    write_or_say('plot', lambda: artifacts.write_plot(artifacts.search_plot_job(result), stem + '.png'))
     if a.video:
-        weights = result.best_weights
-        path, _ = artifacts.record_video(result.env_id, lambda obs: linear_search.act(weights, obs),
-                                         search.max_steps, a.seed, stem + '.mp4')
-        print('video             %s' % path)
+        write_or_say('video', lambda: artifacts.record_video(
+            result.env_id, lambda obs: linear_search.act(weights, obs), search.max_steps, a.seed, stem + '.mp4')[0])
     return 0
 
 
-def q_learning_parser(sub):
+def q_learning_parser(sub) -> None:
     d = q_learning.DEFAULTS
     p = sub.add_parser('q-learning', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                        help='the course\'s Q-learning agent with RBF features (its "TensorFlow warm-up")',
                        description='The course\'s Q-learning with RBF features: epsilon-greedy (1/sqrt(n+1)), '
                        'r = -200 on the last step, one linear regressor per action. Ends by printing the '
-                       'average total reward of the last 100 episodes (the mean over learners if several).')
+                       'average total reward of the last 100 episodes (the mean over learners if several). '
+                       'The best learner (greedy average over 100 episodes, then last-100 average) is saved.')
     add_common(p, d['env_id'])
-    p.add_argument('--episodes', type=int, default=d['episodes'], help='episodes per learner (1 to %d)'
-                   % q_learning.MAX_EPISODES)
+    p.add_argument('--episodes', type=int, default=d['episodes'],
+                   help=f'episodes per learner (1 to {q_learning.MAX_EPISODES})')
     p.add_argument('--gamma', type=float, default=d['gamma'], help='discount, in (0, 1]')
     p.add_argument('--regressor', default=d['regressor'], choices=sorted(q_learning.REGRESSORS),
                    help='tf: the warm-up\'s (w ~ N(0, 1), w += 0.2 (G - x.w) x); sgd: q_learning.py\'s '
                    '(w ~ N(0, 1)/sqrt(D), w += 0.1 (G - x.w) x)')
-    p.add_argument('--components', type=int, default=d['components'], help='random Fourier features per RBF bank '
-                   '(4 banks; 1 to %d)' % q_learning.MAX_COMPONENTS)
-    p.add_argument('--learners', type=int, default=d['learners'], help='independent learners, seeds seed, seed+1, '
-                   '... (1 to %d), spread over the cores' % q_learning.MAX_LEARNERS)
+    p.add_argument('--components', type=int, default=d['components'],
+                   help=f'random Fourier features per RBF bank (4 banks; 1 to {q_learning.MAX_COMPONENTS})')
+    p.add_argument('--learners', type=int, default=d['learners'],
+                   help=f'independent learners, seeds seed, seed+1, ... (1 to {q_learning.MAX_LEARNERS}), spread over '
+                   'the cores')
     p.add_argument('--bootstrap-at-time-limit', action='store_true',
                    help='a time-limit truncation is not a failure: no -200, bootstrap from s\' (the course: off)')
     p.set_defaults(run=run_q_learning)
 
 
-def run_q_learning(a, parser):
+def run_q_learning(a, parser) -> int:
     try:
         training = q_learning.resolve(a.env_id, a.episodes, a.gamma, a.regressor, a.components, a.learners,
                                       a.bootstrap_at_time_limit)
     except RequestError as e:
         parser.error(str(e))
+    folder = output_folder(a, parser)
     bar = progress_bar(training.episodes * training.learners, 'episode')
     recent = []
 
@@ -109,34 +144,96 @@ def run_q_learning(a, parser):
         if learner == 0:
             recent.append(total)
             if episode % 10 == 0:
-                bar.set_postfix(learner0_avg100='%.1f' % np.mean(recent[-100:]), eps='%.3f' % eps)
+                bar.set_postfix(learner0_avg100=f'{np.mean(recent[-100:]):.1f}', eps=f'{eps:.3f}')
     result = q_learning.train(training, a.seed, progress=progress)
     bar.close()
-    stem = artifacts.artifact_stem(a.output_dir, 'qlearning', result.env_id, a.seed)
-    for k, avg in enumerate(result.last100_averages):
-        print('learner %2d (seed %d)  last-100 average %.2f' % (k, a.seed + k, avg))
+    if result.cancelled:  # a worker ended (killed): say so, with what finished
+        print(f'training ended early: {len(result.finished)} of {training.learners} learners finished',
+              file=sys.stderr)
+    best = result.best_learner()
+    for i, j in enumerate(result.finished):
+        print(f'learner {j:2d} (seed {a.seed + j})  last-100 average {result.last100_averages[i]:.2f}, greedy '
+              f'average {result.greedy_averages[i]:.2f}{"  <- best" if j == best else ""}')
     if len(result.last100_averages) > 1:
-        print('mean of %d learners    %.2f ± %.2f (95%% interval of the mean)' % (
-            len(result.last100_averages), result.mean_last100, result.ci95_last100))
-    print('random actions         %.2f' % result.baseline_total_reward)
-    print('training time          %.1f s' % result.elapsed)
-    print('plot                   %s' % artifacts.write_plot(artifacts.q_learning_plot_job(result), stem + '.png'))
-    if a.video:
-        path, steps = artifacts.record_video(result.env_id, result.agent.act, training.max_steps, a.seed, stem + '.mp4')
-        print('video                  %s (learner 0, greedy, %d steps)' % (path, steps))
-    print('avg reward for last 100 episodes: %.2f' % result.mean_last100)
+        print(f'mean of {len(result.last100_averages)} learners    {result.mean_last100:.2f} +/- '
+              f'{result.ci95_last100:.2f} (95% interval of the mean)')
+    print(f'random actions         {result.baseline_total_reward:.2f}')
+    print(f'training time          {result.elapsed:.1f} s')
+    stem = artifacts.artifact_stem(folder, 'qlearning', result.env_id, a.seed)
+    if best >= 0:
+        agent = result.agents[best]
+        write_or_say('policy', lambda: policies.save(
+            stem + '.npz', agent, result.env_id, a.seed + best, training.settings(), result.figures_of(best),
+            f'q-learning (CLI), learner {best}'))
+    write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *artifacts.q_learning_log(result)))
+    write_or_say('plot', lambda: artifacts.write_plot(artifacts.q_learning_plot_job(result), stem + '.png'))
+    if a.video and best >= 0:
+        write_or_say(f'video (learner {best})', lambda: artifacts.record_video(
+            result.env_id, agent.act, training.max_steps, a.seed + best, stem + '.mp4')[0])
+    print(f'avg reward for last {min(100, training.episodes)} episodes: {result.mean_last100:.2f}')
+    return 0 if not result.cancelled else 1
+
+
+def evaluate_parser(sub) -> None:
+    p = sub.add_parser('evaluate', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       help='play greedy episodes of a policy file and print the average',
+                       description='Play episodes with the policy of a file (either kind), start states from the '
+                       'seed, and print the average episode length.')
+    p.add_argument('policy', help='a policy file (.npz)')
+    p.add_argument('--episodes', type=int, default=100, help=f'episodes (1 to {q_learning.MAX_EVAL_EPISODES})')
+    p.add_argument('--seed', type=int, default=0, help='seed of the start states')
+    p.add_argument('--env-id', default='', choices=('',) + SUPPORTED_ENVS, help='"" = the policy\'s own env')
+    p.add_argument('--max-steps', type=int, default=0, help='step limit of an episode; 0 = the environment\'s own')
+    p.set_defaults(run=run_evaluate)
+
+
+def run_evaluate(a, parser) -> int:
+    try:
+        policy = policies.load(a.policy)
+        dynamics = CartPoleDynamics.of(a.env_id or policy.env_id)
+        max_steps = dynamics.resolve_max_steps(a.max_steps)
+        if not 1 <= a.episodes <= q_learning.MAX_EVAL_EPISODES:
+            raise RequestError(f'--episodes must be 1 to {q_learning.MAX_EVAL_EPISODES}, got {a.episodes}')
+    except (policies.PolicyError, RequestError) as e:
+        parser.error(str(e))
+    lengths = policy.evaluate(dynamics, a.episodes, max_steps, a.seed)
+    print(policy.describe())
+    print(f'{a.episodes} episodes of {dynamics.env_id} (seed {a.seed}): lengths from {lengths.min()} to '
+          f'{lengths.max()}')
+    print(f'average length: {lengths.mean():.2f}')
     return 0
 
 
-def main(argv=None):
+def show_parser(sub) -> None:
+    p = sub.add_parser('show', help='print a policy file\'s metadata and arrays',
+                       description='Print the metadata of a policy file (JSON) and the shapes of its arrays.')
+    p.add_argument('policy', help='a policy file (.npz)')
+    p.set_defaults(run=run_show)
+
+
+def run_show(a, parser) -> int:
+    try:
+        policy = policies.load(a.policy)
+    except policies.PolicyError as e:
+        parser.error(str(e))
+    print(json.dumps(policy.metadata, indent=2))
+    for name, array in policies.arrays_of(policy.actor).items():
+        value = f' = {np.array2string(array, precision=6)}' if array.size <= 4 else ''
+        print(f'{name}: {array.dtype} {array.shape}{value}')
+    return 0
+
+
+def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog='python -m robot_ai.cartpole',
-                                     description='The course\'s CartPole agents, without ROS.')
-    sub = parser.add_subparsers(dest='agent', required=True, metavar='AGENT')
+                                     description='The course\'s CartPole agents, and their policy files, without ROS.')
+    sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
     random_search_parser(sub)
     q_learning_parser(sub)
+    evaluate_parser(sub)
+    show_parser(sub)
     a = parser.parse_args(argv)
     try:
-        return a.run(a, sub.choices[a.agent])
+        return a.run(a, sub.choices[a.command])
     except KeyboardInterrupt:
         print('interrupted', file=sys.stderr)
         return 130

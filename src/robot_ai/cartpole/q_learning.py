@@ -339,11 +339,11 @@ def summary(result: TrainingResult) -> str:
             f'gamma {t.gamma:g}, {t.episodes} episodes' + (', bootstrap at the time limit'
                                                             if t.bootstrap_at_time_limit else ''))
     avg = result.last100_averages
+    last = f'avg reward for last {min(100, t.episodes)} episodes: {result.mean_last100:.2f}'  # the course's words
     if len(avg) == 1:
-        return f'{head}, seed {result.seed}: avg reward for last 100 episodes: {result.mean_last100:.2f}'
-    return (f'{head}, {len(avg)} learners (seeds {result.seed} to {result.seed + len(avg) - 1}): avg reward for last '
-            f'100 episodes: {result.mean_last100:.2f} +/- {result.ci95_last100:.2f} (95%), '
-            f'from {avg.min():.2f} to {avg.max():.2f}')
+        return f'{head}, seed {result.seed}: {last}'
+    return (f'{head}, {len(avg)} learners (seeds {result.seed} to {result.seed + len(avg) - 1}): {last} +/- '
+            f'{result.ci95_last100:.2f} (95%), from {avg.min():.2f} to {avg.max():.2f}')
 
 
 def random_baseline(training: Training, episodes: int = 1000) -> float:

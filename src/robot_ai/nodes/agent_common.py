@@ -1,6 +1,7 @@
 """What the CartPole agent nodes share: parameters, the plot process, and how requests and goals are answered.
 
-Plots are drawn by ``robot_ai.plot_worker`` in a process of its own, so that a response never waits for
+Every successful search or training writes its policy file and a CSV log beside its plot (write_files), and
+both nodes take a policy file at start (~policy) and at any time (~load_policy). Plots are drawn by ``robot_ai.plot_worker`` in a process of its own, so that a response never waits for
 matplotlib nor shares the GIL with it. The response therefore arrives before its plot: ``plot_path`` names
 the file the plot process is drawing, which appears whole (it is renamed into place once written), usually
 within a second; the response's message says so.
@@ -11,27 +12,33 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass
+from typing import Callable
 
 import rospy
 
-from robot_ai.cartpole.artifacts import artifact_stem, default_output_dir, remove_leftovers, unwritable_reason
+from robot_ai.cartpole import policies
+from robot_ai.cartpole.artifacts import (artifact_stem, default_output_dir, remove_leftovers, unwritable_reason,
+                                         write_csv)
 from robot_ai.cartpole.dynamics import RequestError
+from robot_ai.cartpole.policies import Policy, PolicyError
 from robot_ai.plot_worker import job_line
+from robot_ai.srv import LoadPolicyResponse
 
 
-def agent_settings(module, what):
+def agent_settings(module, what: str) -> tuple[dict, str]:
     """(defaults, output_dir) of an agent node whose pure module has DEFAULTS and resolve(defaults=...): read
     from the ~ parameters, checked at start (a bad one raises, with a message), the folder prepared."""
     defaults = defaults_from_params(module.DEFAULTS)
     output_dir = output_dir_param()
     problem = prepare_output_dir(output_dir)
     if problem:
-        rospy.logwarn('%s: %s will answer without plots and videos', problem, what)
+        rospy.logwarn(f'{problem}: {what} will answer without files (plots, videos, policies, logs)')
     module.resolve(defaults=defaults)  # a bad default is a clear error at start, not at the first request
     return defaults, output_dir
 
 
-def defaults_from_params(defaults):
+def defaults_from_params(defaults: dict) -> dict:
     """The node's defaults for zero/empty request fields: each ~<name> parameter, where it is set and not
     zero or empty, else the pure module's default. A value of the wrong kind is a ValueError naming it."""
     out = {}
@@ -43,19 +50,19 @@ def defaults_from_params(defaults):
         try:
             out[name] = type(default)(value)
         except (TypeError, ValueError):
-            raise ValueError('~%s must be %s (like %r), got %r' % (name, type(default).__name__, default, value))
+            raise ValueError(f'~{name} must be {type(default).__name__} (like {default!r}), got {value!r}')
     return out
 
 
-def output_dir_param():
+def output_dir_param() -> str:
     """~output_dir, expanded; empty or unset: $ROS_HOME/robot_ai (~/.ros/robot_ai when ROS_HOME is unset)."""
     value = rospy.get_param('~output_dir', '')
     if not isinstance(value, str):
-        raise ValueError('~output_dir must be a folder path, got %r' % (value,))
+        raise ValueError(f'~output_dir must be a folder path, got {value!r}')
     return os.path.abspath(os.path.expanduser(value or default_output_dir()))
 
 
-class PlotProcess(object):
+class PlotProcess:
     """The node's plot process, fed by a thread of its own: draw() never waits for it.
 
     A job waits in a queue of PENDING; a writer thread hands it to the plot process (restarted if it died). A
@@ -78,16 +85,16 @@ class PlotProcess(object):
     @staticmethod
     def _log(proc):
         for line in proc.stdout:
-            rospy.loginfo('plot %s', line.strip())
+            rospy.loginfo(f'plot {line.strip()}')
 
-    def draw(self, job, path):
+    def draw(self, job: dict, path: str) -> str:
         """Queue a plot job; '' if queued, else why the plot is skipped."""
         try:
             self.jobs.put_nowait((job, path))
             return ''
         except queue.Full:
-            rospy.logwarn_throttle(10.0, 'plot skipped: the plot process is behind (%d plots waiting)' % self.PENDING)
-            return 'the plot process is behind (%d plots waiting)' % self.PENDING
+            rospy.logwarn_throttle(10.0, f'plot skipped: the plot process is behind ({self.PENDING} plots waiting)')
+            return f'the plot process is behind ({self.PENDING} plots waiting)'
 
     def _hand_over(self):
         while True:
@@ -97,18 +104,18 @@ class PlotProcess(object):
             job, path = item
             for _ in range(2):
                 if self.proc.poll() is not None:
-                    rospy.logwarn('the plot process ended (status %s); starting another', self.proc.returncode)
+                    rospy.logwarn(f'the plot process ended (status {self.proc.returncode}); starting another')
                     self._start()
                 try:
                     self.proc.stdin.write(job_line(job, path))
                     self.proc.stdin.flush()
                     break
                 except (BrokenPipeError, OSError, ValueError) as e:
-                    rospy.logwarn('could not hand the plot %s to the plot process: %s', path, e)
+                    rospy.logwarn(f'could not hand the plot {path} to the plot process: {e}')
             else:
-                rospy.logerr('plot not written: %s', path)
+                rospy.logerr(f'plot not written: {path}')
 
-    def close(self):
+    def close(self) -> None:
         """End of input once the queued plots are handed over: the plot process draws them and ends (bounded)."""
         try:
             self.jobs.put(None, timeout=2.0)
@@ -124,45 +131,107 @@ class PlotProcess(object):
             self.proc.kill()
 
 
-def prepare_output_dir(output_dir):
+def prepare_output_dir(output_dir: str) -> str:
     """Create output_dir and remove what writers killed earlier left in it; a reason string if it is not
     writable or its disk is full (the agents then answer without files), else ''."""
     try:
         os.makedirs(output_dir, exist_ok=True)
     except OSError as e:
-        return 'cannot create %s: %s' % (output_dir, e.strerror or e)
+        return f'cannot create {output_dir}: {e.strerror or e}'
     removed = remove_leftovers(output_dir)
     if removed:
-        rospy.loginfo('removed %d temporary files that killed writers left in %s', len(removed), output_dir)
+        rospy.loginfo(f'removed {len(removed)} temporary files that killed writers left in {output_dir}')
     return unwritable_reason(output_dir)
 
 
-def write_files(plots, output_dir, kind, env_id, seed, plot_job, video=None):
-    """A response's files: (plot_path, video_path, a note for its message). Never raises: the numbers are worth
-    returning whatever happens to the files; a path is '' unless its file is written (the video) or queued
-    for drawing (the plot), and the note says what failed and why.
+@dataclass
+class Files:
+    """The files of one search or training: each path '' unless written (the plot: queued for drawing)."""
+    plot_path: str = ''
+    video_path: str = ''
+    policy_path: str = ''
+    log_path: str = ''
+    note: str = ''
 
-    video: None, or a function of the mp4 path that writes it."""
+    def fields(self) -> dict:
+        return dict(plot_path=self.plot_path, video_path=self.video_path, policy_path=self.policy_path,
+                    log_path=self.log_path)
+
+
+def write_files(plots: 'PlotProcess', output_dir: str, kind: str, env_id: str, seed: int, plot_job: dict,
+                policy: Callable[[str], str] | None = None, log: tuple | None = None,
+                video: Callable[[str], str] | None = None) -> Files:
+    """A run's files beside each other (<stem>.npz, .csv, .png, .mp4). Never raises: the numbers are worth
+    returning whatever happens to the files; a path is '' unless its file is written (or, the plot, queued for
+    drawing), and the note says what failed and why.
+
+    policy: a function of the .npz path that saves the run's policy; log: (header, rows) of its CSV;
+    video: a function of the .mp4 path that writes it."""
     problem = prepare_output_dir(output_dir)
     if problem:
-        return '', '', 'no files written: %s' % problem
+        return Files(note=f'no files written: {problem}')
     try:
         stem = artifact_stem(output_dir, kind, env_id, seed)
     except OSError as e:
-        return '', '', 'no files written: %s' % e
-    skipped = plots.draw(plot_job, stem + '.png')
-    notes = ['learning curve skipped: %s' % skipped if skipped else 'learning curve being drawn to plot_path']
-    video_path = ''
-    if video is not None:
+        return Files(note=f'no files written: {e}')
+    files, notes = Files(), []
+    for name, what, write in (('policy_path', 'policy file', policy),
+                              ('log_path', 'CSV log', None if log is None else lambda p: write_csv(p, *log)),
+                              ('video_path', 'video', video)):
+        if write is None:
+            continue
+        path = stem + {'policy_path': '.npz', 'log_path': '.csv', 'video_path': '.mp4'}[name]
         try:
-            video_path = video(stem + '.mp4')
-        except Exception as e:  # ffmpeg, a full disk, a read-only folder: the search's numbers still go back
-            rospy.logerr('video not written: %s', e)
-            notes.append('video not written: %s' % e)
-    return '' if skipped else stem + '.png', video_path, '; '.join(notes)
+            setattr(files, name, write(path))
+        except Exception as e:  # a full disk, a read-only folder, ffmpeg: the numbers still go back
+            rospy.logerr(f'{what} not written: {e}')
+            notes.append(f'{what} not written: {e}')
+    skipped = plots.draw(plot_job, stem + '.png')
+    files.plot_path = '' if skipped else stem + '.png'
+    notes.insert(0, f'learning curve skipped: {skipped}' if skipped else 'learning curve being drawn to plot_path')
+    if policy is not None and files.policy_path:
+        notes.append(f'policy saved to {files.policy_path}')
+    files.note = '; '.join(notes)
+    return files
 
 
-def answer(work, response_class, what):
+def policy_param(kind: str) -> Policy | None:
+    """The policy file named by ~policy, loaded at start; None if unset or empty. A bad file, or a policy of
+    another kind than this node serves, raises PolicyError (a ValueError) with one line."""
+    path = rospy.get_param('~policy', '')
+    if not isinstance(path, str):
+        raise PolicyError(f'~policy must be a file path, got {path!r}')
+    if not path:
+        return None
+    try:
+        policy = load_of_kind(path, kind)
+    except PolicyError as e:
+        raise PolicyError(f'~policy: {e}')
+    rospy.loginfo(f'loaded {policy.describe()}')
+    return policy
+
+
+def load_of_kind(path: str, kind: str) -> Policy:
+    """policies.load(path), refusing a policy of another kind than `kind` (PolicyError, one line)."""
+    policy = policies.load(path)
+    if policy.kind != kind:
+        other = 'cartpole_search' if policy.kind == 'linear' else 'cartpole_q_learning'
+        raise PolicyError(f'{policy.path} holds a {policy.kind} policy; this node serves {kind} policies '
+                          f'(load it into {other}, or give it to cartpole_controller, which takes both)')
+    return policy
+
+
+def answer_load(path: str, kind: str, install: Callable[[Policy], str]) -> LoadPolicyResponse:
+    """~load_policy: load the file and install(policy) it as the node's policy; a bad file changes nothing."""
+    try:
+        policy = load_of_kind(path, kind)
+    except PolicyError as e:
+        rospy.logwarn(f'load_policy refused: {e}')
+        return LoadPolicyResponse(success=False, message=f'{e}; the node keeps its policy')
+    return LoadPolicyResponse(success=True, message=install(policy))
+
+
+def answer(work: Callable, response_class, what: str):
     """A service's response: work() returns (the response's fields, result), fields None if the node's shutdown
     stopped the work; a RequestError or any other
     failure becomes success: false with the reason, and the node keeps serving."""
@@ -174,11 +243,11 @@ def answer(work, response_class, what):
     except RequestError as e:
         return response_class(success=False, message=str(e))
     except Exception as e:
-        rospy.logerr('%s failed: %s', what, e)
-        return response_class(success=False, message='%s failed: %s' % (what, e))
+        rospy.logerr(f'{what} failed: {e}')
+        return response_class(success=False, message=f'{what} failed: {e}')
 
 
-def answer_goal(server, work, result_class, what, cancelled):
+def answer_goal(server, work: Callable, result_class, what: str, cancelled: Callable) -> None:
     """An action goal's end: work() returns (fields, result), fields None if the goal was cancelled (or the node
     shut down), when
     cancelled(result) gives (message, the partial result's fields)."""
@@ -188,8 +257,8 @@ def answer_goal(server, work, result_class, what, cancelled):
         server.set_aborted(result_class(success=False, message=str(e)), str(e))
         return
     except Exception as e:
-        rospy.logerr('%s failed: %s', what, e)
-        server.set_aborted(result_class(success=False, message='%s failed: %s' % (what, e)))
+        rospy.logerr(f'{what} failed: {e}')
+        server.set_aborted(result_class(success=False, message=f'{what} failed: {e}'))
         return
     if fields is None:
         message, partial = cancelled(result)

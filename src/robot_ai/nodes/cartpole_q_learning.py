@@ -4,16 +4,24 @@ ROS Parameters
     ~env_id (str), ~episodes (int), ~gamma (float), ~regressor (str), ~components (int), ~learners (int): what
         zero or empty request fields mean; unset, zero or empty: q_learning.DEFAULTS (CartPole-v0, 500, 0.99,
         tf, 1000, 1).
-    ~output_dir (str, "" = $ROS_HOME/robot_ai): where plots and videos are written; requests never name paths.
+    ~output_dir (str, "" = $ROS_HOME/robot_ai): where plots, videos, policy files and CSV logs are written;
+        requests never name paths.
+    ~policy (str, ""): a Q-learning policy file (.npz) loaded at start as the node's agent; a bad file ends the
+        node with one line.
 
 ROS Services
-    ~train (robot_ai/QLearning): train; learner 0 of the latest successful training becomes the agent.
+    ~train (robot_ai/QLearning): train; when it ends, every learner's greedy agent plays 100 greedy episodes
+        (start states from the training's seed), the best (greedy average, then last-100 average) is saved as a
+        policy file, and becomes the node's agent if it does at least as well as the current agent on those
+        same episodes.
     ~evaluate (robot_ai/EvaluateAgent): greedy episodes of the agent.
     ~act (robot_ai/Act): the agent's greedy action for one state.
+    ~load_policy (robot_ai/LoadPolicy): load a Q-learning policy file as the agent; a bad file changes nothing.
+    Every ~act and ~evaluate answer says whose agent it used: which training and learner, or which file.
 
 ROS Actions
-    ~training (robot_ai/QLearningAction): the same training as a preemptable goal, feedback per episode of
-        learner 0.
+    ~training (robot_ai/QLearningAction): the same training as a preemptable goal, feedback per episode of every
+        learner; a cancelled goal returns the learners that had finished.
 
 ROS Publishers
     ~progress (robot_ai/QLearningProgress): after every episode of every learner of a running training.
@@ -24,34 +32,51 @@ names the file being drawn (see agent_common).
 """
 import threading
 import time
+from dataclasses import dataclass
 
 import actionlib
 import numpy as np
 import rospy
 
-from robot_ai.cartpole import artifacts, q_learning
+from robot_ai.cartpole import artifacts, policies, q_learning
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
+from robot_ai.cartpole.q_learning import Agent
 from robot_ai.msg import QLearningAction, QLearningFeedback, QLearningProgress, QLearningResult
-from robot_ai.nodes.agent_common import PlotProcess, agent_settings, answer, answer_goal, write_files
-from robot_ai.srv import Act, ActResponse, EvaluateAgent, EvaluateAgentResponse, QLearning, QLearningResponse
+from robot_ai.nodes.agent_common import (PlotProcess, agent_settings, answer, answer_goal, answer_load, policy_param,
+                                         write_files)
+from robot_ai.srv import (Act, ActResponse, EvaluateAgent, EvaluateAgentResponse, LoadPolicy, QLearning,
+                          QLearningResponse)
 
 EVALUATE_EPISODES = 100
 
 
-class CartPoleQLearningNode(object):
+@dataclass(frozen=True)
+class ServedAgent:
+    """The node's agent, the env it was trained on, and whose it is."""
+    agent: Agent
+    env_id: str
+    origin: str
+
+
+class CartPoleQLearningNode:
 
     def __init__(self):
         self.defaults, self.output_dir = agent_settings(q_learning, 'trainings')
-        self.agent, self.agent_env = None, None
+        self.served: ServedAgent | None = None
+        loaded = policy_param(Agent.kind)
+        if loaded is not None:
+            self._install(loaded)
+        self.trainings = 0
         self.train_lock = threading.Lock()  # one training at a time; later requests wait their turn
         self.plots = PlotProcess()
         self.progress_pub = rospy.Publisher('~progress', QLearningProgress, queue_size=1000)
         self.services = [rospy.Service('~train', QLearning, self._on_train),
                          rospy.Service('~evaluate', EvaluateAgent, self._on_evaluate),
-                         rospy.Service('~act', Act, self._on_act)]
+                         rospy.Service('~act', Act, self._on_act),
+                         rospy.Service('~load_policy', LoadPolicy, self._on_load_policy)]
         self.action = actionlib.SimpleActionServer('~training', QLearningAction, self._on_goal, auto_start=False)
         self.action.start()
-        rospy.loginfo('cartpole_q_learning ready: defaults %s, artifacts in %s', self.defaults, self.output_dir)
+        rospy.loginfo(f'cartpole_q_learning ready: defaults {self.defaults}, artifacts in {self.output_dir}')
 
     # ------------------------------------------------------------------------------------- the training
     def _train(self, req, feedback=None, should_stop=None):
@@ -72,12 +97,12 @@ class CartPoleQLearningNode(object):
             self.progress_pub.publish(QLearningProgress(learner=learner, episode=episode, episodes=n,
                                                         total_reward=total, running_average=average,
                                                         epsilon=eps, elapsed=elapsed))
-            if learner == 0 and feedback is not None:
-                feedback(QLearningFeedback(episode=episode, episodes=n, total_reward=total, running_average=average,
-                                           epsilon=eps, learners_done=done[0], elapsed=elapsed))
-            if learner == 0:
-                rospy.loginfo_throttle(2.0, 'training: learner 0 episode %d/%d, running average %.1f'
-                                       % (episode, n, average))
+            if feedback is not None:
+                feedback(QLearningFeedback(learner=learner, episode=episode, episodes=n, total_reward=total,
+                                           running_average=average, epsilon=eps, learners_done=done[0],
+                                           elapsed=elapsed))
+            rospy.loginfo_throttle(2.0, f'training: {done[0]} of {k} learners done; learner {learner} episode '
+                                        f'{episode}/{n}, running average {average:.1f}')
 
         with self.train_lock:
             t0 = time.time()
@@ -85,19 +110,46 @@ class CartPoleQLearningNode(object):
                                       should_stop=lambda: rospy.is_shutdown() or bool(should_stop and should_stop()))
             if result.cancelled:
                 return None, result
-            env_id = training.dynamics.env_id
-            self.agent, self.agent_env = result.agent, env_id
+            self.trainings += 1
+            number, env_id = self.trainings, training.dynamics.env_id
+            best = result.best_learner()
+            agent, figures = result.agents[best], result.figures_of(best)
+            kept = self._keep_better(agent, training, req.seed, number, best, figures)
             video = None if not req.record_video else (lambda path: artifacts.record_video(
-                env_id, result.agent.act, training.max_steps, req.seed, path)[0])
-            plot_path, video_path, files = write_files(self.plots, self.output_dir, 'qlearning', env_id, req.seed,
-                                                       artifacts.q_learning_plot_job(result), video)
+                env_id, agent.act, training.max_steps, req.seed + best, path)[0])
+            files = write_files(
+                self.plots, self.output_dir, 'qlearning', env_id, req.seed, artifacts.q_learning_plot_job(result),
+                policy=lambda path: policies.save(path, agent, env_id, req.seed + best, training.settings(), figures,
+                                                  f'training {number} of cartpole_q_learning, learner {best}'),
+                log=artifacts.q_learning_log(result), video=video)
             elapsed = time.time() - t0
-        message = '%s; %s' % (q_learning.summary(result), files)
+        message = (f'{q_learning.summary(result)}; best learner {best} (seed {req.seed + best}): greedy average '
+                   f'{figures["greedy_average"]:.1f} over {q_learning.GREEDY_EPISODES} episodes; {kept}; {files.note}')
         rospy.loginfo(message)
         return dict(success=True, message=message, total_rewards=list(result.total_rewards[0]),
-                    last100_averages=list(result.last100_averages), mean_last100=result.mean_last100,
-                    ci95_last100=result.ci95_last100, plot_path=plot_path, video_path=video_path,
-                    elapsed=elapsed), result
+                    last100_averages=list(result.last100_averages), learner_seeds=result.learner_seeds,
+                    best_learner=best, best_greedy_average=figures['greedy_average'],
+                    mean_last100=result.mean_last100, ci95_last100=result.ci95_last100, elapsed=elapsed,
+                    **files.fields()), result
+
+    def _keep_better(self, agent: Agent, training, seed: int, number: int, learner: int, figures: dict) -> str:
+        """The training's best learner becomes the node's agent if its greedy average is at least the current
+        agent's on the same greedy episodes (the training's env, start states from its seed)."""
+        origin = (f'training {number}, learner {learner} (seed {seed + learner}, {training.dynamics.env_id}, greedy '
+                  f'average {figures["greedy_average"]:.1f}, last-100 average {figures["last100_average"]:.1f})')
+        current = self.served
+        if current is not None:
+            theirs = q_learning.greedy_average(current.agent, training, seed)
+            if figures['greedy_average'] < theirs:
+                return (f'the node keeps its agent from {current.origin}, whose greedy average on the same '
+                        f'episodes is {theirs:.1f}')
+        self.served = ServedAgent(agent, training.dynamics.env_id, origin)
+        return 'it is now the node\'s agent'
+
+    def _install(self, policy: policies.Policy) -> str:
+        self.served = ServedAgent(policy.actor, policy.env_id, f'the file {policy.path} ({policy.env_id}, seed '
+                                  f'{policy.seed}{", " + policy.metadata["source"] if policy.metadata["source"] else ""})')
+        return f'the node\'s agent is now {self.served.origin}'
 
     # ------------------------------------------------------------------------------------- handlers
     def _on_train(self, req):
@@ -105,37 +157,47 @@ class CartPoleQLearningNode(object):
 
     def _on_goal(self, goal):
         def cancelled(result):
-            rewards = list(result.total_rewards[0]) if result.total_rewards else []
-            return ('cancelled after %d of %d episodes of learner 0' % (len(rewards), result.training.episodes),
-                    dict(total_rewards=rewards))
+            seeds = ', '.join(str(s) for s in result.learner_seeds)
+            which = (f'learners {", ".join(str(j) for j in result.finished)} (seeds {seeds}) had finished'
+                     if result.finished else 'no learner had finished')
+            return (f'cancelled: {which}, {len(result.finished)} of {result.training.learners}',
+                    dict(total_rewards=list(result.total_rewards[0]) if result.total_rewards else [],
+                         last100_averages=list(result.last100_averages), learner_seeds=result.learner_seeds,
+                         best_learner=-1, mean_last100=result.mean_last100, ci95_last100=result.ci95_last100))
         answer_goal(self.action, lambda: self._train(goal, self.action.publish_feedback,
                                                      self.action.is_preempt_requested),
                     QLearningResult, 'training', cancelled)
 
     def _on_evaluate(self, req):
         try:
-            agent, env_id = self.agent, self.agent_env
-            if agent is None:
-                raise RequestError('no agent yet: train one first (~train or ~training)')
-            dynamics = CartPoleDynamics.of(req.env_id or env_id)
+            served = self.served
+            if served is None:
+                raise RequestError('no agent yet: train one first (~train or ~training) or load a policy file')
+            dynamics = CartPoleDynamics.of(req.env_id or served.env_id)
             episodes = int(req.episodes or EVALUATE_EPISODES)
             max_steps = dynamics.resolve_max_steps(req.max_steps)
             if not 1 <= episodes <= q_learning.MAX_EVAL_EPISODES:
-                raise RequestError('episodes must be 1 to %d (0 = %d), got %d' % (
-                    q_learning.MAX_EVAL_EPISODES, EVALUATE_EPISODES, episodes))
-            lengths = agent.evaluate(dynamics, episodes, max_steps, req.seed)
-            return EvaluateAgentResponse(success=True, message='%d greedy episodes of %s' % (episodes, dynamics.env_id),
+                raise RequestError(f'episodes must be 1 to {q_learning.MAX_EVAL_EPISODES} (0 = {EVALUATE_EPISODES}), '
+                                   f'got {episodes}')
+            lengths = served.agent.evaluate(dynamics, episodes, max_steps, req.seed)
+            return EvaluateAgentResponse(success=True, message=f'{episodes} greedy episodes of {dynamics.env_id} with '
+                                         f'the agent from {served.origin}',
                                          lengths=[int(v) for v in lengths], avg_length=float(np.mean(lengths)))
         except RequestError as e:
             return EvaluateAgentResponse(success=False, message=str(e))
 
     def _on_act(self, req):
-        if self.agent is None:
-            return ActResponse(success=False, message='no agent yet: train one first', action=-1)
+        served = self.served
+        if served is None:
+            return ActResponse(success=False, message='no agent yet: train one first or load a policy file', action=-1)
         try:
-            return ActResponse(success=True, message='', action=self.agent.act(req.state))
+            return ActResponse(success=True, message=f'the agent from {served.origin}',
+                               action=served.agent.act(req.state))
         except RequestError as e:
             return ActResponse(success=False, message=str(e), action=-1)
+
+    def _on_load_policy(self, req):
+        return answer_load(req.path, Agent.kind, self._install)
 
 
 def main():
@@ -143,6 +205,6 @@ def main():
     try:
         CartPoleQLearningNode()
     except (RequestError, ValueError) as e:
-        rospy.logfatal('cartpole_q_learning: bad parameter: %s', e)
+        rospy.logfatal(f'cartpole_q_learning: bad parameter: {e}')
         raise SystemExit(1)
     rospy.spin()

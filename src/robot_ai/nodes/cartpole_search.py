@@ -3,17 +3,23 @@
 ROS Parameters
     ~env_id (str), ~iterations (int), ~episodes (int), ~final_episodes (int): what zero or empty request
         fields mean; unset, zero or empty: linear_search.DEFAULTS (CartPole-v1, 100, 100, 100).
-    ~output_dir (str, "" = $ROS_HOME/robot_ai): where plots and videos are written; requests never name paths.
+    ~output_dir (str, "" = $ROS_HOME/robot_ai): where plots, videos, policy files and CSV logs are written;
+        requests never name paths.
+    ~policy (str, ""): a linear policy file (.npz) loaded at start as the node's policy; a bad file ends the node
+        with one line.
 
 ROS Services
-    ~random_search (robot_ai/RandomSearch): run a search; its best weights become the node's policy if their
-        final average is at least the current policy's (so a small test search does not replace a good policy).
+    ~random_search (robot_ai/RandomSearch): run a search; it writes its best weights as a policy file and every
+        candidate in a CSV log. Its best becomes the node's policy if its final average is at least the current
+        policy's (so a small test search does not replace a good policy).
     ~evaluate (robot_ai/EvaluatePolicy): play episodes with given weights (empty: the node's policy).
     ~act (robot_ai/Act): the node's policy's action for one state.
-    Every response that uses the node's policy says which search it came from.
+    ~load_policy (robot_ai/LoadPolicy): load a linear policy file as the node's policy; a bad file changes nothing.
+    Every response that uses the node's policy says whose it is: which search, or which file.
 
 ROS Actions
-    ~search (robot_ai/RandomSearchAction): the same search as a preemptable goal, feedback per candidate.
+    ~search (robot_ai/RandomSearchAction): the same search as a preemptable goal, feedback per candidate; a
+        cancelled goal returns the best weights and the averages so far.
 
 ROS Publishers
     ~progress (robot_ai/SearchProgress): after every candidate of any running search.
@@ -23,37 +29,54 @@ A response arrives before its plot: plot_path names the file being drawn (see ag
 """
 import threading
 import time
+from dataclasses import dataclass
 
 import actionlib
+import numpy as np
 import rospy
 
-from robot_ai.cartpole import artifacts, linear_search
+from robot_ai.cartpole import artifacts, linear_search, policies
 from robot_ai.cartpole.dynamics import RequestError
-from robot_ai.nodes.agent_common import PlotProcess, agent_settings, answer, answer_goal, write_files
+from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchResult, SearchProgress
-from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, RandomSearch,
+from robot_ai.nodes.agent_common import (PlotProcess, agent_settings, answer, answer_goal, answer_load, policy_param,
+                                         write_files)
+from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, LoadPolicy, RandomSearch,
                           RandomSearchResponse)
 
 
-class CartPoleSearchNode(object):
+@dataclass(frozen=True)
+class ServedPolicy:
+    """The node's policy: its weights, the final average that ranks it, and whose it is."""
+    weights: np.ndarray
+    final: float
+    origin: str
+
+
+class CartPoleSearchNode:
 
     def __init__(self):
         self.defaults, self.output_dir = agent_settings(linear_search, 'searches')
-        self.policy = None         # the best policy of any search so far: weights, final average, origin
+        self.policy: ServedPolicy | None = None   # the best policy of any search so far, or a loaded file
+        loaded = policy_param(LinearPolicy.kind)
+        if loaded is not None:
+            self._install(loaded)
         self.searches = 0
         self.search_lock = threading.Lock()  # one search at a time; later requests wait their turn
         self.plots = PlotProcess()
         self.progress_pub = rospy.Publisher('~progress', SearchProgress, queue_size=100)
         self.services = [rospy.Service('~random_search', RandomSearch, self._on_random_search),
                          rospy.Service('~evaluate', EvaluatePolicy, self._on_evaluate),
-                         rospy.Service('~act', Act, self._on_act)]
+                         rospy.Service('~act', Act, self._on_act),
+                         rospy.Service('~load_policy', LoadPolicy, self._on_load_policy)]
         self.action = actionlib.SimpleActionServer('~search', RandomSearchAction, self._on_goal, auto_start=False)
         self.action.start()
-        rospy.loginfo('cartpole_search ready: defaults %s, artifacts in %s', self.defaults, self.output_dir)
+        rospy.loginfo(f'cartpole_search ready: defaults {self.defaults}, artifacts in {self.output_dir}')
 
     # ------------------------------------------------------------------------------------- the search
     def _search(self, req, feedback=None, should_stop=None):
-        """Run the search of a RandomSearch request or goal; return the fields of the response."""
+        """Run the search of a RandomSearch request or goal; return (the response's fields or None if cancelled,
+        result)."""
         search = linear_search.resolve(req.env_id, req.iterations, req.episodes, req.max_steps,
                                        req.final_episodes, self.defaults)
         env_id, iterations = search.dynamics.env_id, search.iterations
@@ -63,7 +86,7 @@ class CartPoleSearchNode(object):
                                                      best_avg_length=best, elapsed=elapsed))
             if feedback is not None:
                 feedback(i, iterations, best, elapsed)
-            rospy.loginfo_throttle(2.0, 'search: candidate %d/%d, best average %.1f' % (i, iterations, best))
+            rospy.loginfo_throttle(2.0, f'search: candidate {i}/{iterations}, best average {best:.1f}')
 
         with self.search_lock:
             t0 = time.time()
@@ -74,30 +97,42 @@ class CartPoleSearchNode(object):
             if result.cancelled:
                 return None, result
             self.searches += 1
-            kept = self._keep_better(result)
+            number = self.searches
+            kept = self._keep_better(result, number)
             weights = result.best_weights
             video = None if not req.record_video else (lambda path: artifacts.record_video(
                 env_id, lambda obs: linear_search.act(weights, obs), search.max_steps, req.seed, path)[0])
-            plot_path, video_path, files = write_files(self.plots, self.output_dir, 'search', env_id, req.seed,
-                                                       artifacts.search_plot_job(result), video)
+            files = write_files(
+                self.plots, self.output_dir, 'search', env_id, req.seed, artifacts.search_plot_job(result),
+                policy=lambda path: policies.save(path, LinearPolicy(weights), env_id, req.seed, result.settings(),
+                                                  result.figures(), f'search {number} of cartpole_search'),
+                log=artifacts.search_log(result), video=video)
             elapsed = time.time() - t0
-        message = ('best average %.1f of %d candidates x %d episodes (%s, seed %d); final %.1f over %d episodes; %s; %s'
-                   % (result.best_avg_length, iterations, search.episodes, env_id, req.seed,
-                      result.final_avg_length, search.final_episodes, kept, files))
+        message = (f'best average {result.best_avg_length:.1f} of {iterations} candidates x {search.episodes} '
+                   f'episodes ({env_id}, seed {req.seed}); final {result.final_avg_length:.1f} over '
+                   f'{search.final_episodes} episodes; {kept}; {files.note}')
         rospy.loginfo(message)
         return dict(success=True, message=message, best_weights=list(result.best_weights),
                     best_avg_length=result.best_avg_length, avg_lengths=list(result.avg_lengths),
-                    final_avg_length=result.final_avg_length, plot_path=plot_path, video_path=video_path,
-                    elapsed=elapsed), result
+                    final_avg_length=result.final_avg_length, elapsed=elapsed, **files.fields()), result
 
-    def _keep_better(self, result):
+    def _keep_better(self, result, number: int) -> str:
         """Make the search's best the node's policy if its final average is at least the current policy's."""
-        origin = 'search %d (%s, seed %d, %d x %d, final %.1f)' % (
-            self.searches, result.env_id, result.seed, result.iterations, result.episodes, result.final_avg_length)
-        if self.policy is not None and result.final_avg_length < self.policy['final']:
-            return 'the node keeps its policy from %s' % self.policy['origin']
-        self.policy = dict(weights=result.best_weights.copy(), final=result.final_avg_length, origin=origin)
+        origin = (f'search {number} ({result.env_id}, seed {result.seed}, {result.iterations} x {result.episodes}, '
+                  f'final {result.final_avg_length:.1f})')
+        if self.policy is not None and result.final_avg_length < self.policy.final:
+            return f'the node keeps its policy from {self.policy.origin}'
+        self.policy = ServedPolicy(result.best_weights.copy(), result.final_avg_length, origin)
         return 'its best is now the node\'s policy'
+
+    def _install(self, policy: policies.Policy) -> str:
+        """A loaded file becomes the node's policy; later searches replace it if their final average is at least
+        the file's (0 if the file does not say)."""
+        final = policy.metadata['figures'].get('final_avg_length', 0.0)
+        final = float(final) if isinstance(final, (int, float)) and np.isfinite(final) else 0.0
+        self.policy = ServedPolicy(policy.actor.weights.copy(), final, f'the file {policy.path}'
+                                   f' ({policy.env_id}, seed {policy.seed}, final {final:.1f})')
+        return f'the node\'s policy is now {self.policy.origin}'
 
     # ------------------------------------------------------------------------------------- handlers
     def _on_random_search(self, req):
@@ -110,35 +145,43 @@ class CartPoleSearchNode(object):
 
         def cancelled(result):
             avgs = result.avg_lengths
-            return ('cancelled after %d of %d candidates' % (len(avgs), result.iterations),
-                    dict(avg_lengths=list(avgs), best_avg_length=float(avgs.max()) if len(avgs) else 0.0))
+            best = f'; best so far: candidate {result.best_index + 1}, average {result.best_avg_length:.1f}' \
+                if len(avgs) else ''
+            return (f'cancelled after {len(avgs)} of {result.iterations} candidates{best}',
+                    dict(avg_lengths=list(avgs), best_avg_length=result.best_avg_length,
+                         best_weights=list(result.best_weights) if len(avgs) else []))
         answer_goal(self.action, lambda: self._search(goal, feedback, self.action.is_preempt_requested),
                     RandomSearchResult, 'search', cancelled)
 
     def _on_evaluate(self, req):
         try:
+            policy = self.policy
             if len(req.weights) == 0:
-                if self.policy is None:
-                    raise RequestError('no policy yet: run a search first or give 4 weights')
-                weights, whose = self.policy['weights'], 'the node\'s policy, from %s' % self.policy['origin']
+                if policy is None:
+                    raise RequestError('no policy yet: run a search, load a policy file, or give 4 weights')
+                weights, whose = policy.weights, f'the node\'s policy, from {policy.origin}'
             else:
                 weights, whose = linear_search.check_weights(req.weights), 'the given weights'
             search = linear_search.resolve(req.env_id, 1, req.episodes, req.max_steps, 1, self.defaults)
             lengths = linear_search.evaluate(search.dynamics, weights, search.episodes, search.max_steps, req.seed)
-            return EvaluatePolicyResponse(success=True, message='%d episodes of %s with %s' % (
-                                              search.episodes, search.dynamics.env_id, whose),
+            return EvaluatePolicyResponse(success=True, message=f'{search.episodes} episodes of '
+                                          f'{search.dynamics.env_id} with {whose}',
                                           lengths=[int(v) for v in lengths], avg_length=float(lengths.mean()))
         except RequestError as e:
             return EvaluatePolicyResponse(success=False, message=str(e))
 
     def _on_act(self, req):
-        if self.policy is None:
-            return ActResponse(success=False, message='no policy yet: run a search first', action=-1)
+        policy = self.policy
+        if policy is None:
+            return ActResponse(success=False, message='no policy yet: run a search or load a policy file', action=-1)
         try:
-            return ActResponse(success=True, message='the node\'s policy, from %s' % self.policy['origin'],
-                               action=linear_search.act(self.policy['weights'], req.state))
+            return ActResponse(success=True, message=f'the node\'s policy, from {policy.origin}',
+                               action=linear_search.act(policy.weights, req.state))
         except RequestError as e:
             return ActResponse(success=False, message=str(e), action=-1)
+
+    def _on_load_policy(self, req):
+        return answer_load(req.path, LinearPolicy.kind, self._install)
 
 
 def main():
@@ -146,6 +189,6 @@ def main():
     try:
         CartPoleSearchNode()
     except (RequestError, ValueError) as e:
-        rospy.logfatal('cartpole_search: bad parameter: %s', e)
+        rospy.logfatal(f'cartpole_search: bad parameter: {e}')
         raise SystemExit(1)
     rospy.spin()
