@@ -86,17 +86,22 @@ def stop(proc):
 def colour_counts(path):
     """Pixels of the robot's materials and of the TF axes in the screenshot."""
     img = Image.open(path).convert('RGB')
+    width = img.size[0]
     counts = dict(orange=0, blue=0, tf_red=0, tf_green=0)
-    for r, g, b in img.getdata():
+    orange_rows, tops = set(), dict(orange_top=10 ** 6, blue_top=10 ** 6)
+    for i, (r, g, b) in enumerate(img.getdata()):
         if r > 190 and 70 < g < 160 and b < 70:
             counts['orange'] += 1
+            orange_rows.add(i // width)
+            tops['orange_top'] = min(tops['orange_top'], i // width)
         elif r < 70 and 50 < g < 130 and b > 150:
             counts['blue'] += 1
+            tops['blue_top'] = min(tops['blue_top'], i // width)
         elif r > 180 and g < 50 and b < 50:
             counts['tf_red'] += 1
         elif g > 150 and r < 80 and b < 80:
             counts['tf_green'] += 1
-    return counts
+    return dict(counts, pole_rows=len(orange_rows), **tops)
 
 
 class TestLaunch(unittest.TestCase):
@@ -109,7 +114,10 @@ class TestLaunch(unittest.TestCase):
         self.assertIn('verdict: OK', text, text[-3000:])
         self.assertIn('the end effector moves', text)
         self.assertIn('best average', text)
-        self.assertLess(time.time() - t0, 60.0)
+        # the closed loop: the Q-learning agent's saved policy drives the cart-pole, and recovers from a push
+        self.assertRegex(text, r'cartpole: the pole stayed up [0-9.]+ s of [0-9.]+ s')
+        self.assertIn('recovered', text)
+        self.assertLess(time.time() - t0, 75.0)
         video = [l.split()[-1] for l in text.splitlines() if l.strip().startswith('video ')][0]
         self.assertTrue(os.path.isfile(video) and video.startswith(out_dir), video)
 
@@ -121,7 +129,8 @@ class TestLaunch(unittest.TestCase):
         # the search's and the Q-learning agent's plot and video, all under $ROS_HOME/robot_ai
         files = sorted(os.listdir(os.path.join(ros_home, 'robot_ai')))
         self.assertEqual([f.split('_')[0] + os.path.splitext(f)[1] for f in files],
-                         ['qlearning.mp4', 'qlearning.png', 'search.mp4', 'search.png'], files)
+                         [f'{kind}.{ext}' for kind in ('qlearning', 'search') for ext in ('csv', 'mp4', 'npz', 'png')],
+                         files)
         self.assertNotIn('Traceback', text)
 
     def test_ctrl_c_prints_no_traceback(self):
@@ -240,7 +249,9 @@ class TestLaunch(unittest.TestCase):
             self.assertTrue(local.startswith(('127.0.0.1:', '[::1]:')), line)
         self.assertTrue(any('"cartpole_search"' in l or 'python' in l for l in listening), listening)
 
-    def test_rviz_screenshot_shows_robot_and_frames(self):
+    def rviz_screenshot(self, launch_args, name, drawn, launch_file='demo.launch', keep_running=True):
+        """Counts of colour_counts in a screenshot of rviz under Xvfb, taken once drawn(counts) says yes or after
+        90 s (rviz takes a while to start under software GL); the screenshot is kept as ARTIFACTS/name."""
         display, xvfb = start_xvfb()
         proc = None
         try:
@@ -248,30 +259,47 @@ class TestLaunch(unittest.TestCase):
             home = os.path.abspath(os.path.join(ARTIFACTS, 'home'))
             os.makedirs(home, exist_ok=True)
             env = dict(os.environ, DISPLAY=display, HOME=home, ROS_HOME=rospkg.get_ros_home())
-            proc = launch(['rviz:=true', 'record_video:=false', 'output_dir:=' + os.path.join(ARTIFACTS, 'rviz')],
-                          env)
-            os.makedirs(ARTIFACTS, exist_ok=True)
-            shot = os.path.abspath(os.path.join(ARTIFACTS, 'rviz_screenshot.png'))
+            proc = launch(launch_args, env, launch_file)
+            shot = os.path.abspath(os.path.join(ARTIFACTS, name))
             counts = {}
             deadline = time.time() + 90
-            while time.time() < deadline:  # rviz takes a while to start under software GL
+            while time.time() < deadline:
                 time.sleep(3.0)
-                self.assertIsNone(proc.poll(), 'demo.launch rviz:=true ended by itself')
+                self.assertIsNone(proc.poll(), f'{launch_file} rviz:=true ended by itself')
                 subprocess.run(['import', '-display', display, '-window', 'root', shot], check=True, timeout=30)
                 counts = colour_counts(shot)
-                if counts['orange'] > 3000 and counts['blue'] > 500 and counts['tf_red'] > 30:
+                if drawn(counts):
                     break
-            print('rviz screenshot: %s %s' % (shot, counts))
-            self.assertGreater(counts['orange'], 3000, 'the arm is not drawn: %s' % counts)
-            self.assertGreater(counts['blue'], 500, 'the arm is not drawn: %s' % counts)
-            self.assertGreater(counts['tf_red'], 30, 'the TF axes are not drawn: %s' % counts)
-            self.assertGreater(counts['tf_green'], 10, 'the TF axes are not drawn: %s' % counts)
-            self.assertIsNone(proc.poll(), 'with rviz:=true the demo keeps running until stopped')
+            print(f'rviz screenshot: {shot} {counts}')
+            if keep_running:
+                self.assertIsNone(proc.poll(), 'with rviz:=true the launch keeps running until stopped')
+            return counts
         finally:
             if proc is not None:
                 stop(proc)
             xvfb.terminate()
             xvfb.wait(10)
+
+    def test_rviz_screenshot_shows_robot_and_frames(self):
+        counts = self.rviz_screenshot(['rviz:=true', 'record_video:=false',
+                                       'output_dir:=' + os.path.join(ARTIFACTS, 'rviz')], 'rviz_screenshot.png',
+                                      lambda c: c['orange'] > 3000 and c['blue'] > 500 and c['tf_red'] > 30)
+        self.assertGreater(counts['orange'], 3000, 'the arm is not drawn: %s' % counts)
+        self.assertGreater(counts['blue'], 500, 'the arm is not drawn: %s' % counts)
+        self.assertGreater(counts['tf_red'], 30, 'the TF axes are not drawn: %s' % counts)
+        self.assertGreater(counts['tf_green'], 10, 'the TF axes are not drawn: %s' % counts)
+
+    def test_cartpole_rviz_screenshot_shows_the_pole_balancing(self):
+        """cartpole.launch rviz:=true: the rail (its red end stops), the blue cart and the orange pole, upright."""
+        def drawn(c):
+            return c['orange'] > 150 and c['blue'] > 800 and c['tf_red'] > 20 and c['pole_rows'] > 60
+        counts = self.rviz_screenshot(['rviz:=true'], 'cartpole_rviz_screenshot.png', drawn, 'cartpole.launch')
+        self.assertGreater(counts['blue'], 800, f'the cart is not drawn: {counts}')
+        self.assertGreater(counts['orange'], 150, f'the pole is not drawn: {counts}')
+        self.assertGreater(counts['tf_red'], 20, f'the rail\'s end stops are not drawn: {counts}')
+        # upright: the pole spans many rows, and its top stands well above the cart
+        self.assertGreater(counts['pole_rows'], 60, f'the pole is not upright: {counts}')
+        self.assertLess(counts['orange_top'], counts['blue_top'] - 50, f'the pole is not above the cart: {counts}')
 
 
 if __name__ == '__main__':

@@ -95,3 +95,32 @@ def test_start_states_check_state_and_seeds():
             check_state(bad)
     assert rng_for(7).random() == np.random.default_rng(7).random()
     assert rng_for(-1).random() == np.random.default_rng(2 ** 64 - 1).random()
+
+
+def test_step_force_is_the_action_step_at_force_mag_and_any_force_otherwise():
+    """A ROS robot's cart_force (any newtons) goes through the same equations; +-force_mag is gymnasium's step."""
+    import gymnasium as gym
+    dyn = CartPoleDynamics.of('CartPole-v1')
+    rng = np.random.default_rng(2)
+    env = gym.make('CartPole-v1').unwrapped
+    env.reset(seed=0)
+    for _ in range(200):
+        state = tuple(float(v) for v in rng.uniform(-0.2, 0.2, 4))
+        for action in (0, 1):
+            want = dyn.step(state, action)
+            assert dyn.step_force(state, dyn.force_mag if action else -dyn.force_mag) == want
+            env.state = np.array(state)
+            _, _, terminated, _, _ = env.step(action)
+            assert want == (tuple(float(v) for v in env.state), terminated)
+    # no force: the pole falls the way it leans; a larger push accelerates the cart more
+    (x, x_dot, theta, theta_dot), _ = dyn.step_force((0.0, 0.0, 0.05, 0.0), 0.0)
+    assert theta_dot > 0 and x_dot < 0   # the cart recoils as the pole falls toward +x
+    assert dyn.step_force((0, 0, 0, 0), 25.0)[0][1] > dyn.step_force((0, 0, 0, 0), 10.0)[0][1] > 0
+
+
+def test_termination_says_why():
+    dyn = CartPoleDynamics.of('CartPole-v1')
+    assert dyn.termination(0.0, 0.0) == ''
+    assert dyn.termination(0.0, 0.21) == 'pole fell' and dyn.termination(0.0, -0.21) == 'pole fell'
+    assert dyn.termination(2.41, 0.0) == 'cart left the rail' and dyn.termination(-2.41, 0.0) == 'cart left the rail'
+    assert dyn.termination(2.4, 0.2094) == ''   # gymnasium's thresholds are strict

@@ -1,5 +1,6 @@
 """The package's own robots (urdf/) against the reference robots in ../shared/robots: the same frames for
 every shared link at random configurations, and the zero poses of SOURCES.md."""
+import math
 import os
 
 import numpy as np
@@ -57,3 +58,16 @@ def test_end_effector_found_from_the_urdf(urdf, tip):
             link = j.parent
         return n
     assert driven(found) == max(driven(l) for l in poses)
+
+
+def test_cartpole_urdf_has_gymnasiums_frames_and_signs():
+    tree = KinematicTree.from_file(os.path.join(URDF_DIR, 'cartpole.urdf'))
+    assert tree.root == 'rail' and sorted(tree.active_joints) == ['cart_slider', 'pole_hinge']
+    slider = tree.joints['cart_slider']
+    assert (slider.lower, slider.upper) == (-2.4, 2.4)       # gymnasium's x_threshold
+    for x, theta in ((0.0, 0.0), (1.3, 0.2), (-2.0, -0.15)):
+        poses = tree.link_poses({'cart_slider': x, 'pole_hinge': theta})
+        tip = poses['pole'].dot([0, 0, 1.0, 1])                 # the pole's top, 1 m along its z axis
+        hinge = poses['pole'][:3, 3]
+        assert poses['cart'][0, 3] == x
+        np.testing.assert_allclose(tip[:3] - hinge, [math.sin(theta), 0, math.cos(theta)], atol=1e-12)

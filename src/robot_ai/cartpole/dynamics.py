@@ -9,6 +9,7 @@ here has the length gymnasium's ``gym.make(env_id)`` gives from the same start s
     starts = start_states(np.random.default_rng(0), 3, 10)            # (3 candidates, 10 episodes, 4)
     lengths = dynamics.episode_lengths(starts, 500, weights=w)           # w (3, 4): a linear policy each
     state, terminated = dynamics.step(state, action)                     # one state, plain floats
+    state, terminated = dynamics.step_force(state, force)                # any force in newtons (a ROS robot's)
 """
 import functools
 import math
@@ -23,7 +24,7 @@ class RequestError(ValueError):
     """A request outside what the agents allow; the message says what is allowed."""
 
 
-class CartPoleDynamics(object):
+class CartPoleDynamics:
     """gymnasium's CartPole: its constants, its step limit, and its equations of motion.
 
     Action space: 0 pushes the cart left, 1 pushes it right, with ``force_mag`` newtons.
@@ -32,7 +33,7 @@ class CartPoleDynamics(object):
     environment's step limit ``max_episode_steps`` (truncated).
     """
 
-    def __init__(self, env_id='CartPole-v1'):
+    def __init__(self, env_id: str = 'CartPole-v1'):
         import gymnasium as gym
         if env_id not in SUPPORTED_ENVS:
             try:
@@ -40,12 +41,12 @@ class CartPoleDynamics(object):
                 known = True
             except Exception:
                 known = False
-            raise RequestError('env_id %r is %s; allowed: %s' % (
-                env_id, 'not a CartPole environment' if known else 'unknown', ', '.join(SUPPORTED_ENVS)))
+            raise RequestError(f'env_id {env_id!r} is {"not a CartPole environment" if known else "unknown"}; '
+                               f'allowed: {", ".join(SUPPORTED_ENVS)}')
         spec = gym.spec(env_id)
         env = gym.make(env_id).unwrapped
         if getattr(env, 'kinematics_integrator', 'euler') != 'euler' or getattr(env, '_sutton_barto_reward', False):
-            raise RequestError('%s is configured differently from the course (euler, reward 1 a step)' % env_id)
+            raise RequestError(f'{env_id} is configured differently from the course (euler, reward 1 a step)')
         self.env_id = env_id
         self.max_episode_steps = int(spec.max_episode_steps)
         self.gravity = float(env.gravity)
@@ -60,25 +61,29 @@ class CartPoleDynamics(object):
         env.close()
 
     @staticmethod
-    def of(env_id):
+    def of(env_id: str) -> 'CartPoleDynamics':
         """The dynamics of env_id, built once per process (gym.make is not free)."""
         return _dynamics_of(env_id)
 
-    def resolve_max_steps(self, max_steps):
+    def resolve_max_steps(self, max_steps: int) -> int:
         """A request's max_steps: 0 = the environment's limit; above it or negative, RequestError."""
         max_steps = int(max_steps or self.max_episode_steps)
         if not 1 <= max_steps <= self.max_episode_steps:
-            raise RequestError('max_steps must be 1 to %s\'s limit %d (0 = %d), got %d' % (
-                self.env_id, self.max_episode_steps, self.max_episode_steps, max_steps))
+            raise RequestError(f'max_steps must be 1 to {self.env_id}\'s limit {self.max_episode_steps} '
+                               f'(0 = {self.max_episode_steps}), got {max_steps}')
         return max_steps
 
-    def step(self, state, action):
+    def step(self, state, action: int) -> tuple[tuple[float, float, float, float], bool]:
         """One step of one episode: (the next state as a tuple of floats, terminated).
 
         Plain float arithmetic in gymnasium's order of operations (x * x is numpy's square), so the state is
         gymnasium's bit for bit; 20 times faster than numpy on one state."""
+        return self.step_force(state, self.force_mag if action == 1 else -self.force_mag)
+
+    def step_force(self, state, force: float) -> tuple[tuple[float, float, float, float], bool]:
+        """One step with any force on the cart (newtons, + pushes toward +x) where gymnasium uses +-force_mag:
+        (the next state, terminated). With force = +-force_mag it is gymnasium's step, bit for bit."""
         x, x_dot, theta, theta_dot = state
-        force = self.force_mag if action == 1 else -self.force_mag
         costheta, sintheta = math.cos(theta), math.sin(theta)
         temp = (force + self.polemass_length * (theta_dot * theta_dot) * sintheta) / self.total_mass
         thetaacc = (self.gravity * sintheta - costheta * temp) / (
@@ -88,11 +93,17 @@ class CartPoleDynamics(object):
         x_dot = x_dot + self.tau * xacc
         theta = theta + self.tau * theta_dot
         theta_dot = theta_dot + self.tau * thetaacc
-        terminated = (x < -self.x_threshold or x > self.x_threshold
-                      or theta < -self.theta_threshold_radians or theta > self.theta_threshold_radians)
-        return (x, x_dot, theta, theta_dot), terminated
+        return (x, x_dot, theta, theta_dot), self.termination(x, theta) != ''
 
-    def episode_lengths(self, starts, max_steps, weights=None, policy=None, rng=None):
+    def termination(self, x: float, theta: float) -> str:
+        """Why gymnasium would terminate an episode in this state: 'pole fell', 'cart left the rail', or ''."""
+        if theta < -self.theta_threshold_radians or theta > self.theta_threshold_radians:
+            return 'pole fell'
+        if x < -self.x_threshold or x > self.x_threshold:
+            return 'cart left the rail'
+        return ''
+
+    def episode_lengths(self, starts, max_steps: int, weights=None, policy=None, rng=None) -> np.ndarray:
         """Lengths (C, E) of the episodes started at starts (C, E, 4), all stepped together.
 
         weights (C, 4): candidate c plays the course's linear policy ``obs.w_c > 0``.
@@ -143,22 +154,22 @@ def _dynamics_of(env_id):
     return CartPoleDynamics(env_id)
 
 
-def start_states(rng, count, episodes):
+def start_states(rng: np.random.Generator, count: int, episodes: int) -> np.ndarray:
     """gymnasium's reset distribution for (count, episodes) episodes: shape (count, episodes, 4)."""
     return rng.uniform(START_LOW, START_HIGH, size=(count, episodes, 4))
 
 
-def rng_for(seed):
+def rng_for(seed: int) -> np.random.Generator:
     """numpy's default_rng for any integer seed: negative seeds (ROS int64) map to distinct non-negative ones,
     and a non-negative seed is used as it is."""
     return np.random.default_rng(int(seed) % (2 ** 64))
 
 
-def check_state(state, what='state'):
+def check_state(state, what: str = 'state') -> np.ndarray:
     """4 finite floats, one per state variable (a state, or a linear policy's weights), or RequestError."""
     s = np.asarray(state, dtype=np.float64).reshape(-1)
     if s.shape != (4,):
-        raise RequestError('%s must be 4 numbers (x, x_dot, theta, theta_dot), got %d' % (what, s.size))
+        raise RequestError(f'{what} must be 4 numbers (x, x_dot, theta, theta_dot), got {s.size}')
     if not np.isfinite(s).all():
-        raise RequestError('%s must be finite numbers, got %s' % (what, [float(v) for v in s]))
+        raise RequestError(f'{what} must be finite numbers, got {[float(v) for v in s]}')
     return s

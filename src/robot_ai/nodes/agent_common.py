@@ -212,9 +212,9 @@ def policy_param(kind: str) -> Policy | None:
 
 
 def load_of_kind(path: str, kind: str) -> Policy:
-    """policies.load(path), refusing a policy of another kind than `kind` (PolicyError, one line)."""
+    """policies.load(path), refusing a policy of another kind than `kind` ('' takes both; PolicyError, one line)."""
     policy = policies.load(path)
-    if policy.kind != kind:
+    if kind and policy.kind != kind:
         other = 'cartpole_search' if policy.kind == 'linear' else 'cartpole_q_learning'
         raise PolicyError(f'{policy.path} holds a {policy.kind} policy; this node serves {kind} policies '
                           f'(load it into {other}, or give it to cartpole_controller, which takes both)')

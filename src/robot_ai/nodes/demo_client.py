@@ -1,6 +1,7 @@
 """demo_client: the headless demo's summary. Reads the end effector's pose from tf at a few instants, runs
 the course's random search through the cartpole_search service and its Q-learning agent through the
-cartpole_q_learning service, prints a readable summary and a verdict.
+cartpole_q_learning service, then drives the cart-pole robot with the agent's saved policy (through
+cartpole_controller's ~load_policy), pushes its pole, and prints a readable summary and a verdict.
 
 ROS Parameters
     ~base_frame (str, ""), ~tip_frame (str, ""): the pose printed; empty: the robot's root link, and the link
@@ -9,23 +10,34 @@ ROS Parameters
     ~record_video (bool, true): ask the search for a video of the best policy.
     ~search_service (str, /cartpole_search/random_search)
     ~q_learning_service (str, /cartpole_q_learning/train), ~q_learners (int, 4): learners trained side by side.
+    ~cartpole_ns (str, /cartpole): where cartpole_sim and cartpole_controller run; "" = no closed loop.
+    ~balance_steps (int, 1000): sim steps watched before the push (20 s of simulated time).
+    ~push (float, 0.2): the push, rad/s added to the pole's angular velocity. The course's Q-learning agent
+        recovers from 0.2 in 200 of 200 trials in gymnasium's physics, from +0.3 in about half (README).
 
-Exits 0 when the frames moved, the search balanced the pole and the Q-learning agents learned, 1 otherwise.
+Exits 0 when the frames moved, the search balanced the pole, the Q-learning agents learned and the saved policy
+kept the cart-pole's pole up through the push, 1 otherwise.
 """
 import math
 import os
+import queue
 import sys
 import time
 
 import rospy
 import tf2_ros
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 
+from robot_ai.msg import CartPoleEpisode
 from robot_ai.nodes.params import bool_param, int_param, number_param, str_param
 from robot_ai.nodes.robot_description import wait_for_tree
-from robot_ai.srv import QLearning, RandomSearch
+from robot_ai.srv import LoadPolicy, PushPole, QLearning, RandomSearch
+
+UPRIGHT = 0.02           # rad: the pole counts as back upright within this of vertical
 
 
-def wait_plot(path, timeout=10.0):
+def wait_plot(path: str, timeout: float = 10.0) -> bool:
     """A response arrives before its plot: wait for the plot process to put the file in place."""
     deadline = time.time() + timeout
     while path and not os.path.isfile(path) and time.time() < deadline:
@@ -33,7 +45,7 @@ def wait_plot(path, timeout=10.0):
     return bool(path) and os.path.isfile(path)
 
 
-def frames(base, tip):
+def frames(base: str, tip: str) -> tuple[str, str]:
     """The frames to show: as given, or found from robot_description (its root, and the link below the most
     driven joints) for any robot."""
     if base and tip:
@@ -42,6 +54,67 @@ def frames(base, tip):
     if tree is None:  # shut down while waiting
         sys.exit(1)
     return base or tree.root, tip or tree.end_effector()
+
+
+def watch(states: queue.Queue, episodes: list, steps: int, timeout: float) -> tuple[list, list, float]:
+    """The next `steps` cart-pole states (x, theta), the episodes that ended meanwhile, and the wall seconds it
+    took (bounded by timeout)."""
+    seen, first = [], len(episodes)
+    t0 = time.time()
+    deadline = t0 + timeout
+    while len(seen) < steps and time.time() < deadline:
+        try:
+            seen.append(states.get(timeout=0.5))
+        except queue.Empty:
+            pass
+    return seen, episodes[first:], time.time() - t0
+
+
+def closed_loop(ns: str, policy_path: str, balance_steps: int, push: float) -> tuple[list[str], bool]:
+    """Drive the cart-pole with the policy file, watch it, push it: (summary lines, whether it held)."""
+    lines = []
+    try:
+        for name in ('cartpole_controller/load_policy', 'cartpole_sim/reset', 'cartpole_sim/push'):
+            rospy.wait_for_service(f'{ns}/{name}', 30)
+        loaded = rospy.ServiceProxy(f'{ns}/cartpole_controller/load_policy', LoadPolicy)(path=policy_path)
+    except (rospy.ROSException, rospy.ServiceException) as e:
+        return [f'  cartpole_sim and cartpole_controller not reached: {e}'], False
+    if not loaded.success:
+        return [f'  the controller refused the policy: {loaded.message}'], False
+    tau = 0.02
+    rtf = rospy.get_param(f'{ns}/cartpole_sim/real_time_factor', 1.0)
+    states, episodes = queue.Queue(), []
+    sub = rospy.Subscriber(f'{ns}/joint_states', JointState, lambda m: states.put((m.position[0], m.position[1])),
+                           queue_size=10000)
+    ep_sub = rospy.Subscriber(f'{ns}/cartpole_sim/episodes', CartPoleEpisode, episodes.append, queue_size=100)
+    try:
+        time.sleep(0.5)                                       # the subscriptions connect
+        rospy.ServiceProxy(f'{ns}/cartpole_sim/reset', Trigger)()
+        while not states.empty():
+            states.get()
+        wall = 3 * balance_steps * tau / rtf + 10
+        seen, ended, seconds = watch(states, episodes, balance_steps, wall)
+        fell = [e for e in ended if e.reason == 'pole fell']
+        up = (fell[0].steps if fell else len(seen)) * tau
+        drift = sum(e.reason == 'cart left the rail' for e in ended)
+        lines.append(f'  {loaded.message}')
+        lines.append(f'cartpole: the pole stayed up {up:.1f} s of {len(seen) * tau:.1f} s of simulated time '
+                     f'(real_time_factor {rtf:g}: {len(seen) / max(1e-9, seconds):.0f} states/s measured)'
+                     + (f'; the cart left the rail {drift} time(s) and the sim reset (the policy\'s drift)'
+                        if drift else ''))
+        rospy.ServiceProxy(f'{ns}/cartpole_sim/push', PushPole)(angular_velocity=push)
+        after, ended, _ = watch(states, episodes, 250, 3 * 250 * tau / rtf + 10)
+        fell_after = [e for e in ended if e.reason == 'pole fell']
+        peak = max((abs(theta) for _, theta in after), default=float('nan'))
+        back = next((i for i, (_, theta) in enumerate(after) if i > 5 and abs(theta) < UPRIGHT), None)
+        recovered = not fell_after and back is not None and len(after) >= 250
+        lines.append(f'  push of {push:+g} rad/s: the pole leaned to {math.degrees(peak):.1f} degrees, '
+                     + (f'back within {math.degrees(UPRIGHT):.1f} degrees after {back * tau:.2f} s: recovered'
+                        if recovered else 'and fell: NOT recovered' if fell_after else 'and did not come back'))
+        return lines, not fell and len(seen) >= balance_steps and recovered
+    finally:
+        sub.unregister()
+        ep_sub.unregister()
 
 
 def main():
@@ -53,70 +126,93 @@ def main():
     service = str_param('~search_service', '/cartpole_search/random_search')
     q_service = str_param('~q_learning_service', '/cartpole_q_learning/train')
     q_learners = int_param('~q_learners', 4, 'a whole number from 1 to 64', lambda v: 1 <= v <= 64)
+    cartpole_ns = str_param('~cartpole_ns', '/cartpole')
+    balance_steps = int_param('~balance_steps', 1000)
+    push = number_param('~push', 0.2, 'a number of rad/s', lambda v: True)
     buf = tf2_ros.Buffer()
     tf2_ros.TransformListener(buf)
     ok = True
-    lines = ['', '=' * 72, 'robot_ai demo', '=' * 72, 'forward_kinematics: %s -> %s from /tf' % (base, tip)]
+    lines = ['', '=' * 72, 'robot_ai demo', '=' * 72, f'forward_kinematics: {base} -> {tip} from /tf']
     positions, first = [], None
     for i in range(samples):
         try:
             t = buf.lookup_transform(base, tip, rospy.Time(0), rospy.Duration(20.0 if i == 0 else 2.0))
         except (tf2_ros.LookupException, tf2_ros.ExtrapolationException, tf2_ros.ConnectivityException) as e:
-            lines.append('  no transform: %s' % e)
+            lines.append(f'  no transform: {e}')
             ok = False
             break
         p, q = t.transform.translation, t.transform.rotation
         positions.append((p.x, p.y, p.z))
         first = first or t.header.stamp
-        lines.append('  t=%5.2f s  xyz = (%+.4f, %+.4f, %+.4f) m  quat xyzw = (%+.3f, %+.3f, %+.3f, %+.3f)' % (
-            (t.header.stamp - first).to_sec(), p.x, p.y, p.z, q.x, q.y, q.z, q.w))
+        lines.append(f'  t={(t.header.stamp - first).to_sec():5.2f} s  xyz = ({p.x:+.4f}, {p.y:+.4f}, {p.z:+.4f}) m  '
+                     f'quat xyzw = ({q.x:+.3f}, {q.y:+.3f}, {q.z:+.3f}, {q.w:+.3f})')
         rospy.sleep(interval)
     moved = len(positions) > 1 and max(math.dist(positions[0], p) for p in positions[1:]) > 1e-4
-    lines.append('  the end effector %s' % ('moves' if moved else 'does NOT move'))
+    lines.append(f'  the end effector {"moves" if moved else "does NOT move"}')
     ok = ok and moved
 
     lines.append('cartpole_search: the course experiment (100 candidates x 100 episodes, CartPole-v1, seed 0)')
+    search_policy = ''
     try:
         rospy.wait_for_service(service, 60)
         t0 = time.time()
         res = rospy.ServiceProxy(service, RandomSearch)(record_video=record_video)
         round_trip = time.time() - t0
     except (rospy.ROSException, rospy.ServiceException) as e:
-        lines.append('  service failed: %s' % e)
+        lines.append(f'  service failed: {e}')
         res, ok = None, False
     if res is not None:
         ok = ok and res.success and res.best_avg_length >= 195.0  # CartPole's own 'solved' threshold (v0)
-        lines.append('  %s' % res.message)
-        lines.append('  best weights       [%s]' % ', '.join('%+.4f' % w for w in res.best_weights))
-        lines.append('  best average       %.2f steps' % res.best_avg_length)
-        lines.append('  final average      %.2f steps' % res.final_avg_length)
-        lines.append('  search time        %.3f s (round trip %.3f s)' % (res.elapsed, round_trip))
+        search_policy = res.policy_path
+        lines.append(f'  {res.message}')
+        lines.append(f'  best weights       [{", ".join(f"{w:+.4f}" for w in res.best_weights)}]')
+        lines.append(f'  best average       {res.best_avg_length:.2f} steps')
+        lines.append(f'  final average      {res.final_avg_length:.2f} steps')
+        lines.append(f'  search time        {res.elapsed:.3f} s (round trip {round_trip:.3f} s)')
         plot_ok = wait_plot(res.plot_path)
-        lines.append('  learning curve     %s' % (res.plot_path if plot_ok else 'MISSING'))
-        lines.append('  video              %s' % (res.video_path or '(not recorded)'))
+        lines.append(f'  learning curve     {res.plot_path if plot_ok else "MISSING"}')
+        lines.append(f'  policy file        {res.policy_path or "(not written)"}')
+        lines.append(f'  video              {res.video_path or "(not recorded)"}')
         ok = ok and plot_ok and (not record_video or os.path.isfile(res.video_path))
 
     lines.append('cartpole_q_learning: the course\'s Q-learning with RBF features (CartPole-v0, 500 episodes), '
-                 '%d learner%s' % (q_learners, 's' if q_learners > 1 else ''))
+                 f'{q_learners} learner{"s" if q_learners > 1 else ""}')
+    q_policy = ''
     try:
         rospy.wait_for_service(q_service, 60)
         res = rospy.ServiceProxy(q_service, QLearning)(learners=q_learners, record_video=record_video)
     except (rospy.ROSException, rospy.ServiceException) as e:
-        lines.append('  service failed: %s' % e)
+        lines.append(f'  service failed: {e}')
         res, ok = None, False
     if res is not None:
         # learned: far above random actions (about 22) in every learner; the course's run reached 198.79
         ok = ok and res.success and len(res.last100_averages) == q_learners and min(res.last100_averages) > 150
-        lines.append('  %s' % res.message.split('; ')[0])
-        lines.append('  every learner      %s' % ', '.join('%.2f' % v for v in res.last100_averages))
-        lines.append('  training time      %.1f s' % res.elapsed)
+        q_policy = res.policy_path
+        lines.append(f'  {res.message.split("; ")[0]}')
+        lines.append(f'  every learner      {", ".join(f"{v:.2f}" for v in res.last100_averages)}')
+        lines.append(f'  best learner       {res.best_learner} (seed {res.learner_seeds[res.best_learner]}): greedy average '
+                     f'{res.best_greedy_average:.1f} over 100 episodes')
+        lines.append(f'  training time      {res.elapsed:.1f} s')
         plot_ok = wait_plot(res.plot_path)
-        lines.append('  learning curves    %s' % (res.plot_path if plot_ok else 'MISSING'))
-        lines.append('  video              %s' % (res.video_path or '(not recorded)'))
-        lines.append('avg reward for last 100 episodes: %.2f' % res.mean_last100)
+        lines.append(f'  learning curves    {res.plot_path if plot_ok else "MISSING"}')
+        lines.append(f'  policy file        {res.policy_path or "(not written)"}')
+        lines.append(f'  video              {res.video_path or "(not recorded)"}')
+        lines.append(f'avg reward for last 100 episodes: {res.mean_last100:.2f}')
         ok = ok and plot_ok and (not record_video or os.path.isfile(res.video_path))
-    lines.append('verdict: %s' % ('OK - frames move, the search balanced the pole, the Q-learning agents learned'
-                                  if ok else 'FAILED'))
+
+    if cartpole_ns:
+        which = 'the Q-learning agent\'s' if q_policy else 'the search\'s'
+        lines.append(f'cartpole_sim + cartpole_controller: {which} saved policy drives the cart-pole, then a push')
+        if q_policy or search_policy:
+            loop, held = closed_loop(cartpole_ns.rstrip('/'), q_policy or search_policy, balance_steps, push)
+            lines += loop
+            ok = ok and held
+        else:
+            lines.append('  no policy file to drive with')
+            ok = False
+    lines.append('verdict: ' + ('OK - frames move, the search balanced the pole, the Q-learning agents learned'
+                                + (', the saved policy balanced the cart-pole robot' if cartpole_ns else '')
+                                if ok else 'FAILED'))
     lines.append('=' * 72)
     print('\n'.join(lines))
     sys.stdout.flush()

@@ -1,0 +1,216 @@
+#!/usr/bin/env python3
+"""The CartPole as a ROS robot (cartpole_robot.test): lockstep states equal gymnasium's CartPoleEnv bit for bit (a
+push and NaN forces included), forward_kinematics turns rail -> pole by exactly theta, the controller keeps the pole
+up (a minute at real time, episodes at real_time_factor 5 as long as ~evaluate's), disabled it lets the pole fall and
+the sim resets, a policy file drives it."""
+import math
+import os
+import queue
+import subprocess
+import sys
+import tempfile
+import time
+import unittest
+
+import gymnasium as gym
+import numpy as np
+import rospy
+import rostest
+import tf2_ros
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+from std_srvs.srv import SetBool, Trigger
+
+from robot_ai.cartpole import linear_search, policies, q_learning
+from robot_ai.cartpole.dynamics import CartPoleDynamics
+from robot_ai.msg import CartPoleEpisode
+from robot_ai.srv import PushPole
+
+STARTED = time.time()
+REAL_TIME_SECONDS = 60       # the rt1 cart-pole must keep its pole up this long
+
+
+def state_of(msg):
+    """(x, x_dot, theta, theta_dot) of a cart-pole joint_states message."""
+    i, j = msg.name.index('cart_slider'), msg.name.index('pole_hinge')
+    return (msg.position[i], msg.velocity[i], msg.position[j], msg.velocity[j])
+
+
+class Episodes:
+    """Every episode a sim publishes, with the wall time it arrived."""
+
+    def __init__(self, ns):
+        self.items = []
+        self.sub = rospy.Subscriber(ns + 'cartpole_sim/episodes', CartPoleEpisode,
+                                    lambda m: self.items.append((time.time(), m)), queue_size=100)
+
+    def since(self, t):
+        return [m for when, m in self.items if when > t]
+
+    def wait(self, count, after, timeout):
+        deadline = time.time() + timeout
+        while len(self.since(after)) < count and time.time() < deadline:
+            time.sleep(0.05)
+        return self.since(after)
+
+
+class TestCartPoleRobot(unittest.TestCase):
+
+    @classmethod
+    def setUpClass(cls):
+        cls.episodes = {ns: Episodes(f'/{ns}/') for ns in ('rt1', 'rt5', 'file')}
+        for ns in ('lockstep', 'rt1', 'rt5', 'file'):
+            rospy.wait_for_service(f'/{ns}/cartpole_sim/reset', 60)
+
+    # ------------------------------------------------------------------------------------- lockstep
+    def test_1_lockstep_states_equal_gymnasium_bit_for_bit(self):
+        states = queue.Queue()
+        sub = rospy.Subscriber('/lockstep/joint_states', JointState, lambda m: states.put(state_of(m)), queue_size=100)
+        pub = rospy.Publisher('/lockstep/cart_force', Float64, queue_size=100)
+        reset = rospy.ServiceProxy('/lockstep/cartpole_sim/reset', Trigger)
+        push = rospy.ServiceProxy('/lockstep/cartpole_sim/push', PushPole)
+        deadline = time.time() + 20
+        while (pub.get_num_connections() < 1 or sub.get_num_connections() < 1) and time.time() < deadline:
+            time.sleep(0.05)
+        self.assertTrue(reset().success)
+        start = states.get(timeout=10)
+        env = gym.make('CartPole-v1').unwrapped
+        env.reset(seed=0)
+        force_mag = env.force_mag
+        rng = np.random.default_rng(1)
+        episodes = steps = pushes = 0
+        env.state = np.array(start, dtype=np.float64)
+        while episodes < 6:
+            action = int(rng.integers(2))
+            if steps % 7 == 3:                      # a push before this step: gymnasium's state gets it too
+                self.assertTrue(push(angular_velocity=0.3).success)
+                env.state = env.state + np.array([0, 0, 0, 0.3])
+                pushes += 1
+            pub.publish(Float64(force_mag if action == 1 else -force_mag))
+            got = states.get(timeout=10)
+            _, _, terminated, _, _ = env.step(action)
+            steps += 1
+            self.assertEqual(got, tuple(float(v) for v in env.state), f'step {steps} of episode {episodes}')
+            if terminated:
+                episodes += 1
+                pub.publish(Float64(0.0))           # after a terminal state, the next force brings a start state
+                start = states.get(timeout=10)
+                self.assertTrue(all(abs(v) <= 0.05 for v in start), start)
+                env.reset(seed=0)
+                env.state = np.array(start, dtype=np.float64)
+        self.assertGreater(steps, 30)
+        self.assertGreater(pushes, 3)
+        # NaN and inf are ignored: no step, and the sim goes on with the next finite force
+        for bad in (float('nan'), float('inf')):
+            pub.publish(Float64(bad))
+        with self.assertRaises(queue.Empty):
+            states.get(timeout=1.0)
+        pub.publish(Float64(force_mag))
+        got = states.get(timeout=10)
+        env.step(1)
+        self.assertEqual(got, tuple(float(v) for v in env.state))
+        sub.unregister()
+        pub.unregister()
+
+    # ------------------------------------------------------------------------------------- tf
+    def test_2_tf_turns_the_pole_by_theta(self):
+        buf = tf2_ros.Buffer(cache_time=rospy.Duration(60))
+        tf2_ros.TransformListener(buf)
+        msgs = []
+        sub = rospy.Subscriber('/rt1/joint_states', JointState, msgs.append, queue_size=100)
+        time.sleep(3.0)
+        sub.unregister()
+        checked = 0
+        for msg in msgs[10:-10]:
+            x, _, theta, _ = state_of(msg)
+            try:
+                pole = buf.lookup_transform('rail', 'pole', msg.header.stamp, rospy.Duration(1.0))
+                cart = buf.lookup_transform('rail', 'cart', msg.header.stamp, rospy.Duration(1.0))
+            except tf2_ros.TransformException:
+                continue
+            q = pole.transform.rotation
+            self.assertAlmostEqual(q.x, 0.0, places=12)
+            self.assertAlmostEqual(q.z, 0.0, places=12)
+            self.assertAlmostEqual(2 * math.atan2(q.y, q.w), theta, places=9)   # about +y: leaning toward +x
+            self.assertAlmostEqual(cart.transform.translation.x, x, places=12)
+            self.assertAlmostEqual(pole.transform.translation.x, x, places=12)
+            checked += 1
+        self.assertGreater(checked, 50, f'{checked} of {len(msgs)} states found on /tf at their stamps')
+
+    # ------------------------------------------------------------------------------------- closed loop
+    def test_3_real_time_factor_5_episodes_as_long_as_evaluate(self):
+        rt5 = self.episodes['rt5']
+        ended = rt5.wait(5, STARTED, 150)
+        lengths = [m.steps for m in ended[1:]]   # the first episode may have begun before the controller
+        self.assertGreaterEqual(len(lengths), 4, [(m.steps, m.reason) for m in ended])
+        course = linear_search.random_search(CartPoleDynamics.of('CartPole-v1'), 100, 100, seed=0)
+        evaluate = linear_search.evaluate(CartPoleDynamics.of('CartPole-v1'), course.best_weights, 100, 500, 0).mean()
+        print(f'rt5 episodes: {[(m.steps, m.reason, m.missed_steps) for m in ended]}; ~evaluate {evaluate}')
+        self.assertGreaterEqual(np.mean(lengths), 0.9 * evaluate)
+        self.assertFalse([m for m in ended[1:] if m.reason == 'pole fell'])
+
+    def test_4_disabled_the_pole_falls_and_the_sim_resets(self):
+        enable = rospy.ServiceProxy('/rt5/cartpole_controller/enable', SetBool)
+        states = queue.Queue()
+        sub = rospy.Subscriber('/rt5/joint_states', JointState, lambda m: states.put(state_of(m)), queue_size=1000)
+        t = time.time()
+        self.assertTrue(enable(False).success)
+        try:
+            fell = [m for m in self.episodes['rt5'].wait(2, t, 20) if m.reason == 'pole fell']
+            self.assertTrue(fell, 'with the controller disabled the pole did not fall')
+            self.assertLess(fell[0].steps, 200)
+            seen = []
+            while not states.empty():
+                seen.append(states.get())
+            fallen = [i for i, s in enumerate(seen) if abs(s[2]) > 0.2094]   # past 12 degrees: the terminal state
+            self.assertTrue(fallen)
+            self.assertTrue(all(abs(v) <= 0.05 for v in seen[fallen[0] + 1]), 'no new start state after the fall')
+        finally:
+            sub.unregister()
+            self.assertTrue(enable(True).success)
+
+    def test_5_a_policy_file_drives_it(self):
+        training = q_learning.resolve(episodes=500)
+        result = q_learning.train(training, 0)
+        best = result.best_learner()
+        self.assertGreater(result.greedy_averages[0], 190)
+        path = os.path.join(tempfile.mkdtemp(), 'agent.npz')
+        policies.save(path, result.agents[best], 'CartPole-v0', 0, training.settings(), result.figures_of(best))
+        controller = subprocess.Popen(['rosrun', 'robot_ai', 'cartpole_controller', '__ns:=/file',
+                                       f'_policy:={path}'], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        states = []
+        sub = rospy.Subscriber('/file/joint_states', JointState, lambda m: states.append(state_of(m)), queue_size=1000)
+        try:
+            rospy.wait_for_service('/file/cartpole_controller/enable', 30)
+            t = time.time()
+            time.sleep(12.0)                         # 3,000 steps at real_time_factor 5
+            ended = self.episodes['file'].since(t)
+        finally:
+            sub.unregister()
+            controller.send_signal(2)
+            controller.wait(15)
+        # the longest run of states with the pole up and the cart on the rail: without a controller about 40 steps
+        run = longest = 0
+        for x, _, theta, _ in states:
+            run = run + 1 if abs(theta) <= 0.2094 and abs(x) <= 2.4 else 0
+            longest = max(longest, run)
+        print(f'file episodes: {[(m.steps, m.reason) for m in ended]}; {len(states)} states, longest run {longest}')
+        self.assertGreater(len(states), 2000)
+        self.assertGreaterEqual(longest, 1000)
+        self.assertFalse([m for m in ended[1:] if m.steps < 200], [(m.steps, m.reason) for m in ended])
+        self.assertIn(b'q_learning policy from ' + path.encode(), controller.stdout.read())
+
+    def test_9_real_time_no_fall_for_a_minute(self):
+        rt1 = self.episodes['rt1']
+        remaining = STARTED + REAL_TIME_SECONDS - time.time()
+        if remaining > 0:
+            time.sleep(remaining)
+        ended = rt1.since(STARTED)
+        print(f'rt1 episodes in {time.time() - STARTED:.0f} s: {[(m.steps, m.reason, m.missed_steps) for m in ended]}')
+        self.assertFalse([m for m in ended[1:] if m.reason == 'pole fell'], [(m.steps, m.reason) for m in ended])
+        self.assertTrue(all(m.reason == 'cart left the rail' for m in ended[1:]))
+
+
+if __name__ == '__main__':
+    rospy.init_node('test_cartpole_robot')
+    rostest.rosrun('robot_ai', 'test_cartpole_robot', TestCartPoleRobot, sys.argv)
