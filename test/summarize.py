@@ -1,66 +1,106 @@
 #!/usr/bin/env python3
 """Print one summary of the JUnit files that `catkin_make run_tests` left, and fail unless all passed.
 
-Counts the test cases of pytest-*.xml (unit tests), rosunit-*.xml (the cases of each rostest test node)
-and roslaunch-check*.xml. A rostest-*.xml (one per .test file) adds its failures too, so a test node that
-died or ran out of time fails the run even without case results; MISSING-*.xml is a runner that wrote
-nothing. Exits 1 if any test failed or errored, if any was skipped (no test here may skip on the supported
-machine), if the unit tests left no results, or if no test ran at all.
+One line per test file: pytest-*.xml (the unit tests), each rostest .test file (rostest-*.xml, with the cases of
+its test node counted from the rosunit-*.xml it names), roslaunch-check*.xml. A rostest file adds its own failures
+too, so a test node that died or ran out of time fails the run even without case results; MISSING-*.xml is a
+runner that wrote nothing. Exits 1 if any test failed or errored, if any was skipped (no test here may skip on the
+supported machine), if the unit tests left no results, or if no test ran at all.
 """
 import glob
 import os
 import sys
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
 
 
-def count(path):
-    """Return (passed, failed, skipped, failed_names) of one JUnit file."""
-    passed, failed, skipped, names = 0, 0, 0, []
-    root = ET.parse(path).getroot()
+@dataclass
+class Counts:
+    passed: int = 0
+    failed: int = 0
+    skipped: int = 0
+    names: list = field(default_factory=list)   # the failed and skipped cases
+
+    def add(self, other: 'Counts') -> None:
+        self.passed += other.passed
+        self.failed += other.failed
+        self.skipped += other.skipped
+        self.names += other.names
+
+
+def parse(path: str):
+    """The root element of a JUnit file, or None if it is not readable XML (a runner killed while writing it)."""
+    try:
+        return ET.parse(path).getroot()
+    except (ET.ParseError, OSError):
+        return None
+
+
+def count(path: str) -> Counts:
+    """The cases of one JUnit file; an unreadable file is one failure."""
+    c = Counts()
+    root = parse(path)
+    if root is None:
+        return Counts(failed=1, names=[f'{os.path.basename(path)} (not readable)'])
     cases = list(root.iter('testcase'))
     for case in cases:
-        name = '%s.%s' % (case.get('classname', ''), case.get('name', ''))
+        name = f'{case.get("classname", "")}.{case.get("name", "")}'
         if case.find('failure') is not None or case.find('error') is not None:
-            failed += 1
-            names.append(name)
+            c.failed += 1
+            c.names.append(name)
         elif case.find('skipped') is not None:
-            skipped += 1
-            names.append(name + ' (skipped)')
+            c.skipped += 1
+            c.names.append(name + ' (skipped)')
         else:
-            passed += 1
+            c.passed += 1
     if not cases:  # a suite-level error with no test case (e.g. rostest could not start the launch file)
         suites = [root] if root.tag == 'testsuite' else list(root.iter('testsuite'))
         for suite in suites:
             bad = int(suite.get('errors', 0) or 0) + int(suite.get('failures', 0) or 0)
             if bad:
-                failed += bad
-                names.append('%s (suite error)' % os.path.basename(path))
-    return passed, failed, skipped, names
+                c.failed += bad
+                c.names.append(f'{os.path.basename(path)} (suite error)')
+    return c
 
 
-def main(result_dir):
-    files = sorted(f for pattern in ('pytest-*.xml', 'rosunit-*.xml', 'roslaunch-check*.xml', 'rostest-*.xml',
-                                     'MISSING-*.xml')
-                   for f in glob.glob(os.path.join(result_dir, pattern)))
-    totals = [0, 0, 0]
-    for path in files:
-        p, f, s, names = count(path)
-        if os.path.basename(path).startswith('rostest-'):
-            p = 0  # its cases are counted in the rosunit files; only its failures count here
-        totals = [totals[0] + p, totals[1] + f, totals[2] + s]
-        status = 'ok' if not (f or s) else 'FAILED'
-        print('%-55s %4d passed %3d failed %3d skipped  %s' % (os.path.basename(path), p, f, s, status))
-        for n in names:
-            print('    - %s' % n)
-    passed, failed, skipped = totals
-    print('summary: %d passed, %d failed, %d skipped' % (passed, failed, skipped))
-    if not files or passed == 0:
-        print('no test ran (looked in %s)' % result_dir)
+def rostest_line(path: str, result_dir: str, used: set) -> tuple[str, Counts]:
+    """A .test file's line: its test nodes' cases (rosunit-<test-name>.xml), plus the rostest file's failures."""
+    own = count(path)
+    total = Counts(failed=own.failed, names=own.names)
+    root = parse(path)
+    for case in root.iter('testcase') if root is not None else ():
+        name = case.get('name', '')
+        unit = os.path.join(result_dir, f'rosunit-{name[4:] if name.startswith("test") else name}.xml')
+        if os.path.exists(unit):
+            used.add(unit)
+            total.add(count(unit))
+    label = os.path.basename(path)[len('rostest-'):-len('.xml')]
+    return f'{label[5:] if label.startswith("test_") else label}.test', total
+
+
+def main(result_dir: str) -> int:
+    lines, used = [], set()
+    for path in sorted(glob.glob(os.path.join(result_dir, 'rostest-*.xml'))):
+        lines.append(rostest_line(path, result_dir, used))
+    for pattern in ('pytest-*.xml', 'roslaunch-check*.xml', 'rosunit-*.xml', 'MISSING-*.xml'):
+        for path in sorted(glob.glob(os.path.join(result_dir, pattern))):
+            if path not in used:
+                lines.append((os.path.basename(path), count(path)))
+    totals = Counts()
+    for label, c in sorted(lines, key=lambda l: (not l[0].startswith('pytest'), l[0])):
+        totals.add(c)
+        status = 'ok' if not (c.failed or c.skipped) else 'FAILED'
+        print(f'{label:<45} {c.passed:4d} passed {c.failed:3d} failed {c.skipped:3d} skipped  {status}')
+        for n in c.names:
+            print(f'    - {n}')
+    print(f'summary: {totals.passed} passed, {totals.failed} failed, {totals.skipped} skipped')
+    if not lines or totals.passed == 0:
+        print(f'no test ran (looked in {result_dir})')
         return 1
     if not glob.glob(os.path.join(result_dir, 'pytest-*.xml')):
         print('the unit tests left no results: pytest did not run')
         return 1
-    return 1 if failed or skipped else 0
+    return 1 if totals.failed or totals.skipped else 0
 
 
 if __name__ == '__main__':

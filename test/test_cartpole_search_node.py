@@ -53,6 +53,7 @@ class TestCartPoleSearchNode(unittest.TestCase):
         with open(res.plot_path, 'rb') as f:
             self.assertEqual(f.read(8), b'\x89PNG\r\n\x1a\n')
         self.assertEqual(res.video_path, '')
+        self.assertIn('no video asked for (record_video: false)', res.message)
         self.assertGreater(res.elapsed, 0.0)
         self.assertTrue(any(p.iteration == 100 and p.iterations == 100 for p in self.progress))
         # the best becomes the node's policy

@@ -13,6 +13,7 @@ import unittest
 
 import rospkg
 import rostest
+import numpy as np
 from PIL import Image
 
 ARTIFACTS = os.path.join(rospkg.RosPack().get_path('robot_ai'), '..', '..', 'build', 'test_artifacts')
@@ -84,24 +85,30 @@ def stop(proc):
 
 
 def colour_counts(path):
-    """Pixels of the robot's materials and of the TF axes in the screenshot."""
-    img = Image.open(path).convert('RGB')
-    width = img.size[0]
-    counts = dict(orange=0, blue=0, tf_red=0, tf_green=0)
-    orange_rows, tops = set(), dict(orange_top=10 ** 6, blue_top=10 ** 6)
-    for i, (r, g, b) in enumerate(img.getdata()):
-        if r > 190 and 70 < g < 160 and b < 70:
-            counts['orange'] += 1
-            orange_rows.add(i // width)
-            tops['orange_top'] = min(tops['orange_top'], i // width)
-        elif r < 70 and 50 < g < 130 and b > 150:
-            counts['blue'] += 1
-            tops['blue_top'] = min(tops['blue_top'], i // width)
-        elif r > 180 and g < 50 and b < 50:
-            counts['tf_red'] += 1
-        elif g > 150 and r < 80 and b < 80:
-            counts['tf_green'] += 1
-    return dict(counts, pole_rows=len(orange_rows), **tops)
+    """Pixels of the robot's materials and of the TF axes inside rviz's 3D view (found as the bounding box of its
+    background colour, so that the panel's blue labels and the toolbar's icons do not count), and the rows where
+    the orange and the blue pixels start and end (in screen rows)."""
+    img = np.asarray(Image.open(path).convert('RGB')).astype(int)
+    background = (img == (48, 48, 48)).all(axis=2)
+    y0 = 0
+    if background.any():   # the rows and columns where the background is dense: the view, not stray pixels
+        ys = np.nonzero(background.sum(axis=1) > 0.3 * background.sum(axis=1).max())[0]
+        xs = np.nonzero(background.sum(axis=0) > 0.3 * background.sum(axis=0).max())[0]
+        y0 = ys.min()
+        img = img[y0:ys.max() + 1, xs.min():xs.max() + 1]
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    masks = dict(orange=(r > 190) & (g > 70) & (g < 160) & (b < 70),
+                 blue=(r < 70) & (g > 50) & (g < 130) & (b > 150))
+    masks['tf_red'] = (r > 180) & (g < 50) & (b < 50) & ~masks['orange']
+    masks['tf_green'] = (g > 150) & (r < 80) & (b < 80)
+    counts = {name: int(m.sum()) for name, m in masks.items()}
+    for name in ('orange', 'blue'):
+        rows = np.nonzero(masks[name])[0]
+        counts[f'{name}_top'] = int(rows.min()) + y0 if len(rows) else -1
+        counts[f'{name}_bottom'] = int(rows.max()) + y0 if len(rows) else -1
+    counts['pole_rows'] = len(set(np.nonzero(masks['orange'])[0]))
+    counts['view'] = (int(y0), int(y0 + img.shape[0]))
+    return counts
 
 
 class TestLaunch(unittest.TestCase):
@@ -185,18 +192,15 @@ class TestLaunch(unittest.TestCase):
             self.assertIn('verdict: OK', text, text[-3000:])
             self.assertIn('forward_kinematics: %s from /tf' % frames, text)
             self.assertIn('the end effector moves', text)
-        for args, fixed in ((['robot:=kuka_lwr'], 'world_link'), ([], 'base_link'), (['robot:=ur5'], 'base_link')):
-            cmd = subprocess.run(['roslaunch', '--args', 'rviz', 'robot_ai', 'demo.launch', 'rviz:=true'] + args,
-                                 capture_output=True, text=True, timeout=60).stdout
-            self.assertIn('-f %s' % fixed, cmd, args)
         # a package-relative model, as the README's table suggested, loads; a robot that does not exist says so
         bad = subprocess.run(['roslaunch', '--args', 'forward_kinematics', 'robot_ai', 'forward_kinematics.launch',
                               'model:=urdf/kuka_lwr_arm.urdf'], capture_output=True, text=True, timeout=60)
         self.assertEqual(bad.returncode, 0, bad.stdout + bad.stderr)
         status, text = run_to_end(['robot:=ur6'], launch_file='forward_kinematics.launch', timeout=60)
         self.assertNotEqual(status, 0)
-        self.assertIn('robot:=ur6 is not one of ur5 kuka_lwr', text)
-        self.assertNotIn('Traceback (most recent call last)', text)
+        said = [l for l in text.splitlines() if 'ur6' in l or 'Exception' in l or 'rror' in l]
+        self.assertEqual(said, ['robot:=ur6 is not one of the package robots (ur5, kuka_lwr); for any other URDF give '
+                                'model:=/path/to/robot.urdf'], text)
 
     def test_sliders_under_xvfb(self):
         """gui:=true: the sliders' window opens (Debian 12's joint_state_publisher_gui crashed) and joint_states
@@ -288,6 +292,26 @@ class TestLaunch(unittest.TestCase):
         self.assertGreater(counts['blue'], 500, 'the arm is not drawn: %s' % counts)
         self.assertGreater(counts['tf_red'], 30, 'the TF axes are not drawn: %s' % counts)
         self.assertGreater(counts['tf_green'], 10, 'the TF axes are not drawn: %s' % counts)
+
+    def test_rviz_finds_the_root_and_frames_any_robot(self):
+        """forward_kinematics.launch rviz:=true on the KUKA LWR (the whole arm in view, its top was cut off) and on
+        robots the package has never seen, the Panda and the PR2 (their meshes are not installed here, so rviz
+        draws their frames): the fixed frame is found from the URDF, so the TF axes are drawn."""
+        robots = os.path.realpath(os.path.join(rospkg.RosPack().get_path('robot_ai'), '..', '..', '..', '..',
+                                               'shared', 'robots'))
+        for name, args in (('kuka_lwr', ['robot:=kuka_lwr']), ('panda', [f'model:={robots}/panda.urdf']),
+                           ('pr2', [f'model:={robots}/pr2.urdf'])):
+            counts = self.rviz_screenshot(args + ['rviz:=true'], f'rviz_{name}.png',
+                                          lambda c: c['tf_red'] > 20 and c['tf_green'] > 10 and (
+                                              name != 'kuka_lwr' or c['orange'] > 800),
+                                          'forward_kinematics.launch')
+            self.assertGreater(counts['tf_red'], 20, f'{name}: no frames drawn: {counts}')
+            self.assertGreater(counts['tf_green'], 10, f'{name}: no frames drawn: {counts}')
+            if name == 'kuka_lwr':     # the whole arm inside the 3D view, clear of its top and bottom edges
+                self.assertGreater(counts['orange'], 800, counts)
+                top, bottom = counts['view']
+                self.assertGreater(counts['orange_top'], top + 20, counts)
+                self.assertLess(counts['orange_bottom'], bottom - 20, counts)
 
     def test_cartpole_rviz_screenshot_shows_the_pole_balancing(self):
         """cartpole.launch rviz:=true: the rail (its red end stops), the blue cart and the orange pole, upright."""

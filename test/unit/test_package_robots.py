@@ -71,3 +71,22 @@ def test_cartpole_urdf_has_gymnasiums_frames_and_signs():
         hinge = poses['pole'][:3, 3]
         assert poses['cart'][0, 3] == x
         np.testing.assert_allclose(tip[:3] - hinge, [math.sin(theta), 0, math.cos(theta)], atol=1e-12)
+
+
+@pytest.mark.parametrize('urdf, config', [('ur5_arm.urdf', 'ur5_sweep.yaml'), ('kuka_lwr_arm.urdf', None)])
+def test_the_launch_files_sweep_keeps_every_link_above_the_base(urdf, config):
+    """forward_kinematics.launch's sweep of the package's arms never takes a link below the base's plane (the UR5's
+    default sweep took its wrist 0.76 m below it)."""
+    import yaml
+    from robot_ai.nodes.joint_sweep import positions, sweep_ranges
+    tree = KinematicTree.from_file(os.path.join(URDF_DIR, urdf))
+    settings = {}
+    if config:
+        with open(os.path.join(URDF_DIR, '..', 'config', config)) as f:
+            settings = yaml.safe_load(f)
+    ranges = sweep_ranges(tree, 0.8, settings.get('home'), settings.get('scale'))
+    lowest = min(pose[2, 3] for t in np.linspace(0, 8, 400)
+                 for link, pose in tree.link_poses(dict(zip(tree.active_joints, positions(ranges, t, 8)))).items())
+    assert lowest >= -1e-9, lowest
+    moving = [a for _, _, a in ranges]
+    assert min(moving) > 0.5                       # every joint still moves visibly

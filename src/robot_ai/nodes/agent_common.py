@@ -191,6 +191,8 @@ def write_files(plots: 'PlotProcess', output_dir: str, kind: str, env_id: str, s
     notes.insert(0, f'learning curve skipped: {skipped}' if skipped else 'learning curve being drawn to plot_path')
     if policy is not None and files.policy_path:
         notes.append(f'policy saved to {files.policy_path}')
+    if video is None:
+        notes.append('no video asked for (record_video: false)')
     files.note = '; '.join(notes)
     return files
 
