@@ -132,7 +132,8 @@ rospy.ServiceProxy('/cartpole_sim/reset', Trigger)()
 time.sleep(0.5)
 ended = episodes[first + 1:]
 print(repr(dict(states=(n1 - n0) / (t1 - t0), missed=sum(e.missed_steps for e in ended),
-                fell=sum(e.reason == 'pole fell' for e in ended), left=sum(e.reason == 'cart left the rail' for e in ended),
+                fell=sum(e.reason == 'pole fell' for e in ended),
+                left=sum(e.reason == 'cart left the rail' for e in ended),
                 steps=sum(e.steps for e in ended))))
 '''
         out = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True, timeout=120)

@@ -10,8 +10,9 @@ A plot is described by a job, a plain dict that crosses a pipe as JSON (the node
            'ylim': [low, high] (optional), 'integer_x': true}
     write_plot(search_plot_job(result), stem + '.png')
 
-Plots, videos, policy files and CSV logs are written whole or not at all: into a hidden temporary file beside them, named after the
-writing process (so that ``remove_leftovers`` can tell a dead writer's leftovers), then renamed into place.
+Plots, videos, policy files and CSV logs are written whole or not at all: into a hidden temporary file beside them,
+named after the writing process (so that ``remove_leftovers`` can tell a dead writer's leftovers), then renamed into
+place.
 """
 import csv
 import io
@@ -127,9 +128,8 @@ def write_plot(job: dict, path: str) -> str:
         handles, labels = ax.get_legend_handles_labels()
         keep = [(h, l) for h, l in zip(handles, labels) if l and not l.startswith('_')]
         if keep:  # below the axes, never over the data
-            fig.legend(*zip(*keep), loc='outside lower center', ncols=min(3 if len(keep) > 4 else 4, len(keep)), fontsize=9,
-                       frameon=False)
-        folder = os.path.dirname(os.path.abspath(path))
+            fig.legend(*zip(*keep), loc='outside lower center', ncols=min(3 if len(keep) > 4 else 4, len(keep)),
+                       fontsize=9, frameon=False)
         write_whole(path, lambda f: fig.savefig(f, format='png'))
     finally:
         plt.close(fig)

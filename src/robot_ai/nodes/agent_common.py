@@ -1,8 +1,9 @@
 """What the CartPole agent nodes share: parameters, the plot process, and how requests and goals are answered.
 
 Every successful search or training writes its policy file and a CSV log beside its plot (write_files), and
-both nodes take a policy file at start (~policy) and at any time (~load_policy). Plots are drawn by ``robot_ai.plot_worker`` in a process of its own, so that a response never waits for
-matplotlib nor shares the GIL with it. The response therefore arrives before its plot: ``plot_path`` names
+both nodes take a policy file at start (~policy) and at any time (~load_policy). Plots are drawn by
+``robot_ai.plot_worker`` in a process of its own, so that a response never waits for matplotlib nor shares the GIL
+with it. The response therefore arrives before its plot: ``plot_path`` names
 the file the plot process is drawing, which appears whole (it is renamed into place once written), usually
 within a second; the response's message says so.
 """

@@ -28,8 +28,8 @@ from std_srvs.srv import SetBool, SetBoolResponse
 from robot_ai.cartpole import linear_search, policies
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
-from robot_ai.nodes.params import str_param
 from robot_ai.nodes.agent_common import answer_load
+from robot_ai.nodes.params import run_node, str_param
 from robot_ai.srv import LoadPolicy
 
 JOINTS = ('cart_slider', 'pole_hinge')
@@ -108,10 +108,4 @@ class CartPoleController:
 
 
 def main():
-    rospy.init_node('cartpole_controller')
-    try:
-        CartPoleController()
-    except (RequestError, ValueError) as e:
-        rospy.logfatal(f'cartpole_controller: bad parameter: {e}')
-        raise SystemExit(1)
-    rospy.spin()
+    run_node('cartpole_controller', CartPoleController)

@@ -44,6 +44,7 @@ from robot_ai.cartpole.q_learning import Agent
 from robot_ai.msg import QLearningAction, QLearningFeedback, QLearningProgress, QLearningResult
 from robot_ai.nodes.agent_common import (PlotProcess, agent_settings, answer, answer_goal, answer_load, policy_param,
                                          write_files)
+from robot_ai.nodes.params import run_node
 from robot_ai.srv import (Act, ActResponse, EvaluateAgent, EvaluateAgentResponse, LoadPolicy, QLearning,
                           QLearningResponse)
 
@@ -147,8 +148,9 @@ class CartPoleQLearningNode:
         return 'it is now the node\'s agent'
 
     def _install(self, policy: policies.Policy) -> str:
-        self.served = ServedAgent(policy.actor, policy.env_id, f'the file {policy.path} ({policy.env_id}, seed '
-                                  f'{policy.seed}{", " + policy.metadata["source"] if policy.metadata["source"] else ""})')
+        source = f', {policy.metadata["source"]}' if policy.metadata['source'] else ''
+        self.served = ServedAgent(policy.actor, policy.env_id,
+                                  f'the file {policy.path} ({policy.env_id}, seed {policy.seed}{source})')
         return f'the node\'s agent is now {self.served.origin}'
 
     # ------------------------------------------------------------------------------------- handlers
@@ -201,10 +203,4 @@ class CartPoleQLearningNode:
 
 
 def main():
-    rospy.init_node('cartpole_q_learning')
-    try:
-        CartPoleQLearningNode()
-    except (RequestError, ValueError) as e:
-        rospy.logfatal(f'cartpole_q_learning: bad parameter: {e}')
-        raise SystemExit(1)
-    rospy.spin()
+    run_node('cartpole_q_learning', CartPoleQLearningNode)

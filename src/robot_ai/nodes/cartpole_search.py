@@ -41,6 +41,7 @@ from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchResult, SearchProgress
 from robot_ai.nodes.agent_common import (PlotProcess, agent_settings, answer, answer_goal, answer_load, policy_param,
                                          write_files)
+from robot_ai.nodes.params import run_node
 from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, LoadPolicy, RandomSearch,
                           RandomSearchResponse)
 
@@ -185,10 +186,4 @@ class CartPoleSearchNode:
 
 
 def main():
-    rospy.init_node('cartpole_search')
-    try:
-        CartPoleSearchNode()
-    except (RequestError, ValueError) as e:
-        rospy.logfatal(f'cartpole_search: bad parameter: {e}')
-        raise SystemExit(1)
-    rospy.spin()
+    run_node('cartpole_search', CartPoleSearchNode)

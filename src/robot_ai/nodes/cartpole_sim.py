@@ -55,7 +55,8 @@ class CartPoleSim:
         self.force = 0.0
         self.push = 0.0
         self.forces_since_state = 0           # cart_force messages since the last published state
-        self.awaiting_reset = False           # lockstep: a terminal state was published; the next force resets
+        self.awaiting_reset = False           # a terminal state was published, its episode too: the next start
+                                              # state comes after the pause (lockstep: with the next force)
         self.state = self._start_state()
         self.steps = self.missed_steps = 0
         self.state_pub = rospy.Publisher('joint_states', JointState, queue_size=10, tcp_nodelay=True)
@@ -117,10 +118,13 @@ class CartPoleSim:
                     reason = self._step(self.force)
                     if reason:
                         self._end_episode(reason)
+                        self.awaiting_reset = True
                 if reason:
                     rospy.sleep(self.reset_pause)
                     with self.lock:
-                        self._new_episode()
+                        if self.awaiting_reset:       # not already started by ~reset during the pause
+                            self.awaiting_reset = False
+                            self._new_episode()
                     rate = rospy.Rate(1.0 / period)   # the pause is not a backlog of steps to catch up
         except rospy.ROSInterruptException:
             pass
@@ -148,7 +152,8 @@ class CartPoleSim:
     def _on_reset(self, req) -> TriggerResponse:
         with self.lock:
             steps = self.steps
-            self._end_episode('reset')
+            if not self.awaiting_reset:               # after a fall its episode is published already
+                self._end_episode('reset')
             self.awaiting_reset = False
             self._new_episode()
         return TriggerResponse(success=True, message=f'reset after {steps} steps; new start state '

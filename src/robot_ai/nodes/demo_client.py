@@ -190,7 +190,8 @@ def main():
         q_policy = res.policy_path
         lines.append(f'  {res.message.split("; ")[0]}')
         lines.append(f'  every learner      {", ".join(f"{v:.2f}" for v in res.last100_averages)}')
-        lines.append(f'  best learner       {res.best_learner} (seed {res.learner_seeds[res.best_learner]}): greedy average '
+        seed = res.learner_seeds[res.best_learner]
+        lines.append(f'  best learner       {res.best_learner} (seed {seed}): greedy average '
                      f'{res.best_greedy_average:.1f} over 100 episodes')
         lines.append(f'  training time      {res.elapsed:.1f} s')
         plot_ok = wait_plot(res.plot_path)

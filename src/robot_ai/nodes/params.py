@@ -1,11 +1,24 @@
 """Private parameters read once at start: a value of the wrong kind falls back to the default with one warning
-that names the parameter and says what is allowed, never a traceback."""
+that names the parameter and says what is allowed, never a traceback; run_node for nodes whose bad parameters
+end them with one line instead."""
 import math
+from typing import Callable
 
 import rospy
 
 
-def number_param(name, default, allowed, valid):
+def run_node(name: str, build: Callable[[], object]) -> None:
+    """init_node(name), build the node, spin; a bad parameter (a ValueError from build) ends it with one line."""
+    rospy.init_node(name)
+    try:
+        build()
+    except ValueError as e:  # robot_ai's RequestError and PolicyError are ValueErrors
+        rospy.logfatal(f'{name}: bad parameter: {e}')
+        raise SystemExit(1)
+    rospy.spin()
+
+
+def number_param(name: str, default: float, allowed: str, valid: Callable[[float], bool]) -> float:
     """A numeric private parameter; a value that is not `allowed` falls back to the default with one warning."""
     value = rospy.get_param(name, default)
     try:
@@ -13,32 +26,33 @@ def number_param(name, default, allowed, valid):
         if isinstance(value, bool) or not math.isfinite(number) or not valid(number):
             raise ValueError
     except (TypeError, ValueError):
-        rospy.logwarn('%s must be %s, got %r: using %r' % (name, allowed, value, default))
+        rospy.logwarn(f'{name} must be {allowed}, got {value!r}: using {default!r}')
         return default
     return number
 
 
-def bool_param(name, default):
+def bool_param(name: str, default: bool) -> bool:
     """A boolean private parameter: true/false (or 1/0); anything else falls back to the default with a warning."""
     value = rospy.get_param(name, default)
     if isinstance(value, bool):
         return value
     if value in (0, 1) or str(value).lower() in ('true', 'false'):
         return value in (1, True) or str(value).lower() == 'true'
-    rospy.logwarn('%s must be true or false, got %r: using %r' % (name, value, default))
+    rospy.logwarn(f'{name} must be true or false, got {value!r}: using {default!r}')
     return default
 
 
-def int_param(name, default, allowed='a whole number of at least 1', valid=lambda v: v >= 1):
+def int_param(name: str, default: int, allowed: str = 'a whole number of at least 1',
+              valid: Callable[[float], bool] = lambda v: v >= 1) -> int:
     """An integer private parameter (see number_param)."""
     value = number_param(name, default, allowed, lambda v: v == int(v) and valid(v))
     return int(value)
 
 
-def str_param(name, default):
+def str_param(name: str, default: str) -> str:
     """A text private parameter; anything else falls back to the default with a warning."""
     value = rospy.get_param(name, default)
     if isinstance(value, str):
         return value
-    rospy.logwarn('%s must be text, got %r: using %r' % (name, value, default))
+    rospy.logwarn(f'{name} must be text, got {value!r}: using {default!r}')
     return default
