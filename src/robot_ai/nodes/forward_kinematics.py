@@ -211,7 +211,12 @@ class ForwardKinematicsNode(object):
                 return
         data = robot.plan.message_transforms(layout, positions)
         self.tf_msg.buff = robot.encoder.encode_data(layout.out_idx, secs, nsecs, data)
-        self.tf_pub.publish(self.tf_msg)
+        try:
+            self.tf_pub.publish(self.tf_msg)
+        except rospy.ROSException:
+            if rospy.is_shutdown():  # a message in flight while the node shuts down (Ctrl-C): no one to send it to
+                return
+            raise
         self.last_publish[slots] = stamp_ns
 
 
