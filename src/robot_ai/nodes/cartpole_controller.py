@@ -29,7 +29,7 @@ from robot_ai.cartpole import linear_search, policies
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.nodes.agent_common import answer_load
-from robot_ai.nodes.params import run_node, str_param
+from robot_ai.nodes.params import publish, run_node, str_param
 from robot_ai.srv import LoadPolicy
 
 JOINTS = ('cart_slider', 'pole_hinge')
@@ -82,7 +82,7 @@ class CartPoleController:
             return
         (i, j), policy = indices, self.policy
         if not self.enabled:
-            self.force_pub.publish(Float64(0.0))
+            publish(self.force_pub, Float64(0.0))
             return
         # the agents saw gymnasium's float32 observation: the policy sees the same here
         state = np.array([msg.position[i], msg.velocity[i], msg.position[j], msg.velocity[j]], dtype=np.float32)
@@ -91,7 +91,7 @@ class CartPoleController:
         except RequestError as e:
             rospy.logwarn_throttle(5.0, f'state skipped: {e}')
             return
-        self.force_pub.publish(Float64(self.force_mag if action == 1 else -self.force_mag))
+        publish(self.force_pub, Float64(self.force_mag if action == 1 else -self.force_mag))
 
     def _on_enable(self, req) -> SetBoolResponse:
         self.enabled = bool(req.data)

@@ -36,7 +36,7 @@ from std_srvs.srv import Trigger, TriggerResponse
 
 from robot_ai.cartpole.dynamics import CartPoleDynamics, rng_for, start_states
 from robot_ai.msg import CartPoleEpisode
-from robot_ai.nodes.params import bool_param, int_param, number_param
+from robot_ai.nodes.params import bool_param, int_param, number_param, publish
 from robot_ai.srv import PushPole, PushPoleResponse
 
 JOINTS = ('cart_slider', 'pole_hinge')
@@ -85,10 +85,10 @@ class CartPoleSim:
         msg = JointState(name=list(JOINTS), position=[x, theta], velocity=[x_dot, theta_dot])
         msg.header.stamp = rospy.Time.now()
         self.forces_since_state = 0
-        self.state_pub.publish(msg)
+        publish(self.state_pub, msg)
 
     def _end_episode(self, reason: str) -> None:
-        self.episode_pub.publish(CartPoleEpisode(steps=self.steps, reason=reason,
+        publish(self.episode_pub, CartPoleEpisode(steps=self.steps, reason=reason,
                                                  sim_seconds=self.steps * self.dynamics.tau,
                                                  missed_steps=self.missed_steps))
         rospy.loginfo(f'episode ended: {reason} after {self.steps} steps ({self.steps * self.dynamics.tau:.2f} s)'

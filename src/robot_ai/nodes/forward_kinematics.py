@@ -32,7 +32,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger, TriggerResponse
 from tf2_msgs.msg import TFMessage
 
-from robot_ai.nodes.params import bool_param, number_param
+from robot_ai.nodes.params import bool_param, number_param, publish
 from robot_ai.nodes.robot_description import load_tree, wait_for_tree
 from robot_ai.tf_wire import JointStateDecoder, TFMessageEncoder, WireError, raw_message_class
 
@@ -211,12 +211,7 @@ class ForwardKinematicsNode(object):
                 return
         data = robot.plan.message_transforms(layout, positions)
         self.tf_msg.buff = robot.encoder.encode_data(layout.out_idx, secs, nsecs, data)
-        try:
-            self.tf_pub.publish(self.tf_msg)
-        except rospy.ROSException:
-            if rospy.is_shutdown():  # a message in flight while the node shuts down (Ctrl-C): no one to send it to
-                return
-            raise
+        publish(self.tf_pub, self.tf_msg)
         self.last_publish[slots] = stamp_ns
 
 

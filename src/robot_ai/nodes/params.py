@@ -18,6 +18,15 @@ def run_node(name: str, build: Callable[[], object]) -> None:
     rospy.spin()
 
 
+def publish(publisher: rospy.Publisher, msg) -> None:
+    """publisher.publish(msg); a message in flight while the node shuts down (Ctrl-C) is dropped quietly."""
+    try:
+        publisher.publish(msg)
+    except rospy.ROSException:
+        if not rospy.is_shutdown():
+            raise
+
+
 def number_param(name: str, default: float, allowed: str, valid: Callable[[float], bool]) -> float:
     """A numeric private parameter; a value that is not `allowed` falls back to the default with one warning."""
     value = rospy.get_param(name, default)
