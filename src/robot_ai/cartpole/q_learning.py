@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from typing import Callable, ClassVar, NamedTuple
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError, check_state, rng_for, start_states
 
@@ -416,9 +417,13 @@ def _worker(training, seed, next_learner, results, stop):
     """Train the learners next_learner hands out until none is left; report every episode and each learner's end.
 
     A forked worker inherits its parent's signal handlers (a ROS node's would only flag a shutdown): it takes
-    the default ones, so a Ctrl-C or a SIGTERM ends it at once, quietly; the parent then ends the training."""
+    the default ones, so a Ctrl-C or a SIGTERM ends it at once, quietly; the parent then ends the training.
+    Each worker has a core of its own: its BLAS runs on one thread (the greedy evaluation's matrix products would
+    otherwise wake OpenBLAS's thread pool in every worker, whose spinning threads take the other workers' cores:
+    8 learners took 7.6 s instead of 5.4 s on 2 cores)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    threadpool_limits(1)
     while True:
         with next_learner.get_lock():  # a shared counter: a queue's items may not have arrived yet
             j = next_learner.value
