@@ -241,7 +241,12 @@ class TestCartPoleSearchNode(unittest.TestCase):
     def test_9_a_bad_parameter_is_one_line_not_a_traceback(self):
         for k, (args, message) in enumerate(((['_iterations:=abc'], "~iterations must be int (like 100), got 'abc'"),
                                              (['_env_id:=MountainCar-v0'], 'is not a CartPole environment'),
-                                             (['_output_dir:=42'], '~output_dir must be a folder path, got 42'))):
+                                             (['_output_dir:=42'], '~output_dir must be a folder path, got 42'),
+                                             # nothing converted silently, and the default shown is the package's
+                                             (['_iterations:=2.7'], '~iterations must be int (like 100), got 2.7'),
+                                             (['_episodes:=true'], '~episodes must be int (like 100), got True'),
+                                             (['_episodes:=-5'], '~episodes: episodes must be 1 to 10000 (0 = 100), '
+                                                                 'got -5'))):
             name = 'bad_params_%d' % k  # private parameters stay on the server: a node name per case
             proc = subprocess.run(['rosrun', 'robot_ai', 'cartpole_search', '__name:=' + name] + args,
                                   capture_output=True, text=True, timeout=60)

@@ -31,6 +31,11 @@ def agent_settings(module, what: str) -> tuple[dict, str]:
     """(defaults, output_dir) of an agent node whose pure module has DEFAULTS and resolve(defaults=...): read
     from the ~ parameters, checked at start (a bad one raises, with a message), the folder prepared."""
     defaults = defaults_from_params(module.DEFAULTS)
+    for name, value in defaults.items():  # each on its own: the message shows the package's default, not the value
+        try:
+            module.resolve(**{name: value})
+        except RequestError as e:
+            raise ValueError(f'~{name}: {e}')
     output_dir = output_dir_param()
     problem = prepare_output_dir(output_dir)
     if problem:
@@ -41,17 +46,25 @@ def agent_settings(module, what: str) -> tuple[dict, str]:
 
 def defaults_from_params(defaults: dict) -> dict:
     """The node's defaults for zero/empty request fields: each ~<name> parameter, where it is set and not
-    zero or empty, else the pure module's default. A value of the wrong kind is a ValueError naming it."""
+    zero or empty, else the pure module's default. A value of the wrong kind is a ValueError naming it: nothing is
+    converted silently (2.7 is not a whole number, true is not a number)."""
     out = {}
     for name, default in defaults.items():
         value = rospy.get_param('~' + name, '')
-        if value in ('', 0, None):
+        if not isinstance(value, bool) and value in ('', 0, None):   # False == 0, but is no number here
             out[name] = default
             continue
-        try:
-            out[name] = type(default)(value)
-        except (TypeError, ValueError):
+        if isinstance(value, bool):
+            ok = False
+        elif isinstance(default, str):
+            ok = isinstance(value, str)
+        elif isinstance(default, int):
+            ok = isinstance(value, int) or isinstance(value, float) and value.is_integer()
+        else:
+            ok = isinstance(value, (int, float))
+        if not ok:
             raise ValueError(f'~{name} must be {type(default).__name__} (like {default!r}), got {value!r}')
+        out[name] = type(default)(value)
     return out
 
 
