@@ -179,10 +179,24 @@ def test_running_average_and_interval():
     (dict(components=10 ** 6), 'components must be 1 to 10000'),
     (dict(learners=1000), 'learners must be 1 to 64'),
     (dict(learners=64, episodes=10000), 'more than the limit'),
+    # the hostile round's 31-minute training: learners x episodes was within the old limit, the features were not
+    (dict(env_id='CartPole-v1', learners=64, episodes=1000, components=10000), r'could take [0-9.]+ minutes'),
 ])
 def test_bad_requests_say_what_is_allowed(kwargs, message):
     with pytest.raises(RequestError, match=message):
         ql.resolve(**kwargs)
+
+
+def test_the_work_limit_counts_steps_and_features():
+    """The limit is the longest time a training can take, every episode at the step limit, from the step cost."""
+    cores = ql.worker_count(64)
+    assert ql.longest_seconds(1, 500, 200, 4000) == pytest.approx(500 * 200 * (9e-6 + 2e-9 * 4000))  # 1.7 s
+    assert ql.longest_seconds(16, 4000, 200, 4000) == pytest.approx(16 * 4000 * 200 * 17e-6 / cores)
+    if cores >= 2:
+        ql.resolve(learners=16, episodes=4000)                  # the node test's long batch is allowed on 2 cores
+    ql.resolve(env_id='CartPole-v1', learners=2, episodes=500, components=10000)   # a big single run too
+    with pytest.raises(RequestError, match='more than the limit of 2'):
+        ql.resolve(env_id='CartPole-v1', learners=8, episodes=2000, components=10000)
 
 
 def test_defaults_are_the_course():

@@ -48,7 +48,13 @@ FAILURE_REWARD = -200.0
 MAX_EPISODES = 10000
 MAX_COMPONENTS = 10000           # per bank: 40,000 features, 0.5 MiB of weights per learner
 MAX_LEARNERS = 64
-MAX_WORK = 64 * 1000             # learners x episodes: about two minutes on 2 cores at the default size
+# The work limit: a training's longest possible time (every episode lasting the step limit), from the cost of a step
+# measured on this project's 2-core machine: 9 us plus 2 ns per feature (17 us at the default 4,000 features, 88 us
+# at the largest, 40,000), spread over the cores that train it. A learner's early episodes are short, so a training
+# takes less. A service call cannot be cancelled: this keeps one from holding the node for long.
+STEP_SECONDS = 9e-6
+FEATURE_SECONDS = 2e-9
+MAX_SECONDS = 120.0
 MAX_EVAL_EPISODES = 1000         # greedy episodes stepped together: (1,000 x 4,000) float32 features a step
 GREEDY_EPISODES = 100            # greedy episodes that compare the learners when a training ends
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -91,11 +97,20 @@ def resolve(env_id: str = '', episodes: int = 0, gamma: float = 0.0, regressor: 
                                ('learners', learners, MAX_LEARNERS)):
         if not 1 <= value <= limit:
             raise RequestError(f'{name} must be 1 to {limit} (0 = {d[name]}), got {value}')
-    if learners * episodes > MAX_WORK:
-        raise RequestError(f'learners x episodes = {learners} x {episodes} = {learners * episodes} is more than the '
-                           f'limit of {MAX_WORK}; use fewer learners or episodes')
+    seconds = longest_seconds(learners, episodes, dynamics.max_episode_steps, len(RBF_GAMMAS) * components)
+    if seconds > MAX_SECONDS:
+        raise RequestError(f'{learners} learners x {episodes} episodes of up to {dynamics.max_episode_steps} steps with '
+                           f'{len(RBF_GAMMAS) * components} features could take {seconds / 60:.1f} minutes on '
+                           f'{worker_count(learners)} cores, more than the limit of {MAX_SECONDS / 60:.0f}: use fewer '
+                           'learners, episodes or components')
     return Training(dynamics, episodes, gamma, regressor, components, learners, bool(bootstrap_at_time_limit),
                     dynamics.max_episode_steps)
+
+
+def longest_seconds(learners: int, episodes: int, max_steps: int, features: int) -> float:
+    """The longest a training can take on this machine: every episode lasting max_steps (see MAX_SECONDS)."""
+    steps = learners * episodes * max_steps / worker_count(learners)
+    return steps * (STEP_SECONDS + FEATURE_SECONDS * features)
 
 
 def rbf_transform(states, weights32: np.ndarray, offsets32: np.ndarray, amplitude: float) -> np.ndarray:
