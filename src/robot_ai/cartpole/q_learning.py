@@ -57,6 +57,7 @@ FEATURE_SECONDS = 2e-9
 MAX_SECONDS = 120.0
 MAX_EVAL_EPISODES = 1000         # greedy episodes stepped together: (1,000 x 4,000) float32 features a step
 GREEDY_EPISODES = 100            # greedy episodes that compare the learners when a training ends
+CHUNK_FEATURES = 4 * 1024 * 1024  # float32 features computed at once by a batched policy: 16 MiB, whatever the batch
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
@@ -209,9 +210,15 @@ class Agent:
         return int(values[1] > values[0])
 
     def push_right(self, observations: np.ndarray) -> np.ndarray:
-        """The greedy policy for CartPoleDynamics.episode_lengths: observations (4, n) -> (n,) bool."""
-        values = self.values(observations.T)
-        return values[:, 1] > values[:, 0]
+        """The greedy policy for CartPoleDynamics.episode_lengths: observations (4, n) -> (n,) bool. The features
+        are computed CHUNK_FEATURES at a time: 1,000 episodes at 40,000 features would take 160 MB a step."""
+        rows = max(1, CHUNK_FEATURES // self.q_weights.shape[1])
+        states = observations.T
+        out = np.empty(len(states), dtype=bool)
+        for i in range(0, len(states), rows):
+            values = self.values(states[i:i + rows])
+            out[i:i + rows] = values[:, 1] > values[:, 0]
+        return out
 
     def evaluate(self, dynamics: CartPoleDynamics, episodes: int, max_steps: int, seed: int) -> np.ndarray:
         """Lengths (episodes,) of greedy episodes, start states from rng_for(seed), stepped together."""

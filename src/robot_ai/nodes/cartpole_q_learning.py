@@ -14,7 +14,7 @@ ROS Services
         (start states from the training's seed), the best (greedy average, then last-100 average) is saved as a
         policy file, and becomes the node's agent if it does at least as well as the current agent on those
         same episodes.
-    ~evaluate (robot_ai/EvaluateAgent): greedy episodes of the agent.
+    ~evaluate (robot_ai/EvaluateAgent): greedy episodes of the agent, one call at a time (later calls wait).
     ~act (robot_ai/Act): the agent's greedy action for one state.
     ~load_policy (robot_ai/LoadPolicy): load a Q-learning policy file as the agent; a bad file changes nothing.
     Every ~act and ~evaluate answer says whose agent it used: which training and learner, or which file.
@@ -69,6 +69,7 @@ class CartPoleQLearningNode:
             self._install(loaded)
         self.trainings = 0
         self.train_lock = threading.Lock()  # one training at a time; later requests wait their turn
+        self.evaluate_lock = threading.Lock()  # one evaluation at a time: memory stays bounded (see MAX_EVAL_EPISODES)
         self.plots = PlotProcess()
         self.progress_pub = rospy.Publisher('~progress', QLearningProgress, queue_size=1000)
         self.services = [rospy.Service('~train', QLearning, self._on_train),
@@ -181,7 +182,8 @@ class CartPoleQLearningNode:
             if not 1 <= episodes <= q_learning.MAX_EVAL_EPISODES:
                 raise RequestError(f'episodes must be 1 to {q_learning.MAX_EVAL_EPISODES} (0 = {EVALUATE_EPISODES}), '
                                    f'got {episodes}')
-            lengths = served.agent.evaluate(dynamics, episodes, max_steps, req.seed)
+            with self.evaluate_lock:
+                lengths = served.agent.evaluate(dynamics, episodes, max_steps, req.seed)
             return EvaluateAgentResponse(success=True, message=f'{episodes} greedy episodes of {dynamics.env_id} with '
                                          f'the agent from {served.origin}',
                                          lengths=[int(v) for v in lengths], avg_length=float(np.mean(lengths)))
