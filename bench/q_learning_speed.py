@@ -155,7 +155,7 @@ def main():
     print('learners in one call (each a fresh process; wall time, learners per second, peak resident memory):')
     for k in (1, 8, 32):
         r = results[k]
-        print('  K = %2d   %6.1f s   %5.2f learners/s   peak %3.0f MiB%s   mean last-100 %.2f ± %.2f' % (
+        print('  K = %2d   %6.1f s   %5.2f learners/s   peak %3.0f MiB%s   mean last-100 %.2f +/- %.2f' % (
             k, r['wall'], k / r['wall'], r['peak_mib'],
             ' + %d workers of %3.0f MiB' % (r['workers'], r['worker_peak_mib']) if r['workers'] else ' ' * 22,
             r['mean'], r['ci95']))
@@ -163,7 +163,7 @@ def main():
         results[8]['wall'], singles, results[8]['wall'] / singles))
     r = results[8]
     print('result, tf regressor, CartPole-v0, seeds 0-7: %s' % ', '.join('%.2f' % v for v in r['last100']))
-    print('  mean %.2f, 95%% interval ± %.2f (%.2f to %.2f); the course printed 198.79 for one run' % (
+    print('  mean %.2f, 95%% interval +/- %.2f (%.2f to %.2f); the course printed 198.79 for one run' % (
         r['mean'], r['ci95'], r['mean'] - r['ci95'], r['mean'] + r['ci95']))
 
 

@@ -84,6 +84,8 @@ class TestCartPoleQLearningNode(unittest.TestCase):
         self.assertEqual(len(res.last100_averages), 3)
         self.assertAlmostEqual(res.mean_last100, float(np.mean(res.last100_averages)))
         self.assertGreater(res.ci95_last100, 0.0)
+        self.assertIn(' +/- ', res.message)
+        self.assertTrue(res.message.isascii(), res.message)   # rosservice call shows anything else as \xB1
         training = q_learning.resolve('CartPole-v1', 150, 0.95, 'sgd', 200, 1, True)
         single, _ = q_learning.train_one(training, -2 + 2)  # learner 2 is the single run with seed -2 + 2
         self.assertEqual(res.last100_averages[2], single[-100:].mean())

@@ -68,6 +68,7 @@ def test_q_learning_ends_as_the_course_prints(tmp_path):
     learners = [float(re.search(r'last-100 average ([0-9.]+)', l).group(1)) for l in lines if l.startswith('learner ')]
     assert len(learners) == 2 and float(lines[-1].split()[-1]) == round(sum(learners) / 2, 2)
     assert sum('<- best' in l for l in lines) == 1
+    assert proc.stdout.isascii() and ' +/- ' in proc.stdout      # terminals and rosservice show anything else badly
     assert '240/240' in proc.stderr  # the progress bar counts every learner's episodes
     plot = path_of(proc, 'plot')
     assert os.path.isfile(plot) and '_CartPole-v0_seed4' in plot
@@ -90,3 +91,18 @@ def test_q_learning_ends_as_the_course_prints(tmp_path):
 def test_bad_files_and_folders_are_one_line_before_any_work(tmp_path, args, message):
     proc = run(args, tmp_path)
     assert proc.returncode == 2 and message in proc.stderr and 'Traceback' not in proc.stderr, proc.stderr
+
+
+def test_the_package_prints_ascii_only():
+    """What the nodes, the CLI and the launch files say stays ASCII: rosservice call shows a non-ASCII character as
+    an escape (193.22 \\xB1 3.18)."""
+    root = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..')
+    offenders = []
+    for folder in ('src', 'launch', 'scripts', 'srv', 'msg', 'action'):
+        for dirpath, _, files in os.walk(os.path.join(root, folder)):
+            for name in files:
+                with open(os.path.join(dirpath, name), 'rb') as f:
+                    for n, line in enumerate(f, 1):
+                        if not line.isascii():
+                            offenders.append(f'{os.path.join(dirpath, name)}:{n}')
+    assert offenders == []

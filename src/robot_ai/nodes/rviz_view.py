@@ -34,7 +34,7 @@ def camera(tree: KinematicTree) -> tuple[tuple[float, float, float], float]:
     reach = max(MIN_REACH, float(np.linalg.norm(points, axis=1).max()))
     low, high = float(points[:, 2].min()), float(points[:, 2].max())
     focal = (0.0, 0.0, round((low + high) / 2.0, 3))
-    radius = max(reach, (high - low) / 2.0) * 1.1
+    radius = max(reach, (high - low) / 2.0) * 1.3     # margin: links near the camera look larger
     return focal, round(radius / math.sin(VIEW_ANGLE / 2.0), 2)
 
 
