@@ -73,9 +73,12 @@ test: build
 	  | grep -E --line-buffered '^(-- run_tests|\[ROSTEST\]|SUMMARY|  \* RESULT|[0-9]+ (passed|failed))|passed|failed' || true
 	$(RUN) python $(ROOT)/test/summarize.py $(WS)/build/test_results/robot_ai
 
+# A master of its own on a free port, like the tests: never one that already runs on 11311 (its robot_description).
 demo: build
 	mkdir -p $(OUT)
-	$(RUN) roslaunch robot_ai demo.launch output_dir:=$(OUT) 2>&1 | tee $(OUT)/demo.log
+	port=$$($(SYS_PYTHON) -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'); \
+	$(RUN) export ROS_MASTER_URI=http://localhost:$$port && \
+	  roslaunch -p $$port robot_ai demo.launch output_dir:=$(OUT) 2>&1 | tee $(OUT)/demo.log
 	@# roslaunch exits 0 when its required client ends, whatever the client's status: the verdict decides
 	@grep -q '^verdict: OK' $(OUT)/demo.log
 
