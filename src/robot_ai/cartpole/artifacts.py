@@ -77,8 +77,9 @@ def q_learning_plot_job(result) -> dict:
     from robot_ai.cartpole.q_learning import running_average, RBF_GAMMAS
     t = result.training
     rewards = [np.asarray(r, dtype=np.float64) for r in result.total_rewards]
+    others = f'learners 1-{len(rewards) - 1}' if len(rewards) > 2 else 'learner 1'
     series = [dict(y=[float(v) for v in running_average(r)], style='line', color='tab:blue', alpha=0.3, lw=1,
-                   label=f'learners 1-{len(rewards) - 1}: running average of 100' if j == 1 else None)
+                   label=f'{others}: running average of 100' if j == 1 else None)
               for j, r in enumerate(rewards) if j > 0]
     series += [dict(y=[float(v) for v in rewards[0]], style='points', color='tab:gray', ms=3,
                     label='learner 0: total reward per episode'),
@@ -86,7 +87,7 @@ def q_learning_plot_job(result) -> dict:
                     label='learner 0: running average of 100')]
     best = t.max_steps if t.bootstrap_at_time_limit else t.max_steps - 1
     spread = (f'{len(result.last100_averages)} learners, last-100 average {result.mean_last100:.1f} '
-              f'+/- {result.ci95_last100:.1f}' if len(result.last100_averages) > 1
+              f'$\\pm$ {result.ci95_last100:.1f}' if len(result.last100_averages) > 1   # mathtext: a real +-
               else f'last-100 average {result.mean_last100:.1f}')
     return dict(
         title=f'{result.env_id} Q-learning, {t.regressor} regressor, {len(RBF_GAMMAS)} x {t.components} RBF features, '
