@@ -4,8 +4,11 @@ fails a node that rotates by euler angles axis * q on a URDF with a tilted axis 
 same node where every axis is along x, y or z, and gives a clear verdict for a node that crashes or stays silent."""
 import glob
 import os
+import signal
+import socket
 import subprocess
 import sys
+import tempfile
 import time
 import unittest
 
@@ -19,16 +22,17 @@ TILTED = os.path.join(HERE, 'urdf', 'tilted_axis_arm.urdf')
 ROBOTS = sorted(glob.glob(os.path.join(ROBOTS_DIR, '*.urdf')) + glob.glob(os.path.join(ROBOTS_DIR, 'fixtures', '*.urdf')))
 
 
-def check_fk(model, candidate, *args, mistake='euler'):
+def check_fk(model, candidate, *args, mistake='euler', parent='world'):
+    env = dict(os.environ, WRONG_FK_MISTAKE=mistake, COURSE_FK_MISTAKE=mistake, COURSE_FK_PARENT=parent)
     proc = subprocess.run(['rosrun', 'robot_ai', 'check_fk', '--model', model, '--candidate', candidate] + list(args),
-                          capture_output=True, text=True, timeout=300, env=dict(os.environ, WRONG_FK_MISTAKE=mistake))
+                          capture_output=True, text=True, timeout=300, env=env)
     return proc.returncode, proc.stdout.strip().splitlines(), proc.stderr
 
 
 class TestCheckFk(unittest.TestCase):
 
-    def assert_verdict(self, model, candidate, status, start, *args, mistake='euler'):
-        code, lines, err = check_fk(model, candidate, *args, mistake=mistake)
+    def assert_verdict(self, model, candidate, status, start, *args, mistake='euler', parent='world'):
+        code, lines, err = check_fk(model, candidate, *args, mistake=mistake, parent=parent)
         verdict = [l for l in lines if l.startswith(('PASS', 'FAIL'))]
         self.assertTrue(verdict, '%s %s: no verdict\n%s\n%s' % (candidate, model, '\n'.join(lines), err[-2000:]))
         self.assertTrue(verdict[-1].startswith(start), '%s %s:\n%s' % (candidate, model, '\n'.join(lines)))
@@ -58,7 +62,7 @@ class TestCheckFk(unittest.TestCase):
         self.assertTrue(lines[-2].startswith('(graded in '))
         self.assertIn('frames the URDF does not have (not graded): world', text)
         table = {l.split()[0]: l for l in lines if l.split() and l.split()[0] in ('shoulder', 'upper_arm', 'forearm',
-                                                                                  'tool')}
+                                                                                  'tool') and not l.startswith(' ')}
         self.assertNotIn('wrong', table['upper_arm'])   # above the tilted joint, the node is right
         self.assertIn('<- wrong', table['forearm'])
         self.assertIn('<- wrong', table['tool'])
@@ -78,6 +82,8 @@ class TestCheckFk(unittest.TestCase):
     def test_clear_verdicts_for_broken_candidates(self):
         kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
         self.assert_verdict(kuka, 'robot_ai/no_such_node', 1, 'FAIL: the candidate node exited')
+        self.assertIn("[rosrun] Couldn't find executable named no_such_node",   # rosrun's own words, quoted
+                      '\n'.join(check_fk(kuka, 'robot_ai/no_such_node')[1]))
         t = time.time()
         self.assert_verdict(kuka, 'robot_ai/silent_fk.py', 1, 'FAIL: the candidate published nothing',
                             '--timeout', '3')
@@ -88,6 +94,116 @@ class TestCheckFk(unittest.TestCase):
         code, _, err = check_fk(kuka, 'forward_kinematics')
         self.assertEqual(code, 2)
         self.assertIn('PACKAGE/TYPE', err)
+
+
+    # ------------------------------------------------------------------- course-style nodes (test/course_fk.py)
+    def test_correct_course_style_nodes_pass_fast_or_slow(self):
+        """Links under a parentless 'world' (or 'world' with the root unpublished), correct maths: PASS on the KUKA
+        LWR and on the tilted arm, also with a 0.1 s callback, every link graded, within 40 s."""
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        for model, mistake in ((kuka, 'none'), (TILTED, 'none'), (kuka, 'sleep'), (TILTED, 'sleep')):
+            t = time.time()
+            lines = self.assert_verdict(model, 'robot_ai/course_fk.py', 0, 'PASS', mistake=mistake)
+            self.assertLess(time.time() - t, 40.0, (model, mistake))
+            text = '\n'.join(lines)
+            self.assertIn('its frame world, which has no parent, stands for it', text)
+            self.assertIn('50 configurations compared', text)
+        # the course's own name for the parent: the KUKA's root is world_link, so the node publishes the root
+        self.assert_verdict(kuka, 'robot_ai/course_fk.py', 0, 'PASS', '--configurations', '10', mistake='none',
+                            parent='world_link')
+
+    def test_wrong_course_style_nodes_fail_naming_the_first_wrong_link(self):
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        lines = self.assert_verdict(kuka, 'robot_ai/course_fk.py', 1, 'FAIL: lwr_arm_1_link, rotation off',
+                                    '--configurations', '10', mistake='first')
+        self.assertIn('check joint lwr_arm_0_joint', lines[-1])
+        self.assertTrue(any(l.startswith('configuration ') and 'lwr_arm_0_joint = ' in l for l in lines), lines)
+        self.assertTrue(any('lwr_arm_1_link expected xyz' in l for l in lines))
+        self.assertTrue(any('lwr_arm_1_link received xyz' in l for l in lines))
+        for mistake in ('order', 'rpy_order'):
+            lines = self.assert_verdict(TILTED, 'robot_ai/course_fk.py', 1, 'FAIL: ', '--configurations', '10',
+                                        mistake=mistake)
+            self.assertIn('check joint ', lines[-1])
+
+    def test_a_node_that_stops_at_a_fork_is_told_the_links_it_misses(self):
+        lines = self.assert_verdict(os.path.join(ROBOTS_DIR, 'panda.urdf'), 'robot_ai/course_fk.py', 1,
+                                    'FAIL: publish a transform for panda_', '--configurations', '5')
+        self.assertIn('2 links never published', lines[-1])
+        self.assertIn('finger', lines[-1])
+        self.assertNotIn('panda_link0', lines[-1])
+
+    def test_nodes_that_raise_are_quoted(self):
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        code, lines, _ = check_fk(kuka, 'robot_ai/course_fk.py', '--timeout', '3', mistake='raise')
+        text = '\n'.join(lines)
+        self.assertEqual(code, 1, text)
+        self.assertIn('FAIL: the candidate published nothing', text)
+        self.assertIn("AttributeError: module 'rospy' has no attribute 'logerror'", text)
+        self.assertIn('its whole output: ', text)
+        t = time.time()
+        code, lines, _ = check_fk(kuka, 'robot_ai/course_fk.py', mistake='die')
+        text = '\n'.join(lines)
+        self.assertEqual(code, 1, text)
+        self.assertIn('FAIL: the candidate node exited with status 1', text)
+        self.assertIn("ValueError: 'tool_mount' is not in list", text)
+        self.assertLess(time.time() - t, 20.0)
+
+
+    def test_bad_input_is_one_line_with_status_2(self):
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        folder = tempfile.mkdtemp()
+        xacro = os.path.join(folder, 'arm.urdf.xacro')
+        with open(xacro, 'w') as f:
+            f.write('<robot name="r" xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:property name="half_pi" '
+                    'value="1.5708"/><link name="a"/><link name="b"/><joint name="j" type="revolute"><parent link="a"/>'
+                    '<child link="b"/><origin rpy="0 ${half_pi} 0"/><axis xyz="0 0 1"/></joint></robot>')
+        for model, args, message in ((xacro, [], 'looks like unexpanded xacro'),
+                                     (kuka, ['--timeout', 'inf'], '--timeout one of at most 600 s'),
+                                     (kuka, ['--configurations', '200000'], '--configurations must be 1 to 10000')):
+            t = time.time()
+            code, lines, err = check_fk(model, 'robot_ai/forward_kinematics', *args)
+            self.assertEqual(code, 2, (args, lines, err))
+            self.assertIn(message, err)
+            self.assertNotIn('Traceback', err)
+            self.assertLess(time.time() - t, 15)
+
+    def test_nothing_is_left_behind(self):
+        """SIGTERM (what `timeout` sends) while check_fk runs a roscore of its own, and a candidate's child that
+        ignores SIGINT: no process of the grade survives it, and no parameter stays on the master."""
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        mark = 'check_fk_orphan_%d' % os.getpid()
+        port = free_port()
+        env = dict(os.environ, ROS_MASTER_URI='http://127.0.0.1:%d' % port, COURSE_FK_MISTAKE='orphan',
+                   COURSE_FK_MARK=mark)
+        proc = subprocess.Popen(['rosrun', 'robot_ai', 'check_fk', '--model', kuka, '--candidate',
+                                 'robot_ai/course_fk.py'], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        deadline = time.time() + 30
+        while not processes(mark) and time.time() < deadline:
+            time.sleep(0.2)
+        self.assertTrue(processes(mark), 'the candidate did not start its child')
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=30)
+        time.sleep(1.0)
+        self.assertEqual(processes(mark), [])
+        self.assertEqual(processes(str(port)), [])        # its roscore, rosmaster and rosout
+        self.assertEqual(processes('__ns:=/check_fk_%d' % proc.pid), [])
+        # on a shared master (rostest's), a finished grade leaves no /check_fk_<pid> parameters
+        code, _, _ = check_fk(kuka, 'robot_ai/course_fk.py', '--configurations', '3', mistake='none')
+        self.assertEqual(code, 0)
+        names = subprocess.run(['rosparam', 'list'], capture_output=True, text=True, timeout=30).stdout.split()
+        self.assertEqual([n for n in names if n.startswith('/check_fk_')], [])
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def processes(text):
+    """The command lines of running processes that contain text (this test's own ps and grep aside)."""
+    out = subprocess.run(['ps', '-eo', 'args='], capture_output=True, text=True).stdout.splitlines()
+    return [l for l in out if text in l and not l.startswith('ps ')]
 
 
 if __name__ == '__main__':

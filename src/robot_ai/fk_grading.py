@@ -1,13 +1,14 @@
 """Grade a forward-kinematics node against the reference, pose by pose. No rospy.
 
-The grader (``nodes/check_fk.py``) drives a candidate node and the package's forward_kinematics with the same
-joint states and hands the poses both tf trees give to a ``Grade``; this module chooses the configurations,
-the frame both trees are compared in, and writes the report a student reads.
+The grader (``nodes/check_fk.py``) drives a candidate node with joint states and hands the poses its tf tree
+gives, with the reference's (``KinematicTree.link_poses``, what forward_kinematics publishes), to a ``Grade``;
+this module chooses the configurations, the frame the candidate is compared in, and writes the report a student
+reads.
 
-    configs = configurations(tree, 50, seed=0)                 # the zero pose, then random ones
-    frame, note = comparison_frame(tree, candidate_frames)      # the root, or the first link below it both have
-    grade = Grade(tree, frame, tolerance=1e-6)
-    grade.add(k, reference_poses, candidate_poses)              # {link: 4x4 pose in `frame`} per configuration
+    configs = configurations(tree, 50, seed=0)                         # the zero pose, then random ones
+    frame, note = comparison_frame(tree, candidate_frames, parentless)  # the root, or the frame standing for it
+    grade = Grade(tree, frame, tolerance=1e-6, note=note)
+    grade.add(k, configs[k], tree.link_poses(configs[k]), candidate_poses)   # {link: 4x4 pose}
     print('\\n'.join(grade.report())); grade.verdict()
 """
 import math
@@ -18,7 +19,7 @@ CONTINUOUS_TURNS = 3        # continuous joints are driven over +-3 turns
 NO_LIMIT = math.pi          # revolute or prismatic joints without usable limits: +-pi
 
 
-def joint_range(joint):
+def joint_range(joint) -> tuple[float, float]:
     """The (low, high) a configuration draws a joint's position from."""
     if joint.type == 'continuous':
         return -CONTINUOUS_TURNS * 2 * math.pi, CONTINUOUS_TURNS * 2 * math.pi
@@ -28,7 +29,7 @@ def joint_range(joint):
     return float(low), float(high)
 
 
-def configurations(tree, count, seed=0):
+def configurations(tree, count: int, seed: int = 0) -> list[dict]:
     """count configurations of the driven joints (mimic joints are left to the nodes): the zero pose, then
     positions drawn uniformly within each joint's limits from numpy's default_rng(seed)."""
     rng = np.random.default_rng(seed)
@@ -39,120 +40,173 @@ def configurations(tree, count, seed=0):
     return out[:max(count, 1)]
 
 
-def comparison_frame(tree, candidate_frames):
-    """(the frame poses are compared in, a note for the report or '').
+def comparison_frame(tree, candidate_frames, parentless=()) -> tuple[str | None, str]:
+    """(the candidate's frame that poses are compared in, a note for the report or '').
 
-    The root if the candidate publishes it; else the first link below the root, in the URDF's order, that the
-    candidate publishes (the course's skeleton hangs every link under a 'world' the URDF may not have)."""
+    The root if the candidate publishes it. Else a frame of the candidate with no parent that the URDF does not
+    have (the course's skeleton hangs every link under 'world' or 'world_link' and never publishes the root):
+    it stands for the root. Else the first link below the root, in the URDF's order, that the candidate
+    publishes."""
     if tree.root in candidate_frames:
         return tree.root, ''
+    stand_ins = sorted(f for f in parentless if f not in tree.links)
+    if len(stand_ins) == 1:
+        return stand_ins[0], (f'the candidate does not publish the root link {tree.root}; its frame '
+                              f'{stand_ins[0]}, which has no parent, stands for it')
     for link in tree.links:
         if link in candidate_frames:
-            return link, ('the candidate does not publish the root link %s: poses are compared relative to %s, '
-                          'the first link below it that both trees have' % (tree.root, link))
+            return link, (f'the candidate does not publish the root link {tree.root} and has no single parentless '
+                          f'frame to stand for it: poses are compared relative to {link}, the first link below it '
+                          'that both trees have')
     return None, 'the candidate publishes none of the robot\'s links'
 
 
-def rotation_error(a, b):
+def rotation_error(a: np.ndarray, b: np.ndarray) -> float:
     """The angle (rad) of the rotation between the rotation parts of two 4x4 poses."""
     d = a[:3, :3].T.dot(b[:3, :3])
     s = np.linalg.norm([d[2, 1] - d[1, 2], d[0, 2] - d[2, 0], d[1, 0] - d[0, 1]]) / 2.0
     return abs(math.atan2(s, (np.trace(d) - 1.0) / 2.0))
 
 
-class Grade(object):
-    """Worst errors per link over the configurations, and what the candidate never published."""
+class Grade:
+    """Worst errors per link over the configurations, and what the candidate never published.
 
-    def __init__(self, tree, frame, tolerance=1e-6, note=''):
+    frame: the candidate's frame poses are compared in: the root, a frame standing for it, or a link (then the
+    reference poses are taken relative to that link too)."""
+
+    def __init__(self, tree, frame: str | None, tolerance: float = 1e-6, note: str = ''):
         self.tree, self.frame, self.tolerance, self.note = tree, frame, tolerance, note
-        self.links = [l for l in tree.links if l != frame]
-        self.worst = {l: [0.0, 0.0, None, None] for l in self.links}   # position, rotation, at configuration
+        reachable = set(tree.link_poses())                     # links below a floating joint are not published
+        self.ungradable = [link for link in tree.links if link not in reachable]
+        self.links = [link for link in tree.links if link in reachable and link not in (tree.root, frame)]
+        self.worst = {link: [0.0, 0.0, None, None] for link in self.links}  # position, rotation, at configuration
         self.missing, self.extra, self.problems = {}, set(), []   # missing: {link: configurations without it}
         self.configurations = 0
+        self.seen = {}          # configuration index -> (joint values, {link: (reference, candidate)} of wrong links)
 
-    def add(self, index, reference, candidate):
-        """Poses {link: 4x4 in self.frame} of configuration index, as each node's tf tree gives them."""
+    def reference_in_frame(self, reference: dict) -> dict:
+        """The reference poses (in the root frame) relative to the frame the candidate is compared in."""
+        if self.frame in self.tree.links and self.frame != self.tree.root:
+            inverse = np.linalg.inv(reference[self.frame])
+            return {link: inverse.dot(m) for link, m in reference.items()}
+        return reference
+
+    def add(self, index: int, positions: dict, reference: dict, candidate: dict) -> None:
+        """Configuration index: its joint positions, the reference's poses {link: 4x4 in the root frame} and the
+        candidate's {link: 4x4 in self.frame}."""
         self.configurations += 1
+        reference = self.reference_in_frame(reference)
+        wrong = {}
         for link in self.links:
-            if link not in reference:
-                continue
             if link not in candidate:
                 self.missing[link] = self.missing.get(link, 0) + 1
                 continue
             want, got = reference[link], candidate[link]
             if not np.isfinite(got).all():
-                self.problems.append('configuration %d: %s is not finite (NaN or inf)' % (index, link))
+                self.problems.append(f'configuration {index}: {link} is not finite (NaN or inf)')
                 continue
             position = float(np.linalg.norm(got[:3, 3] - want[:3, 3]))
             rotation = rotation_error(got, want)
+            if max(position, rotation) > self.tolerance:
+                wrong[link] = (want, got)
             w = self.worst[link]
             if position > w[0]:
                 w[0], w[2] = position, index
             if rotation > w[1]:
                 w[1], w[3] = rotation, index
+        if wrong:
+            self.seen[index] = (dict(positions), wrong)
 
-    def failing(self):
+    def failing(self) -> list[str]:
         """Links whose worst error is over the tolerance, in the URDF's order (parents first)."""
-        return [l for l in self.links if max(self.worst[l][:2]) > self.tolerance]
+        return [link for link in self.links if max(self.worst[link][:2]) > self.tolerance]
 
-    def verdict(self):
-        """'PASS', or 'FAIL: <the first thing to fix>'."""
+    def _joint_of(self, link):
+        return next((j for j in self.tree.joints.values() if j.child == link), None)
+
+    def verdict(self) -> str:
+        """'PASS', or 'FAIL: <the first thing to fix>' (the wrong or missing link closest to the root)."""
         if self.problems:
-            return 'FAIL: %s' % self.problems[0]
+            return f'FAIL: {self.problems[0]}'
         if self.frame is None:
-            return 'FAIL: %s' % self.note
+            return f'FAIL: {self.note}'
         if self.configurations == 0:
             return 'FAIL: no configuration could be compared'
-        missing = [l for l in self.links if l in self.missing]
-        if missing:
-            never = [l for l in missing if self.missing[l] == self.configurations]
-            if never:
-                return 'FAIL: publish a transform for %s (%d link%s never published)' % (
-                    never[0], len(never), 's' if len(never) > 1 else '')
-            return 'FAIL: %s was not published in %d of %d configurations' % (
-                missing[0], self.missing[missing[0]], self.configurations)
-        failing = self.failing()
-        if failing:
-            link = failing[0]
-            pos, rot, at_pos, at_rot = self.worst[link]
-            joint = next((j for j in self.tree.joints.values() if j.child == link), None)
-            what = ('rotation off by %.3g rad' % rot) if rot > self.tolerance else ('position off by %.3g m' % pos)
-            where = 'FAIL: %s, %s in configuration %d' % (link, what, at_rot if rot > self.tolerance else at_pos)
-            if joint is None:
-                return where
-            return '%s; check joint %s (%s%s, origin xyz %s rpy %s)' % (
-                where, joint.name, joint.type, ', axis %s' % _vec(joint.axis) if joint.moving else '',
-                _vec(joint.xyz), _vec(joint.rpy))
-        return 'PASS'
+        bad = [link for link in self.links if link in self.missing or link in self.failing()]
+        if not bad:
+            return 'PASS'
+        link = bad[0]
+        joint = self._joint_of(link)
+        check = (f'; check joint {joint.name} ({joint.type}{", axis " + _vec(joint.axis) if joint.moving else ""}, '
+                 f'origin xyz {_vec(joint.xyz)} rpy {_vec(joint.rpy)})' if joint is not None else '')
+        if link in self.missing:
+            never = [m for m in self.links if self.missing.get(m) == self.configurations]
+            if link in never:
+                others = f' ({len(never)} links never published: {", ".join(never[:5])})' if len(never) > 1 else ''
+                return f'FAIL: publish a transform for {link}{others}{check}'
+            return f'FAIL: {link} was not published in {self.missing[link]} of {self.configurations} configurations'
+        pos, rot, at_pos, at_rot = self.worst[link]
+        what = f'rotation off by {rot:.3g} rad' if rot > self.tolerance else f'position off by {pos:.3g} m'
+        at = at_rot if rot > self.tolerance else at_pos
+        everywhere = ', wrong in every configuration, the zero pose included' if 0 in self.seen and all(
+            link in wrong for _, wrong in self.seen.values()) and len(self.seen) == self.configurations else ''
+        return f'FAIL: {link}, {what} in configuration {at}{everywhere}{check}'
 
-    def report(self):
+    def worst_configuration_lines(self) -> list[str]:
+        """The blamed link's worst configuration: every joint's value, the expected and the received pose, so that
+        a student can reproduce it."""
+        failing = self.failing()
+        if not failing or self.problems:
+            return []
+        link = failing[0]
+        pos, rot, at_pos, at_rot = self.worst[link]
+        at = at_rot if rot > self.tolerance else at_pos
+        positions, wrong = self.seen.get(at, ({}, {}))
+        if link not in wrong:
+            return []
+        want, got = wrong[link]
+        return ([f'configuration {at}: ' + ', '.join(f'{n} = {v:.6g}' for n, v in positions.items()),
+                 f'  {link} expected xyz {_vec(want[:3, 3], 4)} rpy {_vec(_rpy(want), 4)}',
+                 f'  {link} received xyz {_vec(got[:3, 3], 4)} rpy {_vec(_rpy(got), 4)}'])
+
+    def report(self) -> list[str]:
         """The lines a student reads: a table per link, the frames missing or extra, the verdict."""
-        lines = []
-        if self.note:
-            lines.append('note: %s' % self.note)
-        lines.append('%d configurations compared, poses relative to %s, tolerance %g' % (
-            self.configurations, self.frame, self.tolerance))
-        width = max([len(l) for l in self.links] + [4])
-        lines.append('%-*s  %14s  %14s  %s' % (width, 'link', 'position (m)', 'rotation (rad)', 'worst at'))
+        lines = [f'note: {self.note}'] if self.note else []
+        lines.append(f'{self.configurations} configurations compared, poses relative to {self.frame}, '
+                     f'tolerance {self.tolerance:g}')
+        width = max([len(link) for link in self.links] + [4])
+        lines.append(f'{"link":<{width}}  {"position (m)":>14}  {"rotation (rad)":>14}  worst at')
         for link in self.links:
             pos, rot, at_pos, at_rot = self.worst[link]
             if self.missing.get(link) == self.configurations:
-                lines.append('%-*s  %14s  %14s  %s' % (width, link, '-', '-', 'NEVER PUBLISHED'))
+                lines.append(f'{link:<{width}}  {"-":>14}  {"-":>14}  NEVER PUBLISHED')
                 continue
             if link in self.missing:
-                lines.append('%-*s  %14s  %14s  %s' % (width, link, '-', '-', 'missing in %d configurations'
-                                                       % self.missing[link]))
+                lines.append(f'{link:<{width}}  {"-":>14}  {"-":>14}  missing in {self.missing[link]} configurations')
                 continue
             wrong = max(pos, rot) > self.tolerance
             at = at_rot if rot > self.tolerance else at_pos
-            lines.append('%-*s  %14.3g  %14.3g  %s' % (width, link, pos, rot,
-                                                      'configuration %d  <- wrong' % at if wrong else '-'))
+            lines.append(f'{link:<{width}}  {pos:14.3g}  {rot:14.3g}  '
+                         + (f'configuration {at}  <- wrong' if wrong else '-'))
+        if self.ungradable:
+            lines.append(f'not graded (below a floating joint, which joint_states cannot drive): '
+                         f'{", ".join(self.ungradable[:10])}')
         if self.extra:
-            lines.append('frames the URDF does not have (not graded): %s' % ', '.join(sorted(self.extra)))
+            shown = sorted(self.extra)[:10]
+            lines.append(f'frames the URDF does not have (not graded): {", ".join(shown)}'
+                         + (f' and {len(self.extra) - 10} more' if len(self.extra) > 10 else ''))
+        lines.extend(self.worst_configuration_lines())
         lines.extend(self.problems[1:6])
         lines.append(self.verdict())
         return lines
 
 
-def _vec(v):
-    return '(%s)' % ' '.join('%g' % float(x) for x in v)
+def _rpy(m: np.ndarray) -> tuple[float, float, float]:
+    """Roll, pitch, yaw (URDF's fixed-axis x-y-z) of a 4x4 pose."""
+    r = m[:3, :3]
+    pitch = math.atan2(-r[2, 0], math.hypot(r[0, 0], r[1, 0]))
+    return math.atan2(r[2, 1], r[2, 2]), pitch, math.atan2(r[1, 0], r[0, 0])
+
+
+def _vec(v, digits: int = 6) -> str:
+    return '(' + ' '.join(f'{float(x):.{digits}g}' for x in v) + ')'

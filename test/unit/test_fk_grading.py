@@ -30,7 +30,11 @@ def test_configurations_zero_first_then_within_limits():
 def test_comparison_frame():
     tree = KinematicTree.from_file(TILTED)
     assert comparison_frame(tree, {'base', 'shoulder', 'tool'}) == ('base', '')
-    frame, note = comparison_frame(tree, {'world', 'shoulder', 'forearm'})  # the skeleton: links under 'world'
+    # the course's skeleton: every link under a parentless 'world' the URDF does not have, the root unpublished
+    frame, note = comparison_frame(tree, {'world', 'shoulder', 'forearm'}, parentless={'world'})
+    assert frame == 'world' and 'its frame world, which has no parent, stands for it' in note
+    # no single parentless stand-in: the first link below the root both have
+    frame, note = comparison_frame(tree, {'world', 'other', 'shoulder', 'forearm'}, parentless={'world', 'other'})
     assert frame == 'shoulder' and 'does not publish the root link base' in note
     assert comparison_frame(tree, {'world'})[0] is None
 
@@ -45,12 +49,53 @@ def test_grade_names_the_first_wrong_link_and_its_joint():
             twist = tft.rotation_matrix(0.01, [0, 0, 1])
             got['forearm'] = got['forearm'].dot(twist)
             got['tool'] = got['forearm'].dot(tree.joints['tool_mount'].matrix)
-        grade.add(k, want, got)
+        grade.add(k, q, want, got)
     assert grade.failing() == ['forearm', 'tool']
     verdict = grade.verdict()
     assert verdict.startswith('FAIL: forearm, rotation off by 0.01 rad in configuration 3; check joint elbow')
     report = '\n'.join(grade.report())
     assert 'forearm' in report and '<- wrong' in report and report.endswith(verdict)
+    # the worst configuration, reproducible: every joint's value, the expected and the received pose
+    q3 = configurations(tree, 5, seed=0)[3]
+    assert 'configuration 3: ' + ', '.join(f'{n} = {v:.6g}' for n, v in q3.items()) in report
+    assert '  forearm expected xyz' in report and '  forearm received xyz' in report
+
+
+def test_a_stand_in_root_grades_every_link_and_blames_the_first_joint():
+    """A course-style node: links under a parentless 'world', the root unpublished. Correct, it passes with every
+    link graded; ignoring the first joint's angle, it fails on the first link, wrong in every configuration but
+    the zero pose."""
+    tree = KinematicTree.from_file(TILTED)
+    configs = configurations(tree, 4, seed=0)
+    first = tree.active_joints[0]
+    right, wrong = Grade(tree, 'world', 1e-6), Grade(tree, 'world', 1e-6)
+    for k, q in enumerate(configs):
+        want = tree.link_poses(q)
+        right.add(k, q, want, {l: m for l, m in want.items() if l != tree.root})
+        lazy = tree.link_poses(dict(q, **{first: 0.0}))
+        wrong.add(k, q, want, {l: m for l, m in lazy.items() if l != tree.root})
+    assert right.verdict() == 'PASS' and right.links == [l for l in tree.links if l != tree.root]
+    child = tree.joints[first].child
+    assert wrong.verdict().startswith(f'FAIL: {child}, ') and f'check joint {first}' in wrong.verdict()
+    assert 'zero pose' not in wrong.verdict()    # right at the zero pose, where the angle is 0
+    always = Grade(tree, 'world', 1e-6)
+    for k, q in enumerate(configs):               # a wrong fixed offset: wrong everywhere, the zero pose included
+        want = tree.link_poses(q)
+        always.add(k, q, want, {l: m.dot(tft.translation_matrix([0.01, 0, 0])) for l, m in want.items()})
+    assert 'wrong in every configuration, the zero pose included' in always.verdict()
+
+
+def test_missing_links_blame_the_closest_to_the_root():
+    """A node that stops at a fork misses the links after it: the verdict names them, not the root."""
+    panda = KinematicTree.from_file(robot_path('panda.urdf'))
+    q = configurations(panda, 1)[0]
+    want = panda.link_poses(q)
+    stopped = Grade(panda, 'world', 1e-6)
+    stopped.add(0, q, want, {l: m for l, m in want.items() if 'finger' not in l and l != panda.root})
+    verdict = stopped.verdict()
+    assert verdict.startswith('FAIL: publish a transform for panda_'), verdict    # a finger, not the root
+    assert '(2 links never published: ' in verdict and 'panda_leftfinger' in verdict and 'panda_rightfinger' in verdict
+    assert 'check joint panda_finger_joint' in verdict
 
 
 def test_grade_pass_missing_and_non_finite():
@@ -58,13 +103,13 @@ def test_grade_pass_missing_and_non_finite():
     q = configurations(tree, 2, seed=0)[1]
     want = tree.link_poses(q)
     ok = Grade(tree, 'base', 1e-6)
-    ok.add(0, want, {l: m + 1e-9 for l, m in want.items()})
+    ok.add(0, q, want, {l: m + 1e-9 for l, m in want.items()})
     assert ok.verdict() == 'PASS' and ok.failing() == []
     missing = Grade(tree, 'base', 1e-6)
-    missing.add(0, want, {l: m for l, m in want.items() if l != 'tool'})
+    missing.add(0, q, want, {l: m for l, m in want.items() if l != 'tool'})
     assert missing.verdict().startswith('FAIL: publish a transform for tool')
     bad = Grade(tree, 'base', 1e-6)
-    bad.add(0, want, dict(want, forearm=np.full((4, 4), np.nan)))
+    bad.add(0, q, want, dict(want, forearm=np.full((4, 4), np.nan)))
     assert 'not finite' in bad.verdict()
 
 

@@ -1,100 +1,173 @@
-"""check_fk: grade a forward-kinematics node (a student's, say) against robot_ai's forward_kinematics.
+"""check_fk: grade a forward-kinematics node (a student's, say) against robot_ai's kinematics.
 
     rosrun robot_ai check_fk --model my_robot.urdf --candidate my_pkg/my_fk_node [--configurations 50]
                              [--seed 0] [--tolerance 1e-6] [--timeout 5]
 
 It starts a roscore of its own when none runs, then the candidate with its /tf and /tf_static remapped into a
-namespace of its own and forward_kinematics beside it, both reading the URDF from robot_description in that
-namespace (and from /robot_description, set while the check runs if nothing else set it) and the same
-joint_states (the zero pose, then seeded random configurations within the joints' limits). For every
-configuration it compares the pose of every link as each node's tf tree gives it (tf2 lookups, so a node that
-hangs every link under a 'world' frame is graded as fairly as one that publishes parent -> child per joint),
-prints a table per link and a verdict, and exits 0 on PASS, 1 on FAIL, 2 on bad arguments.
+namespace of its own, reading the URDF from robot_description in that namespace (and from /robot_description,
+set while the check runs if nothing else set it), and drives it with joint_states: the zero pose, then seeded
+random configurations within the joints' limits. The reference poses are computed in this process from the URDF
+(robot_ai.kinematics, what forward_kinematics publishes, equal to robot_state_publisher), so nothing the candidate
+does can stop, spoof or reconfigure them. A configuration counts once the candidate's poses have settled for it
+(see grade()), whatever its stamps and however slow its callback. The candidate's output is drained into a log
+file, and its last lines are quoted when it dies or publishes nothing. It prints a table per link and a verdict,
+and exits 0 on PASS, 1 on FAIL, 2 on bad arguments.
 """
 import argparse
+import collections
+import math
 import os
 import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
+
+import numpy as np
 
 from robot_ai.fk_grading import Grade, comparison_frame, configurations
 from robot_ai.kinematics import KinematicTree, URDFError, prefix_frame
 
+RESEND = 0.2            # seconds between two sends of the same configuration
+SETTLE = 0.25           # seconds a candidate's poses must stay the same, with fresh messages, to count
+SAME_AS_BEFORE = 1.5    # seconds after which poses equal to the previous configuration's are taken as the answer
+MAX_CONFIGURATIONS = 10000
+MAX_TIMEOUT = 600.0     # seconds
+MAX_FRAMES = 10000      # frame names a candidate's tree may introduce before the rest are only counted
+MAX_NAME = 120          # characters of a frame name kept for the report
+TAIL_LINES = 20         # lines of the candidate's output quoted in a verdict
+TAIL_CHARS = 300        # characters kept of each of them
+LOG_BYTES = 10 * 1024 * 1024   # the candidate's log file stops growing here (its output is still drained)
 
-def free_port():
+
+def free_port() -> int:
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))
         return s.getsockname()[1]
 
 
-def ensure_master():
-    """The roscore process this started, or None when a master already runs (ROS_MASTER_URI)."""
+def start_master():
+    """The roscore process this starts, or None when a master already runs (ROS_MASTER_URI)."""
     import rosgraph
     if rosgraph.is_master_online():
         return None
     port = free_port()
-    os.environ['ROS_MASTER_URI'] = 'http://127.0.0.1:%d' % port
-    core = subprocess.Popen(['roscore', '-p', str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    os.environ['ROS_MASTER_URI'] = f'http://127.0.0.1:{port}'
+    return subprocess.Popen(['roscore', '-p', str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             preexec_fn=os.setsid)
+
+
+def wait_for_master(core) -> None:
+    import rosgraph
     deadline = time.time() + 30
-    while not rosgraph.is_master_online():
+    while core is not None and not rosgraph.is_master_online():
         if time.time() > deadline or core.poll() is not None:
-            raise RuntimeError('could not start a roscore on port %d' % port)
+            raise RuntimeError(f'could not start a roscore at {os.environ["ROS_MASTER_URI"]}')
         time.sleep(0.2)
-    return core
 
 
-def stop(proc, timeout=10):
-    if proc is not None and proc.poll() is None:
-        os.killpg(proc.pid, signal.SIGINT)
+def stop(proc, timeout: float = 10) -> None:
+    """SIGINT to the process's group (it was started in a session of its own), then SIGKILL to what is left of the
+    group: a child that ignores SIGINT, or outlives its parent, does not survive."""
+    if proc is None:
+        return
+    if proc.poll() is None:
+        _signal_group(proc.pid, signal.SIGINT)
         try:
             proc.wait(timeout)
         except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
+            pass
+    _signal_group(proc.pid, signal.SIGKILL)
+    proc.wait()
 
 
-class TfTree(object):
-    """One node's tf tree, from its remapped /tf and /tf_static: statics kept, the rest per configuration."""
+def _signal_group(pgid: int, sig: int) -> None:
+    try:
+        os.killpg(pgid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
 
-    def __init__(self, ns, who):
+
+class Output:
+    """A process's stdout and stderr, drained by a thread into a log file (bounded), its last lines kept."""
+
+    def __init__(self, stream, path: str):
+        self.path = path
+        self.tail = collections.deque(maxlen=TAIL_LINES)
+        self.thread = threading.Thread(target=self._drain, args=(stream,), daemon=True)
+        self.thread.start()
+
+    def _drain(self, stream):
+        written = 0
+        try:
+            log = open(self.path, 'wb')
+        except OSError:
+            log, self.path = None, ''
+        for line in iter(stream.readline, b''):
+            if log is not None and written < LOG_BYTES:
+                log.write(line[:LOG_BYTES - written])
+                written += len(line)
+            text = line.decode(errors='replace').rstrip()
+            if text:
+                self.tail.append(text[:TAIL_CHARS])
+        if log is not None:
+            log.close()
+
+    def quote(self) -> str:
+        """The last lines, indented, and where the whole output is; '' if there was none."""
+        self.thread.join(1.0)
+        if not self.tail:
+            return ''
+        where = f'\n  (its whole output: {self.path})' if self.path else ''
+        return '; its last output:\n' + '\n'.join('  | ' + l for l in self.tail) + where
+
+
+class TfTree:
+    """The candidate's tf tree, from its remapped /tf and /tf_static: statics kept, the rest per configuration."""
+
+    def __init__(self, ns: str):
         import rospy
         import tf2_ros
         from tf2_msgs.msg import TFMessage
         self._tf2 = tf2_ros
-        self.statics, self.frames, self.received, self.non_finite = [], set(), 0, []
+        self.statics, self.frames, self.children, self.received, self.non_finite = [], set(), set(), 0, []
         self.buffer = tf2_ros.Buffer(cache_time=rospy.Duration(60))
-        self.subs = [rospy.Subscriber('%s/%s/tf' % (ns, who), TFMessage, self._on_tf, queue_size=1000),
-                     rospy.Subscriber('%s/%s/tf_static' % (ns, who), TFMessage, self._on_static, queue_size=100)]
+        self.subs = [rospy.Subscriber(f'{ns}/candidate/tf', TFMessage, self._on_tf, queue_size=1000),
+                     rospy.Subscriber(f'{ns}/candidate/tf_static', TFMessage, self._on_static, queue_size=100)]
 
     @staticmethod
-    def _name(frame):
+    def _name(frame: str) -> str:
         return frame[1:] if frame.startswith('/') else frame
 
-    def _check(self, msg):
-        import math
+    def _check(self, msg) -> None:
         for t in msg.transforms:
-            self.frames.update((self._name(t.header.frame_id), self._name(t.child_frame_id)))
+            child = self._name(t.child_frame_id)[:MAX_NAME]
+            if len(self.frames) < MAX_FRAMES:   # a flood of ever-new names is counted, not kept
+                self.frames.update((self._name(t.header.frame_id)[:MAX_NAME], child))
+                self.children.add(child)
             r, p = t.transform.rotation, t.transform.translation
             if not all(math.isfinite(v) for v in (r.x, r.y, r.z, r.w, p.x, p.y, p.z)):
-                self.non_finite.append(self._name(t.child_frame_id))
+                self.non_finite.append(child)
 
-    def _on_tf(self, msg):
+    def parentless(self) -> set:
+        """Frames that are some transform's parent and no transform's child."""
+        return self.frames - self.children
+
+    def _on_tf(self, msg) -> None:
         self._check(msg)
         self.received += 1
         buf = self.buffer
         for t in msg.transforms:
             buf.set_transform(t, 'check_fk')
 
-    def _on_static(self, msg):
+    def _on_static(self, msg) -> None:
         self._check(msg)
         self.statics.extend(msg.transforms)
         for t in msg.transforms:
             self.buffer.set_transform_static(t, 'check_fk')
 
-    def next_configuration(self):
+    def next_configuration(self) -> None:
         """Forget the moving transforms of the last configuration; keep the static ones."""
         import rospy
         buf = self._tf2.Buffer(cache_time=rospy.Duration(60))
@@ -102,14 +175,14 @@ class TfTree(object):
             buf.set_transform_static(t, 'check_fk')
         self.buffer = buf
 
-    def poses(self, frame, links):
-        """{link: 4x4 pose in frame} for the links this tree can give now."""
+    def poses(self, frame: str, links: dict) -> dict:
+        """{link: 4x4 pose in frame} for the links ({URDF link: tf frame}) this tree can give now."""
         import rospy
         from tf import transformations as tft
         out = {}
-        for link in links:
+        for link, name in links.items():
             try:
-                t = self.buffer.lookup_transform(frame, link, rospy.Time(0))
+                t = self.buffer.lookup_transform(frame, name, rospy.Time(0))
             except (self._tf2.LookupException, self._tf2.ConnectivityException, self._tf2.ExtrapolationException):
                 continue
             r, p = t.transform.rotation, t.transform.translation
@@ -118,14 +191,10 @@ class TfTree(object):
             out[link] = m
         return out
 
-    def has_all(self, frame, links):
-        import rospy
-        return all(self.buffer.can_transform(frame, l, rospy.Time(0)) for l in links)
-
 
 def parse_args(argv):
     p = argparse.ArgumentParser(prog='rosrun robot_ai check_fk', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-                                description='Grade a forward-kinematics node against robot_ai\'s forward_kinematics '
+                                description='Grade a forward-kinematics node against robot_ai\'s kinematics '
                                 '(equal to robot_state_publisher): exit status 0 on PASS, 1 on FAIL.')
     p.add_argument('--model', required=True, help='the URDF file')
     p.add_argument('--candidate', required=True, help='the node to grade, as PACKAGE/TYPE (what rosrun takes)')
@@ -136,156 +205,206 @@ def parse_args(argv):
     p.add_argument('--gtest_output', default='', help=argparse.SUPPRESS)  # rostest's: xml:<results file>
     a = p.parse_args(argv)
     if a.candidate.count('/') != 1 or not all(a.candidate.split('/')):
-        p.error('--candidate must be PACKAGE/TYPE, as rosrun takes it, got %r' % a.candidate)
-    if a.configurations < 1 or not a.tolerance > 0 or not a.timeout > 0:
-        p.error('--configurations must be at least 1, --tolerance and --timeout positive')
+        p.error(f'--candidate must be PACKAGE/TYPE, as rosrun takes it, got {a.candidate!r}')
+    if not 1 <= a.configurations <= MAX_CONFIGURATIONS:
+        p.error(f'--configurations must be 1 to {MAX_CONFIGURATIONS}, got {a.configurations}')
+    if not (0 < a.tolerance < math.inf and 0 < a.timeout <= MAX_TIMEOUT):   # NaN fails too
+        p.error(f'--tolerance must be a positive number and --timeout one of at most {MAX_TIMEOUT:g} s, got '
+                f'{a.tolerance:g} and {a.timeout:g}')
     return a
 
 
-def main(argv=None):
+def read_model(path: str) -> tuple[str, KinematicTree]:
+    """(the URDF text, its tree); ValueError with one line for anything that is not a URDF this can grade."""
+    try:
+        with open(path, errors='replace') as f:
+            xml = f.read()
+    except OSError as e:
+        raise ValueError(f'cannot read the model {path}: {e.strerror or e}')
+    xacro = (f'{path} looks like unexpanded xacro: expand it first (xacro {path} > robot.urdf) and grade the URDF')
+    try:
+        tree = KinematicTree.from_xml_string(xml)
+    except URDFError as e:
+        if '${' in xml or '<xacro:' in xml:     # ${half_pi} in an rpy, a macro call where a link should be
+            raise ValueError(f'{xacro} ({e})')
+        raise ValueError(f'cannot read the model {path}: {e}')
+    except (Exception, RecursionError) as e:    # whatever a hostile file does to the parser: one line
+        raise ValueError(f'cannot read the model {path}: {type(e).__name__}: {" ".join(str(e).split())[:300]}')
+    # an expanded URDF may keep xacro calls and ${...} in blocks nobody reads (the PR2's, the course's KUKA), but
+    # no definitions: with them, links inside macros would load as a robot of one link
+    if any(d in xml for d in ('<xacro:macro', '<xacro:property', '<xacro:include', '<xacro:arg')):
+        raise ValueError(f'{xacro}: it defines xacro macros or properties')
+    return xml, tree
+
+
+def log_path(candidate: str) -> str:
+    """Where the candidate's output goes: $ROS_HOME/log/check_fk_<candidate>_<pid>.log."""
+    folder = os.path.join(os.environ.get('ROS_HOME') or os.path.expanduser('~/.ros'), 'log')
+    os.makedirs(folder, exist_ok=True)
+    return os.path.join(folder, f'check_fk_{candidate.replace("/", "_")}_{os.getpid()}.log')
+
+
+def main(argv=None) -> int:
     import rospy
     a = parse_args(rospy.myargv(sys.argv)[1:] if argv is None else argv)
     try:
-        with open(a.model) as f:
-            xml = f.read()
-        tree = KinematicTree.from_xml_string(xml)
-    except (OSError, URDFError) as e:
-        print('check_fk: cannot read the model %s: %s' % (a.model, e), file=sys.stderr)
+        xml, tree = read_model(a.model)
+    except ValueError as e:
+        print(f'check_fk: {e}', file=sys.stderr)
         return 2
-    core = ensure_master()
-    procs = {}
+    # SIGTERM (what `timeout` sends) cleans up as a Ctrl-C does: the finally below stops everything this started
+    signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(143))
+    core = proc = None
     own_global = False
     try:
+        core = start_master()
+        wait_for_master(core)
         from sensor_msgs.msg import JointState
         rospy.init_node('check_fk', anonymous=True, disable_signals=True)
-        ns = '/check_fk_%d' % os.getpid()
+        ns = f'/check_fk_{os.getpid()}'
         rospy.set_param(ns + '/robot_description', xml)
         if not rospy.has_param('/robot_description'):  # for nodes that read the absolute name
             rospy.set_param('/robot_description', xml)
             own_global = True
-        trees = {who: TfTree(ns, who) for who in ('reference', 'candidate')}
+        candidate = TfTree(ns)
         pkg, node_type = a.candidate.split('/')
-        common = ['__ns:=' + ns, '/joint_states:=%s/joint_states' % ns]
-        procs['reference'] = subprocess.Popen(
-            ['rosrun', 'robot_ai', 'forward_kinematics', '__name:=reference', '/tf:=%s/reference/tf' % ns,
-             '/tf_static:=%s/reference/tf_static' % ns, '_publish_frequency:=1000.0'] + common,
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=os.setsid)
-        procs['candidate'] = subprocess.Popen(
-            ['rosrun', pkg, node_type, '__name:=candidate', '/tf:=%s/candidate/tf' % ns,
-             '/tf_static:=%s/candidate/tf_static' % ns] + common,
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=os.setsid)
+        proc = subprocess.Popen(['rosrun', pkg, node_type, '__name:=candidate', f'__ns:={ns}',
+                                 f'/joint_states:={ns}/joint_states', f'/tf:={ns}/candidate/tf',
+                                 f'/tf_static:={ns}/candidate/tf_static'],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=os.setsid)
+        output = Output(proc.stdout, log_path(a.candidate))
         pub = rospy.Publisher(ns + '/joint_states', JointState, queue_size=10)
         t0 = time.time()
-        print('check_fk: %s on %s (%d links, %d driven joints), %d configurations' % (
-            a.candidate, a.model, len(tree.links), len(tree.active_joints), a.configurations))
-        lines, status = grade(tree, a, trees, procs, pub, JointState)
-        print('\n'.join(lines[:-1] + ['(graded in %.1f s)' % (time.time() - t0), lines[-1]]))
+        print(f'check_fk: {a.candidate} on {a.model} ({len(tree.links)} links, {len(tree.active_joints)} driven '
+              f'joints), {a.configurations} configurations')
+        lines, status = grade(tree, a, candidate, proc, output, pub, JointState)
+        print('\n'.join(lines[:-1] + [f'(graded in {time.time() - t0:.1f} s)', lines[-1]]))
         if a.gtest_output.startswith('xml:'):
             write_junit(a.gtest_output[4:], a.candidate, lines, time.time() - t0)
         return status
     finally:
-        for p in procs.values():
-            stop(p)
-        if own_global:
-            try:
+        stop(proc)
+        try:
+            rospy.delete_param(f'/check_fk_{os.getpid()}')
+            if own_global:
                 rospy.delete_param('/robot_description')
-            except Exception:
-                pass
-        rospy.signal_shutdown('check_fk done')
+        except Exception:
+            pass
+        if rospy.core.is_initialized():
+            rospy.signal_shutdown('check_fk done')
         stop(core)
 
 
-def write_junit(path, candidate, lines, seconds):
+def write_junit(path: str, candidate: str, lines: list, seconds: float) -> None:
     """The results file rostest asks a <test> node for: one test case, failed unless the verdict is PASS."""
     from xml.sax.saxutils import escape, quoteattr
     failed = lines[-1] != 'PASS'
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    failure = (f'    <failure message={quoteattr(lines[-1])}>{escape(chr(10).join(lines))}</failure>\n'
+               if failed else '')
     with open(path, 'w') as f:
-        f.write('<?xml version="1.0" encoding="utf-8"?>\n<testsuite name="check_fk" tests="1" errors="0" '
-                'failures="%d" time="%.3f">\n  <testcase classname="check_fk" name=%s time="%.3f">\n%s  </testcase>\n'
-                '</testsuite>\n' % (failed, seconds, quoteattr(candidate), seconds,
-                                     '    <failure message=%s>%s</failure>\n' % (quoteattr(lines[-1]),
-                                                                               escape('\n'.join(lines)))
-                                     if failed else ''))
+        f.write(f'<?xml version="1.0" encoding="utf-8"?>\n<testsuite name="check_fk" tests="1" errors="0" '
+                f'failures="{int(failed)}" time="{seconds:.3f}">\n  <testcase classname="check_fk" '
+                f'name={quoteattr(candidate)} time="{seconds:.3f}">\n{failure}  </testcase>\n</testsuite>\n')
 
 
-def crashed(procs):
-    """A verdict line if the candidate or the reference has exited, else None."""
-    for who, p in procs.items():
-        if p.poll() is not None:
-            err = p.stderr.read().decode(errors='replace').strip().splitlines()[-5:]
-            return 'FAIL: the %s node exited with status %s%s' % (
-                who, p.returncode, (': ' + ' | '.join(err)) if err else '')
-    return None
-
-
-def send(pub, JointState, q):
+def send(pub, JointState, q: dict) -> None:
     import rospy
     msg = JointState(name=list(q), position=list(q.values()))
     msg.header.stamp = rospy.Time.now()
     pub.publish(msg)
 
 
-def tf_name(link):
+def tf_name(link: str) -> str:
     """The frame tf2 keeps for a link: robot_state_publisher drops a leading slash, and tf2 one more."""
     frame = prefix_frame('', link)
     return frame[1:] if frame.startswith('/') else frame
 
 
-def grade(tree, a, trees, procs, pub, JointState):
-    """Drive both nodes through the configurations; (report lines, exit status)."""
-    names = {l: tf_name(l) for l in tree.links}     # URDF link -> the frame tf2 keeps
-    link_of = {f: l for l, f in names.items()}
-    all_frames = [names[l] for l in tree.links]
+def same(a: dict, b: dict, tolerance: float = 1e-9) -> bool:
+    return a.keys() == b.keys() and all(np.allclose(a[k], b[k], atol=tolerance, rtol=0) for k in a)
+
+
+def settle(candidate: TfTree, frame: str, links: dict, q: dict, previous: dict | None, changes: bool, pub,
+           JointState, timeout: float, dead, moving: bool = True) -> dict:
+    """The candidate's poses of links in frame, in answer to configuration q.
+
+    q is sent every RESEND seconds; the poses count once they have stayed the same for SETTLE seconds while fresh
+    messages arrived (a robot with no moving joint has only its static ones), and differ from the previous
+    configuration's (a slow node answers the messages queued
+    before q first) unless the reference's do not change (`changes` false) or SAME_AS_BEFORE seconds passed
+    (a node that ignores the joints). Whatever it has then, or at the timeout."""
+    start = time.time()
+    sent, stable_since, last, received = 0.0, None, {}, candidate.received
+    while time.time() < start + timeout and not dead():
+        if time.time() >= sent + RESEND:
+            send(pub, JointState, q)
+            sent = time.time()
+        time.sleep(0.05)
+        now = candidate.poses(frame, links)
+        fresh = candidate.received > received or not moving
+        if not now or not same(now, last):
+            stable_since, last, received = time.time(), now, candidate.received
+            continue
+        if not fresh or time.time() - stable_since < SETTLE:
+            continue
+        if previous is not None and changes and same(now, previous) and time.time() - start < SAME_AS_BEFORE:
+            continue
+        return now
+    return last
+
+
+def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
+    """Drive the candidate through the configurations; (report lines, exit status)."""
+    names = {link: tf_name(link) for link in tree.links}     # URDF link -> the frame tf2 keeps
+    link_of = {f: link for link, f in names.items()}
+
+    def dead():
+        return proc.poll() is not None
+
+    def died():
+        return f'FAIL: the candidate node exited with status {proc.returncode}{output.quote()}'
+
     if len(tree.links) == 1:
-        return ['%s is a single link with no joint: there is no transform to publish or to grade' % tree.root,
+        return [f'{tree.root} is a single link with no joint: there is no transform to publish or to grade',
                 'PASS'], 0
     deadline = time.time() + a.timeout
-    while pub.get_num_connections() < 2 and time.time() < deadline:  # both nodes subscribed (or a silent one)
-        verdict = crashed(procs)
-        if verdict:
-            return [verdict], 1
+    while pub.get_num_connections() < 1 and time.time() < deadline and not dead():
         time.sleep(0.05)
-    result, known = None, set()
-    for k, q in enumerate(configurations(tree, a.configurations, a.seed)):
-        for t in trees.values():
-            t.next_configuration()
-        # the first configuration may take the whole time limit; later ones, until the links seen so far are there
-        limit = time.time() + (a.timeout if k == 0 else min(a.timeout, 2.0))
-        while time.time() < limit:
-            verdict = crashed(procs)
-            if verdict:
-                return (result.report()[:-1] if result else []) + [verdict], 1
-            send(pub, JointState, q)
-            time.sleep(0.05)
-            root = names[tree.root]
-            if not trees['reference'].has_all(root, all_frames):
-                continue
-            candidate = trees['candidate']
-            if k == 0 and candidate.has_all(root, all_frames):
-                break
-            if k > 0 and candidate.has_all(names[result.frame], [names[l] for l in known]):
-                break
-        candidate = trees['candidate']
-        if candidate.non_finite:
-            result = result or Grade(tree, tree.root, a.tolerance)
-            result.problems.append('the candidate published a non-finite (NaN or inf) transform for %s' %
-                                   candidate.non_finite[0])
-            return result.report(), 1
-        if result is None:
+    configs = configurations(tree, a.configurations, a.seed)
+    reference = [tree.link_poses(q) for q in configs]
+    result, graded, previous = None, None, None
+    for k, q in enumerate(configs):
+        candidate.next_configuration()
+        if result is None:       # the first configuration: wait for the candidate's frames, then choose the frame
+            limit = time.time() + a.timeout
+            while time.time() < limit and not dead():
+                send(pub, JointState, q)
+                time.sleep(0.1)
+                if candidate.frames and time.time() > limit - a.timeout + 1.0:
+                    break
+            if dead():
+                return [died()], 1
             if not candidate.frames:
-                return ['FAIL: the candidate published nothing on /tf or /tf_static within %g s of the first '
-                        'joint_states' % a.timeout], 1
-            frame, note = comparison_frame(tree, {link_of[f] for f in candidate.frames if f in link_of})
-            result = Grade(tree, frame, a.tolerance, note)
-            result.extra = {f for f in candidate.frames if f not in link_of}
+                return [f'FAIL: the candidate published nothing on /tf or /tf_static within {a.timeout:g} s of '
+                        f'the first joint_states{output.quote()}'], 1
+            frame, note = comparison_frame(tree, {link_of.get(f, f) for f in candidate.frames},
+                                           candidate.parentless())
+            result = Grade(tree, None if frame is None else link_of.get(frame, frame), a.tolerance, note)
+            result.extra = {f for f in candidate.frames if f not in link_of} - {frame}
             if frame is None:
                 return result.report(), 1
-            graded = [names[l] for l in result.links]
-        # {tf frame: pose} -> {URDF link: pose}
-        reference = {link_of[f]: m for f, m in trees['reference'].poses(names[result.frame], graded).items()}
-        got = {link_of[f]: m for f, m in candidate.poses(names[result.frame], graded).items()}
-        known.update(got)
-        result.add(k, reference, got)
+            frame_name = names.get(frame, frame)
+            graded = {link: names[link] for link in result.links}
+        changes = k == 0 or not same(reference[k], reference[k - 1])
+        got = settle(candidate, frame_name, graded, q, previous, changes, pub, JointState, a.timeout, dead,
+                     moving=bool(tree.active_joints))
+        if dead():
+            return result.report()[:-1] + [died()], 1
+        if candidate.non_finite:
+            result.problems.append(f'the candidate published a non-finite (NaN or inf) transform for '
+                                   f'{candidate.non_finite[0]}')
+            return result.report(), 1
+        previous = got
+        result.add(k, q, reference[k], got)
     return result.report(), 0 if result.verdict() == 'PASS' else 1
-

@@ -1,0 +1,99 @@
+#!/usr/bin/env python3
+"""A forward-kinematics node shaped like the course's skeleton (CSMM.103x), for check_fk's tests (never installed).
+
+It reads the URDF, walks from the root while each link has exactly one child (at a fork it logs an error and stops),
+and on every joint_states publishes one tfMessage with PARENT -> link for every link it found, stamped
+rospy.Time.now(), the transforms computed with tf.transformations. PARENT is the environment's COURSE_FK_PARENT
+('world' by default; the course's skeleton says 'world_link'). COURSE_FK_MISTAKE picks what a student got wrong:
+  none       right
+  sleep      right, but its callback sleeps 0.1 s (a slow student node)
+  first      ignores the first moving joint's angle
+  order      applies a joint's motion before its origin (rotation and translation in the wrong order)
+  rpy_order  composes each origin's rpy in the wrong order (z, y, x about the moving axes of the wrong kind)
+  raise      calls rospy.logerror, which does not exist: an AttributeError in every callback (rospy logs its
+             traceback and the node publishes nothing)
+  die        looks up a joint the robot does not have at start: a ValueError, and the node exits
+  orphan     right, and it starts a child that ignores SIGINT (sleep 600, marked by COURSE_FK_MARK)
+"""
+import os
+import subprocess
+import time
+
+import numpy as np
+import rospy
+from geometry_msgs.msg import TransformStamped
+from sensor_msgs.msg import JointState
+from tf import transformations as tft
+from tf2_msgs.msg import TFMessage
+from urdf_parser_py.urdf import URDF
+
+
+def chain(robot):
+    """The links from the root's child down while each link has exactly one child, with their joints."""
+    children = {}
+    for j in robot.joints:
+        children.setdefault(j.parent, []).append(j)
+    out, link = [], robot.get_root()
+    while True:
+        below = children.get(link, [])
+        if len(below) != 1:
+            if len(below) > 1:
+                rospy.logerr('%s has %d children: this node handles chains only, stopping there', link, len(below))
+            return out
+        out.append(below[0])
+        link = below[0].child
+
+
+def main():
+    rospy.init_node('course_fk')
+    parent = os.environ.get('COURSE_FK_PARENT', 'world')
+    mistake = os.environ.get('COURSE_FK_MISTAKE', 'none')
+    robot = URDF.from_xml_string(rospy.get_param('robot_description'))
+    joints = chain(robot)
+    if mistake == 'die':
+        [j.name for j in joints].index('tool_mount')
+    if mistake == 'orphan':
+        subprocess.Popen(['sh', '-c', 'trap "" INT; sleep 600; : ' + os.environ.get('COURSE_FK_MARK', '')])
+    moving = [j.name for j in joints if j.type != 'fixed']
+    pub = rospy.Publisher('/tf', TFMessage, queue_size=10)
+
+    def origin(j):
+        xyz = j.origin.xyz if j.origin is not None and j.origin.xyz is not None else [0, 0, 0]
+        rpy = j.origin.rpy if j.origin is not None and j.origin.rpy is not None else [0, 0, 0]
+        axes = 'rzyx' if mistake == 'rpy_order' else 'sxyz'
+        return tft.translation_matrix(xyz).dot(tft.euler_matrix(rpy[0], rpy[1], rpy[2], axes))
+
+    def motion(j, q):
+        axis = j.axis if j.axis is not None else [1, 0, 0]
+        if j.type in ('revolute', 'continuous'):
+            return tft.rotation_matrix(q, axis)
+        if j.type == 'prismatic':
+            return tft.translation_matrix(np.asarray(axis) * q)
+        return np.identity(4)
+
+    def callback(msg):
+        if mistake == 'sleep':
+            time.sleep(0.1)
+        if mistake == 'raise':
+            rospy.logerror('computing the transforms')
+        q = dict(zip(msg.name, msg.position))
+        pose, out = np.identity(4), TFMessage()
+        for j in joints:
+            value = 0.0 if mistake == 'first' and moving and j.name == moving[0] else q.get(j.name, 0.0)
+            step = motion(j, value).dot(origin(j)) if mistake == 'order' else origin(j).dot(motion(j, value))
+            pose = pose.dot(step)
+            t = TransformStamped()
+            t.header.stamp = rospy.Time.now()
+            t.header.frame_id, t.child_frame_id = parent, j.child
+            t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = pose[:3, 3]
+            (t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z,
+             t.transform.rotation.w) = tft.quaternion_from_matrix(pose)
+            out.transforms.append(t)
+        pub.publish(out)
+
+    rospy.Subscriber('joint_states', JointState, callback)
+    rospy.spin()
+
+
+if __name__ == '__main__':
+    main()
