@@ -14,9 +14,12 @@ rospy.Time.now(), the transforms computed with tf.transformations. PARENT is the
              traceback and the node publishes nothing)
   die        looks up a joint the robot does not have at start: a ValueError, and the node exits
   orphan     right, and it starts a child that ignores SIGINT (sleep 600, marked by COURSE_FK_MARK)
+  chatty     right, and it writes 20 KB to stderr on every joint_states (a pipe nobody reads fills in 4 calls)
+  kuka       publishes the KUKA LWR's link names whatever the URDF (a node written for another robot)
 """
 import os
 import subprocess
+import sys
 import time
 
 import numpy as np
@@ -76,6 +79,9 @@ def main():
             time.sleep(0.1)
         if mistake == 'raise':
             rospy.logerror('computing the transforms')
+        if mistake == 'chatty':
+            sys.stderr.write('debug: ' + 'x' * 20000 + '\n')
+            sys.stderr.flush()
         q = dict(zip(msg.name, msg.position))
         pose, out = np.identity(4), TFMessage()
         for j in joints:
@@ -84,7 +90,8 @@ def main():
             pose = pose.dot(step)
             t = TransformStamped()
             t.header.stamp = rospy.Time.now()
-            t.header.frame_id, t.child_frame_id = parent, j.child
+            t.header.frame_id = parent
+            t.child_frame_id = 'lwr_arm_%d_link' % len(out.transforms) if mistake == 'kuka' else j.child
             t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = pose[:3, 3]
             (t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z,
              t.transform.rotation.w) = tft.quaternion_from_matrix(pose)

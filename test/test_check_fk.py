@@ -132,6 +132,13 @@ class TestCheckFk(unittest.TestCase):
         self.assertIn('finger', lines[-1])
         self.assertNotIn('panda_link0', lines[-1])
 
+    def test_a_chatty_node_passes_and_a_node_for_another_robot_is_told_so(self):
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        self.assert_verdict(kuka, 'robot_ai/course_fk.py', 0, 'PASS', '--configurations', '20', mistake='chatty')
+        lines = self.assert_verdict(TILTED, 'robot_ai/course_fk.py', 1,
+                                    'FAIL: the candidate publishes frames the URDF does not have', mistake='kuka')
+        self.assertIn('written for another robot', lines[-1])
+
     def test_nodes_that_raise_are_quoted(self):
         kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
         code, lines, _ = check_fk(kuka, 'robot_ai/course_fk.py', '--timeout', '3', mistake='raise')

@@ -388,6 +388,12 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
             if not candidate.frames:
                 return [f'FAIL: the candidate published nothing on /tf or /tf_static within {a.timeout:g} s of '
                         f'the first joint_states{output.quote()}'], 1
+            ours = {link_of[f] for f in candidate.frames if f in link_of}
+            if not ours and len(candidate.frames) > 1:
+                others = sorted(candidate.frames)
+                return [f'FAIL: the candidate publishes frames the URDF does not have ({", ".join(others[:5])}'
+                        f'{", ..." if len(others) > 5 else ""}) and none of its {len(tree.links)} links: is it written '
+                        f'for another robot? This one\'s root is {tree.root}{output.quote()}'], 1
             frame, note = comparison_frame(tree, {link_of.get(f, f) for f in candidate.frames},
                                            candidate.parentless())
             result = Grade(tree, None if frame is None else link_of.get(frame, frame), a.tolerance, note)
