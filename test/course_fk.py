@@ -16,6 +16,7 @@ rospy.Time.now(), the transforms computed with tf.transformations. PARENT is the
   orphan     right, and it starts a child that ignores SIGINT (sleep 600, marked by COURSE_FK_MARK)
   chatty     right, and it writes 20 KB to stderr on every joint_states (a pipe nobody reads fills in 4 calls)
   kuka       publishes the KUKA LWR's link names whatever the URDF (a node written for another robot)
+  flood      right, and it also publishes 200 ever-new frame names a message, and once a 100 KB frame name
 """
 import os
 import subprocess
@@ -59,6 +60,7 @@ def main():
         subprocess.Popen(['sh', '-c', 'trap "" INT; sleep 600; : ' + os.environ.get('COURSE_FK_MARK', '')])
     moving = [j.name for j in joints if j.type != 'fixed']
     pub = rospy.Publisher('/tf', TFMessage, queue_size=10)
+    sent = []      # the flood's messages so far
 
     def origin(j):
         xyz = j.origin.xyz if j.origin is not None and j.origin.xyz is not None else [0, 0, 0]
@@ -96,6 +98,14 @@ def main():
             (t.transform.rotation.x, t.transform.rotation.y, t.transform.rotation.z,
              t.transform.rotation.w) = tft.quaternion_from_matrix(pose)
             out.transforms.append(t)
+        if mistake == 'flood':
+            for k in range(200):
+                t = TransformStamped()
+                t.header.stamp, t.header.frame_id = rospy.Time.now(), parent
+                t.child_frame_id = 'junk_%d_%d' % (len(sent), k) if k or sent else 'x' * 100000
+                t.transform.rotation.w = 1.0
+                out.transforms.append(t)
+            sent.append(1)
         pub.publish(out)
 
     rospy.Subscriber('joint_states', JointState, callback)

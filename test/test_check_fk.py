@@ -4,6 +4,7 @@ fails a node that rotates by euler angles axis * q on a URDF with a tilted axis 
 same node where every axis is along x, y or z, and gives a clear verdict for a node that crashes or stays silent."""
 import glob
 import os
+import resource
 import signal
 import socket
 import subprocess
@@ -138,6 +139,18 @@ class TestCheckFk(unittest.TestCase):
         lines = self.assert_verdict(TILTED, 'robot_ai/course_fk.py', 1,
                                     'FAIL: the candidate publishes frames the URDF does not have', mistake='kuka')
         self.assertIn('written for another robot', lines[-1])
+
+    def test_a_flood_of_frame_names_is_bounded(self):
+        """A correct node that also publishes 200 ever-new frame names a message and a 100 KB one: it passes, the
+        report stays short, check_fk's memory stays bounded."""
+        code, lines, err = check_fk(TILTED, 'robot_ai/course_fk.py', '--configurations', '20', mistake='flood')
+        text = '\n'.join(lines)
+        self.assertEqual(code, 0, text[-3000:] + err[-2000:])
+        self.assertIn('frames the URDF does not have (not graded): ', text)
+        self.assertLess(len(text), 5000)
+        self.assertLess(max(len(l) for l in lines), 1500)
+        peak_mib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+        self.assertLess(peak_mib, 600, 'the largest process of the grades so far')
 
     def test_nodes_that_raise_are_quoted(self):
         kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
