@@ -177,7 +177,11 @@ class TestCheckFk(unittest.TestCase):
             f.write('<robot name="r" xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:property name="half_pi" '
                     'value="1.5708"/><link name="a"/><link name="b"/><joint name="j" type="revolute"><parent link="a"/>'
                     '<child link="b"/><origin rpy="0 ${half_pi} 0"/><axis xyz="0 0 1"/></joint></robot>')
+        nested = os.path.join(folder, 'nested.urdf')
+        with open(nested, 'w') as f:
+            f.write('<robot name="n"><link name="root"/>' + '<link>' * 5000 + '</link>' * 5000 + '</robot>')
         for model, args, message in ((xacro, [], 'looks like unexpanded xacro'),
+                                     (nested, [], 'cannot read the model'),
                                      (kuka, ['--timeout', 'inf'], '--timeout one of at most 600 s'),
                                      (kuka, ['--configurations', '200000'], '--configurations must be 1 to 10000')):
             t = time.time()
@@ -186,6 +190,14 @@ class TestCheckFk(unittest.TestCase):
             self.assertIn(message, err)
             self.assertNotIn('Traceback', err)
             self.assertLess(time.time() - t, 15)
+
+    def test_never_a_pass_on_links_nobody_compared(self):
+        """Below a floating joint (which joint_states cannot drive) nothing can be graded: named, never a PASS."""
+        floating = os.path.join(HERE, 'urdf', 'floating_base_arm.urdf')
+        for candidate in ('robot_ai/forward_kinematics', 'robot_ai/course_fk.py'):
+            code, lines, _ = check_fk(floating, candidate, '--configurations', '3', '--timeout', '3', mistake='none')
+            self.assertEqual(code, 1, lines)
+            self.assertTrue(lines[-1].startswith('FAIL: '), lines)
 
     def test_nothing_is_left_behind(self):
         """SIGTERM (what `timeout` sends) while check_fk runs a roscore of its own, and a candidate's child that

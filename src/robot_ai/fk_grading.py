@@ -79,6 +79,8 @@ class Grade:
         reachable = set(tree.link_poses())                     # links below a floating joint are not published
         self.ungradable = [link for link in tree.links if link not in reachable]
         self.links = [link for link in tree.links if link in reachable and link not in (tree.root, frame)]
+        if frame in tree.links and frame not in reachable:   # compared in a frame the reference cannot place
+            self.links = []
         self.worst = {link: [0.0, 0.0, None, None] for link in self.links}  # position, rotation, at configuration
         self.missing, self.extra, self.problems = {}, set(), []   # missing: {link: configurations without it}
         self.configurations = 0
@@ -87,6 +89,8 @@ class Grade:
     def reference_in_frame(self, reference: dict) -> dict:
         """The reference poses (in the root frame) relative to the frame the candidate is compared in."""
         if self.frame in self.tree.links and self.frame != self.tree.root:
+            if self.frame not in reference:
+                return {}
             inverse = np.linalg.inv(reference[self.frame])
             return {link: inverse.dot(m) for link, m in reference.items()}
         return reference
@@ -130,6 +134,9 @@ class Grade:
             return f'FAIL: {self.problems[0]}'
         if self.frame is None:
             return f'FAIL: {self.note}'
+        if not self.links:      # never a PASS on links nobody compared
+            return (f'FAIL: no link can be graded: {", ".join(self.ungradable[:10])} '
+                    f'{"are" if len(self.ungradable) > 1 else "is"} below a floating joint')
         if self.configurations == 0:
             return 'FAIL: no configuration could be compared'
         bad = [link for link in self.links if link in self.missing or link in self.failing()]

@@ -117,3 +117,24 @@ def test_rotation_error():
     a = tft.rotation_matrix(0.3, [0, 0.6, 0.8])
     assert abs(rotation_error(a, np.identity(4)) - 0.3) < 1e-12
     assert rotation_error(a, a) < 1e-7
+
+
+def test_links_below_a_floating_joint_are_named_and_never_passed():
+    path = os.path.join(os.path.dirname(TILTED), 'floating_base_arm.urdf')
+    tree = KinematicTree.from_file(path)
+    grade = Grade(tree, 'odom', 1e-6)
+    q = configurations(tree, 1)[0]
+    grade.add(0, q, tree.link_poses(q), {})
+    assert grade.ungradable == ['body', 'arm'] and grade.links == []
+    assert grade.verdict() == 'FAIL: no link can be graded: body, arm are below a floating joint'
+    assert any(l.startswith('not graded (below a floating joint') for l in grade.report())
+
+
+def test_a_frame_below_a_floating_joint_grades_nothing():
+    """forward_kinematics on a floating base publishes body -> arm only: compared relative to body, which the
+    reference cannot place, nothing is comparable, and that is a FAIL, not a traceback."""
+    tree = KinematicTree.from_file(os.path.join(os.path.dirname(TILTED), 'floating_base_arm.urdf'))
+    grade = Grade(tree, 'body', 1e-6)
+    q = configurations(tree, 1)[0]
+    grade.add(0, q, tree.link_poses(q), {'arm': np.identity(4)})
+    assert grade.verdict().startswith('FAIL: no link can be graded')
