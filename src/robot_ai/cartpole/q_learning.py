@@ -100,8 +100,8 @@ def resolve(env_id: str = '', episodes: int = 0, gamma: float = 0.0, regressor: 
             raise RequestError(f'{name} must be 1 to {limit} (0 = {d[name]}), got {value}')
     seconds = longest_seconds(learners, episodes, dynamics.max_episode_steps, len(RBF_GAMMAS) * components)
     if seconds > MAX_SECONDS:
-        raise RequestError(f'{learners} learners x {episodes} episodes of up to {dynamics.max_episode_steps} steps with '
-                           f'{len(RBF_GAMMAS) * components} features could take {seconds / 60:.1f} minutes on '
+        raise RequestError(f'{learners} learners x {episodes} episodes of up to {dynamics.max_episode_steps} steps '
+                           f'with {len(RBF_GAMMAS) * components} features could take {seconds / 60:.1f} minutes on '
                            f'{worker_count(learners)} cores, more than the limit of {MAX_SECONDS / 60:.0f}: use fewer '
                            'learners, episodes or components')
     return Training(dynamics, episodes, gamma, regressor, components, learners, bool(bootstrap_at_time_limit),
