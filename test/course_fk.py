@@ -17,6 +17,7 @@ rospy.Time.now(), the transforms computed with tf.transformations. PARENT is the
   chatty     right, and it writes 20 KB to stderr on every joint_states (a pipe nobody reads fills in 4 calls)
   kuka       publishes the KUKA LWR's link names whatever the URDF (a node written for another robot)
   flood      right, and it also publishes 200 ever-new frame names a message, and once a 100 KB frame name
+  abandon    starts a child that keeps its stdout and stderr open (sleep 600), then exits with status 3
 """
 import os
 import subprocess
@@ -56,6 +57,10 @@ def main():
     joints = chain(robot)
     if mistake == 'die':
         [j.name for j in joints].index('tool_mount')
+    if mistake == 'abandon':
+        subprocess.Popen(['sh', '-c', 'sleep 600; : ' + os.environ.get('COURSE_FK_MARK', '')])
+        print('leaving my child behind', flush=True)
+        os._exit(3)
     if mistake == 'orphan':
         subprocess.Popen(['sh', '-c', 'trap "" INT; sleep 600; : ' + os.environ.get('COURSE_FK_MARK', '')])
     moving = [j.name for j in joints if j.type != 'fixed']

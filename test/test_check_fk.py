@@ -23,8 +23,9 @@ TILTED = os.path.join(HERE, 'urdf', 'tilted_axis_arm.urdf')
 ROBOTS = sorted(glob.glob(os.path.join(ROBOTS_DIR, '*.urdf')) + glob.glob(os.path.join(ROBOTS_DIR, 'fixtures', '*.urdf')))
 
 
-def check_fk(model, candidate, *args, mistake='euler', parent='world'):
-    env = dict(os.environ, WRONG_FK_MISTAKE=mistake, COURSE_FK_MISTAKE=mistake, COURSE_FK_PARENT=parent)
+def check_fk(model, candidate, *args, mistake='euler', parent='world', mark=''):
+    env = dict(os.environ, WRONG_FK_MISTAKE=mistake, COURSE_FK_MISTAKE=mistake, COURSE_FK_PARENT=parent,
+               COURSE_FK_MARK=mark)
     proc = subprocess.run(['rosrun', 'robot_ai', 'check_fk', '--model', model, '--candidate', candidate] + list(args),
                           capture_output=True, text=True, timeout=300, env=env)
     return proc.returncode, proc.stdout.strip().splitlines(), proc.stderr
@@ -219,6 +220,15 @@ class TestCheckFk(unittest.TestCase):
         self.assertEqual(processes(mark), [])
         self.assertEqual(processes(str(port)), [])        # its roscore, rosmaster and rosout
         self.assertEqual(processes('__ns:=/check_fk_%d' % proc.pid), [])
+        # a candidate that exits while its child keeps its output open: a verdict at once, and the child is gone
+        t = time.time()
+        code, lines, _ = check_fk(kuka, 'robot_ai/course_fk.py', mistake='abandon', mark=mark)
+        self.assertEqual(code, 1)
+        self.assertIn('FAIL: the candidate node exited with status 3', '\n'.join(lines))
+        self.assertIn('leaving my child behind', '\n'.join(lines))
+        self.assertLess(time.time() - t, 30)
+        time.sleep(1.0)
+        self.assertEqual(processes(mark), [])
         # on a shared master (rostest's), a finished grade leaves no /check_fk_<pid> parameters
         code, _, _ = check_fk(kuka, 'robot_ai/course_fk.py', '--configurations', '3', mistake='none')
         self.assertEqual(code, 0)
