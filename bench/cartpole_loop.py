@@ -154,6 +154,8 @@ def main() -> int:
         echo_node()
         return 0
     import rospy
+    # SIGTERM (what `timeout` sends) ends it through the finally below: its roscore and nodes stop too
+    signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(143))
     port = free_port()
     env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{port}', ROS_HOSTNAME='localhost')
     os.environ.update(env)
