@@ -19,11 +19,12 @@ def run_node(name: str, build: Callable[[], object]) -> None:
 
 
 def publish(publisher: rospy.Publisher, msg) -> None:
-    """publisher.publish(msg); a message in flight while the node shuts down (Ctrl-C) is dropped quietly."""
+    """publisher.publish(msg); a message in flight while the node shuts down (Ctrl-C) is dropped quietly. rospy
+    closes its topics in the hooks it runs once a shutdown is requested, before is_shutdown() becomes true."""
     try:
         publisher.publish(msg)
     except rospy.ROSException:
-        if not rospy.is_shutdown():
+        if not (rospy.core.is_shutdown_requested() or rospy.is_shutdown()):
             raise
 
 
