@@ -29,19 +29,17 @@ from robot_ai.cartpole import linear_search, policies
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.nodes.agent_common import answer_load
+from robot_ai.nodes.cartpole_sim import JOINTS
 from robot_ai.nodes.params import publish, run_node, str_param
 from robot_ai.srv import LoadPolicy
 
-JOINTS = ('cart_slider', 'pole_hinge')
-DEFAULT_SEARCH = dict(env_id='CartPole-v1', iterations=100, episodes=100, seed=0)
-
 
 def course_policy() -> policies.Policy:
-    """The course's random search, seed 0: the policy the controller drives with when none is given."""
-    d = DEFAULT_SEARCH
-    result = linear_search.random_search(CartPoleDynamics.of(d['env_id']), d['iterations'], d['episodes'],
-                                         seed=d['seed'])
-    metadata = dict(kind='linear', env_id=d['env_id'], seed=d['seed'], settings=result.settings(),
+    """The course's random search (linear_search.DEFAULTS), seed 0: the policy the controller drives with when
+    none is given."""
+    d = linear_search.DEFAULTS
+    result = linear_search.random_search(CartPoleDynamics.of(d['env_id']), d['iterations'], d['episodes'], seed=0)
+    metadata = dict(kind='linear', env_id=d['env_id'], seed=0, settings=result.settings(),
                     figures=result.figures(), source='the course\'s random search, run at start')
     return policies.Policy(LinearPolicy(result.best_weights), metadata)
 

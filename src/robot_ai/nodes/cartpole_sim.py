@@ -87,6 +87,14 @@ class CartPoleSim:
         self.forces_since_state = 0
         publish(self.state_pub, msg)
 
+    def _advance(self, force: float) -> bool:
+        """One step; where it ends the episode, publish the episode and wait for a new start (True)."""
+        reason = self._step(force)
+        if reason:
+            self._end_episode(reason)
+            self.awaiting_reset = True
+        return bool(reason)
+
     def _end_episode(self, reason: str) -> None:
         publish(self.episode_pub, CartPoleEpisode(steps=self.steps, reason=reason,
                                                  sim_seconds=self.steps * self.dynamics.tau,
@@ -115,11 +123,8 @@ class CartPoleSim:
                 with self.lock:
                     if self.forces_since_state == 0 and self.force_sub.get_num_connections() > 0:
                         self.missed_steps += 1   # a controller is there but did not answer the last state in time
-                    reason = self._step(self.force)
-                    if reason:
-                        self._end_episode(reason)
-                        self.awaiting_reset = True
-                if reason:
+                    ended = self._advance(self.force)
+                if ended:
                     rospy.sleep(self.reset_pause)
                     with self.lock:
                         if self.awaiting_reset:       # not already started by ~reset during the pause
@@ -144,10 +149,7 @@ class CartPoleSim:
                 self.awaiting_reset = False
                 self._new_episode()
                 return
-            reason = self._step(force)
-            if reason:
-                self._end_episode(reason)
-                self.awaiting_reset = True
+            self._advance(force)
 
     def _on_reset(self, req) -> TriggerResponse:
         with self.lock:

@@ -372,9 +372,9 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
     while pub.get_num_connections() < 1 and time.time() < deadline and not dead():
         time.sleep(0.05)
     configs = configurations(tree, a.configurations, a.seed)
-    reference = [tree.link_poses(q) for q in configs]
-    result, graded, previous = None, None, None
+    result, graded, previous, reference = None, None, None, None
     for k, q in enumerate(configs):
+        before, reference = reference, tree.link_poses(q)    # one configuration's poses at a time
         candidate.next_configuration()
         if result is None:       # the first configuration: wait for the candidate's frames, then choose the frame
             limit = time.time() + a.timeout
@@ -402,7 +402,7 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
                 return result.report(), 1
             frame_name = names.get(frame, frame)
             graded = {link: names[link] for link in result.links}
-        changes = k == 0 or not same(reference[k], reference[k - 1])
+        changes = before is None or not same(reference, before)
         got = settle(candidate, frame_name, graded, q, previous, changes, pub, JointState, a.timeout, dead,
                      moving=bool(tree.active_joints))
         if dead():
@@ -412,5 +412,5 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
                                    f'{candidate.non_finite[0]}')
             return result.report(), 1
         previous = got
-        result.add(k, q, reference[k], got)
+        result.add(k, q, reference, got)
     return result.report(), 0 if result.verdict() == 'PASS' else 1
