@@ -11,6 +11,7 @@ their paths; evaluate and show take any policy file, of either kind.
 import argparse
 import json
 import os
+import signal
 import sys
 
 import numpy as np
@@ -84,9 +85,11 @@ def run_random_search(a, parser) -> int:
         bar.update(1)
         if i % 10 == 0 or i == search.iterations:
             bar.set_postfix(best=f'{best:.1f}')
-    result = linear_search.random_search(search.dynamics, search.iterations, search.episodes, search.max_steps,
-                                         a.seed, search.final_episodes, progress=progress)
-    bar.close()
+    try:
+        result = linear_search.random_search(search.dynamics, search.iterations, search.episodes, search.max_steps,
+                                             a.seed, search.final_episodes, progress=progress)
+    finally:  # an interrupted run's message goes on a line of its own
+        bar.close()
     print(f'best weights      {np.array2string(result.best_weights, precision=4)}')
     print(f'best average      {result.best_avg_length:.2f} (candidate {result.best_index + 1} of {search.iterations})')
     print(f'final average     {result.final_avg_length:.2f} over {search.final_episodes} episodes')
@@ -145,9 +148,13 @@ def run_q_learning(a, parser) -> int:
             recent.append(total)
             if episode % 10 == 0:
                 bar.set_postfix(learner0_avg100=f'{np.mean(recent[-100:]):.1f}', eps=f'{eps:.3f}')
-    result = q_learning.train(training, a.seed, progress=progress)
-    bar.close()
-    if result.cancelled:  # a worker ended (killed): say so, with what finished
+    try:
+        result = q_learning.train(training, a.seed, progress=progress)
+    finally:  # an interrupted run's message goes on a line of its own
+        bar.close()
+    for j, why in result.failed.items():
+        print(f'learner {j} failed: {why}', file=sys.stderr)
+    if result.cancelled or result.failed:
         print(f'training ended early: {len(result.finished)} of {training.learners} learners finished',
               file=sys.stderr)
     best = result.best_learner()
@@ -171,7 +178,7 @@ def run_q_learning(a, parser) -> int:
         write_or_say(f'video (learner {best})', lambda: artifacts.record_video(
             result.env_id, agent.act, training.max_steps, a.seed + best, stem + '.mp4')[0])
     print(f'avg reward for last {min(100, training.episodes)} episodes: {result.mean_last100:.2f}')
-    return 0 if not result.cancelled else 1
+    return 0 if not (result.cancelled or result.failed) else 1
 
 
 def evaluate_parser(sub) -> None:
@@ -223,6 +230,18 @@ def run_show(a, parser) -> int:
     return 0
 
 
+class Interrupted(Exception):
+    """A SIGTERM or SIGHUP, raised where the run is, so that it ends through its finally clauses."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signal = signal.Signals(signum)
+
+
+def _interrupt(signum, frame):
+    raise Interrupted(signum)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog='python -m robot_ai.cartpole',
                                      description='The course\'s CartPole agents, and their policy files, without ROS.')
@@ -232,11 +251,19 @@ def main(argv=None) -> int:
     evaluate_parser(sub)
     show_parser(sub)
     a = parser.parse_args(argv)
+    # SIGTERM and SIGHUP (a closed terminal) end a run as a Ctrl-C does: the learner processes end with it.
+    previous = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGTERM, signal.SIGHUP)}
     try:
         return a.run(a, sub.choices[a.command])
     except KeyboardInterrupt:
         print('interrupted', file=sys.stderr)
         return 130
+    except Interrupted as e:
+        print(f'interrupted by {e.signal.name}', file=sys.stderr)
+        return 128 + e.signal
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 if __name__ == '__main__':

@@ -27,18 +27,18 @@ training's seed (the same episodes for every learner), so that the learners can 
     result.agents[best].act(state)                           # its greedy policy
 """
 import math
-import multiprocessing
 import os
-import queue
+import select
 import signal
+import subprocess
 import time
 from dataclasses import dataclass, field
 from typing import Callable, ClassVar, NamedTuple
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError, check_state, rng_for, start_states
+from robot_ai.child_process import FrameReader, spawn, write_frame
 
 DEFAULTS = dict(env_id='CartPole-v0', episodes=500, gamma=0.99, regressor='tf', components=1000, learners=1)
 REGRESSORS = {'tf': 0.2, 'sgd': 0.1}            # the rate of w += rate (G - x.w) x
@@ -316,7 +316,8 @@ def ci95_half_width(values) -> float:
 @dataclass
 class TrainingResult:
     """K learners' total rewards (K, episodes played); the learners that finished every episode, with their
-    last-100 averages, greedy averages and agents (indexed by learner; None where a learner did not finish)."""
+    last-100 averages, greedy averages and agents (indexed by learner; None where a learner did not finish); the
+    learners that failed (their process died or stopped answering) and why."""
     env_id: str
     seed: int
     training: Training
@@ -327,7 +328,8 @@ class TrainingResult:
     agents: list
     baseline_total_reward: float
     elapsed: float
-    cancelled: bool
+    cancelled: bool                      # stopped by should_stop
+    failed: dict = field(default_factory=dict)   # {learner: why} of learners whose process died or hung
     mean_last100: float = field(init=False)
     ci95_last100: float = field(init=False)
 
@@ -363,9 +365,14 @@ def summary(result: TrainingResult) -> str:
                                                             if t.bootstrap_at_time_limit else ''))
     avg = result.last100_averages
     last = f'avg reward for last {min(100, t.episodes)} episodes: {result.mean_last100:.2f}'  # the course's words
+    seeds = result.learner_seeds
+    if not seeds:
+        return f'{head}: no learner finished'
     if len(avg) == 1:
-        return f'{head}, seed {result.seed}: {last}'
-    return (f'{head}, {len(avg)} learners (seeds {result.seed} to {result.seed + len(avg) - 1}): {last} +/- '
+        return f'{head}, seed {seeds[0]}: {last}'
+    which = (f'seeds {seeds[0]} to {seeds[-1]}' if seeds == list(range(seeds[0], seeds[0] + len(seeds)))
+             else f'seeds {", ".join(map(str, seeds))}')
+    return (f'{head}, {len(avg)} learners ({which}): {last} +/- '
             f'{result.ci95_last100:.2f} (95%), from {avg.min():.2f} to {avg.max():.2f}')
 
 
@@ -397,10 +404,12 @@ def train(training: Training, seed: int = 0, progress: Callable | None = None,
     progress(learner, episode, total_reward, epsilon) after every episode of every learner (each learner's in
     order); should_stop() is asked often, and a training it stops returns cancelled=True with the episodes
     played and the learners that had finished. More than one learner: `workers` processes (default: one per
-    core) share them."""
+    core) share them (see _train_in_processes); a learner whose process dies or hangs is in result.failed, the
+    others go on. RuntimeError if every learner failed."""
     t0 = time.time()
     k = training.learners
     workers = worker_count(k) if workers is None else max(1, min(workers, k))
+    failed = {}
     if workers == 1:
         learners, cancelled = {}, False
         for j in range(k):
@@ -410,12 +419,16 @@ def train(training: Training, seed: int = 0, progress: Callable | None = None,
                 cancelled = True
                 break
     else:
-        learners, cancelled = _train_in_processes(training, seed, workers, progress, should_stop)
-    return _result(training, seed, learners, cancelled, time.time() - t0)
+        learners, cancelled = _train_in_processes(training, seed, workers, progress, should_stop, failed)
+        if len(failed) == k:
+            whys = sorted(set(failed.values()))
+            raise RuntimeError(f'every learner failed: {"; ".join(whys[:3])}')
+    return _result(training, seed, learners, cancelled, time.time() - t0, failed)
 
 
-def _result(training: Training, seed: int, learners: dict, cancelled: bool, elapsed: float) -> TrainingResult:
-    """learners: {j: (totals, agent or None, greedy average or None)}."""
+def _result(training: Training, seed: int, learners: dict, cancelled: bool, elapsed: float,
+            failed: dict) -> TrainingResult:
+    """learners: {j: (totals, agent or None, greedy average or None)}; failed: {j: why}."""
     k = training.learners
     rewards = [learners[j][0] if j in learners else np.zeros(0) for j in range(k)]
     agents = [learners[j][1] if j in learners else None for j in range(k)]
@@ -425,81 +438,107 @@ def _result(training: Training, seed: int, learners: dict, cancelled: bool, elap
         last100_averages=np.array([rewards[j][-100:].mean() for j in finished]),
         greedy_averages=np.array([learners[j][2] for j in finished]), agents=agents,
         baseline_total_reward=random_baseline(training), elapsed=elapsed,
-        cancelled=cancelled or len(finished) < k)
+        cancelled=cancelled or len(finished) + len(failed) < k, failed=dict(sorted(failed.items())))
 
 
 # ------------------------------------------------------------------------------------------ worker processes
-def _context():
-    """fork: a worker needs nothing but this module's objects, and is not a fresh interpreter that would run the
-    caller's main script again (spawn and forkserver do, and a ROS node's script then fails to import)."""
-    return multiprocessing.get_context('fork')
+SILENCE_SECONDS = 5.0  # a worker that sends nothing for this long (stopped, hung) is killed: its learner failed
 
 
-def _worker(training, seed, next_learner, results, stop):
-    """Train the learners next_learner hands out until none is left; report every episode and each learner's end.
+@dataclass
+class _Worker:
+    """A learner process (robot_ai.cartpole.learner_worker) and what the parent knows of it."""
+    proc: subprocess.Popen
+    reader: FrameReader = field(default_factory=FrameReader)
+    learner: int | None = None           # the learner it trains now
+    heard: float = field(default_factory=time.monotonic)
 
-    A forked worker inherits its parent's signal handlers (a ROS node's would only flag a shutdown): it takes
-    the default ones, so a Ctrl-C or a SIGTERM ends it at once, quietly; the parent then ends the training.
-    Each worker has a core of its own: its BLAS runs on one thread (the greedy evaluation's matrix products would
-    otherwise wake OpenBLAS's thread pool in every worker, whose spinning threads take the other workers' cores:
-    8 learners took 7.6 s instead of 5.4 s on 2 cores)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    threadpool_limits(1)
-    while True:
-        with next_learner.get_lock():  # a shared counter: a queue's items may not have arrived yet
-            j = next_learner.value
-            next_learner.value += 1
-        if j >= training.learners:
-            return
-        totals, agent = train_one(training, seed + j,
-                                  lambda e, r, eps: results.put(('episode', j, e, r, eps)), stop.is_set)
-        results.put(('done', j) + _finish(training, seed, j, totals, agent))
-
-
-def _stopping(should_stop, grace=1.0):
-    """Whether should_stop() says yes within grace seconds: the signal that ended the workers may reach the
-    caller a moment later."""
-    deadline = time.time() + grace
-    while should_stop is not None and time.time() < deadline:
-        if should_stop():
+    def send(self, message) -> bool:
+        try:
+            write_frame(self.proc.stdin, message)
             return True
-        time.sleep(0.05)
-    return False
+        except (BrokenPipeError, OSError, ValueError):
+            return False
 
-
-def _train_in_processes(training, seed, workers, progress, should_stop):
-    ctx = _context()
-    next_learner, results, stop = ctx.Value('l', 0), ctx.Queue(), ctx.Event()
-    procs = [ctx.Process(target=_worker, args=(training, seed, next_learner, results, stop), daemon=True)
-             for _ in range(workers)]
-    for p in procs:
-        p.start()
-    learners, cancelled = {}, False
-    try:
-        while len(learners) < training.learners:
-            if should_stop is not None and not stop.is_set() and should_stop():
-                stop.set()
-                cancelled = True
+    def end(self) -> None:
+        """Close its input and kill it (it has nothing to save), then reap it."""
+        for close in (self.proc.stdin.close, self.proc.kill):
             try:
-                msg = results.get(timeout=0.1)
-            except queue.Empty:
-                if not any(p.is_alive() for p in procs) and results.empty():
-                    if stop.is_set() or _stopping(should_stop):  # a Ctrl-C ends the workers and the caller
-                        cancelled = True
-                        break
-                    raise RuntimeError(f'the learner processes ended before their learners '
-                                       f'({len(learners)} of {training.learners} done)')
-                continue
-            if msg[0] == 'episode':
-                if progress is not None:
-                    progress(*msg[1:])
+                close()
+            except OSError:
+                pass
+        self.proc.wait()
+        self.proc.stdout.close()
+
+    def why_gone(self) -> str:
+        code = self.proc.wait()
+        if code < 0:
+            return f'its process was killed by {signal.Signals(-code).name}'
+        return f'its process ended with status {code}'
+
+
+def _train_in_processes(training, seed, workers, progress, should_stop, failed):
+    """Learners in `workers` processes; returns (learners, cancelled) as train() and fills failed {j: why}.
+
+    A worker that ends or falls silent for SILENCE_SECONDS loses only the learner it was training (killed, reported
+    in `failed`); the learners not yet started go to the workers left."""
+    pool = [_Worker(spawn('robot_ai.cartpole.learner_worker')) for _ in range(workers)]
+    waiting = list(range(training.learners))
+    totals = {j: [] for j in waiting}
+    finished, cancelled = {}, False
+
+    def hand_out(w: _Worker) -> None:
+        w.learner = waiting.pop(0) if waiting else None
+        if w.learner is None:
+            w.proc.stdin.close()  # nothing left: the worker ends at the end of its input
+        elif not w.send(('learner', w.learner)):
+            lose(w, 'its process could not be reached')
+
+    def lose(w: _Worker, why: str) -> None:
+        w.end()
+        pool.remove(w)
+        if w.learner is not None:
+            failed[w.learner] = why
+        if not pool:
+            failed.update({j: 'not started: every learner process had ended' for j in waiting})
+            waiting.clear()
+
+    try:
+        for w in list(pool):
+            if w.send(('training', training.settings(), seed)):
+                hand_out(w)
             else:
-                learners[msg[1]] = msg[2:]
+                lose(w, 'its process could not be reached')
+        while len(finished) + len(failed) < training.learners:
+            if not cancelled and should_stop is not None and should_stop():
+                # Cancel: the learners that played every episode still send their agents; the others end now.
+                cancelled = True
+                waiting.clear()
+                for w in [w for w in pool if w.learner is None or len(totals[w.learner]) < training.episodes]:
+                    w.learner = None
+                    lose(w, '')
+            if cancelled and not pool:
+                break
+            ready, _, _ = select.select([w.proc.stdout for w in pool], [], [], 0.1)
+            for stream in ready:
+                w = next(w for w in pool if w.proc.stdout is stream)
+                chunk = os.read(stream.fileno(), 1 << 20)
+                if not chunk:
+                    lose(w, w.why_gone() + (' while sending its result' if w.reader.partial else ''))
+                    continue
+                w.heard = time.monotonic()
+                for message in w.reader.feed(chunk):
+                    if message[0] == 'episode':
+                        totals[message[1]].append(message[3])
+                        if progress is not None:
+                            progress(*message[1:])
+                    elif message[0] == 'done':
+                        finished[message[1]] = message[2:]
+                        hand_out(w)
+            now = time.monotonic()
+            for w in [w for w in pool if now - w.heard > SILENCE_SECONDS]:
+                lose(w, f'its process sent nothing for {now - w.heard:.0f} s (stopped or hung) and was killed')
     finally:
-        stop.set()
-        for p in procs:
-            p.join(5)
-            if p.is_alive():
-                p.terminate()
-    return learners, cancelled
+        for w in pool:
+            w.end()
+    return {j: (np.array(t, dtype=float),) + finished.get(j, (None, None)) for j, t in totals.items() if t}, cancelled

@@ -110,6 +110,8 @@ class CartPoleQLearningNode:
             t0 = time.time()
             result = q_learning.train(training, req.seed, progress=progress,
                                       should_stop=lambda: rospy.is_shutdown() or bool(should_stop and should_stop()))
+            for j, why in result.failed.items():
+                rospy.logerr(f'training: learner {j} (seed {req.seed + j}) failed: {why}')
             if result.cancelled:
                 return None, result
             self.trainings += 1
@@ -125,8 +127,10 @@ class CartPoleQLearningNode:
                                                   f'training {number} of cartpole_q_learning, learner {best}'),
                 log=artifacts.q_learning_log(result), video=video)
             elapsed = time.time() - t0
-        message = (f'{q_learning.summary(result)}; best learner {best} (seed {req.seed + best}): greedy average '
-                   f'{figures["greedy_average"]:.1f} over {q_learning.GREEDY_EPISODES} episodes; {kept}; {files.note}')
+        failures = ''.join(f'; learner {j} (seed {req.seed + j}) failed: {why}' for j, why in result.failed.items())
+        message = (f'{q_learning.summary(result)}{failures}; best learner {best} (seed {req.seed + best}): greedy '
+                   f'average {figures["greedy_average"]:.1f} over {q_learning.GREEDY_EPISODES} episodes; {kept}; '
+                   f'{files.note}')
         rospy.loginfo(message)
         return dict(success=True, message=message, total_rewards=list(result.total_rewards[0]),
                     last100_averages=list(result.last100_averages), learner_seeds=result.learner_seeds,
