@@ -12,6 +12,7 @@ import numpy as np
 import rospy
 import rostest
 from actionlib_msgs.msg import GoalStatus
+from rosgraph_msgs.msg import Log
 
 from robot_ai.cartpole import linear_search
 from robot_ai.cartpole.dynamics import CartPoleDynamics
@@ -19,7 +20,7 @@ from robot_ai.msg import RandomSearchAction, RandomSearchGoal, SearchProgress
 from robot_ai.srv import Act, EvaluatePolicy, RandomSearch
 
 sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
-from ros_helpers import wait_file  # noqa: E402
+from ros_helpers import wait_file, wait_for  # noqa: E402
 
 NS = '/cartpole_search/'
 
@@ -36,6 +37,9 @@ class TestCartPoleSearchNode(unittest.TestCase):
         cls.progress = []
         cls.sub = rospy.Subscriber(NS + 'progress', SearchProgress, cls.progress.append, queue_size=1000)
         cls.output_dir = os.path.abspath(rospy.get_param(NS + 'output_dir'))
+        cls.log = []  # the node's log lines, from /rosout
+        cls.log_sub = rospy.Subscriber('/rosout', Log, lambda m: cls.log.append(m.msg) if m.name == NS[:-1] else None,
+                                       queue_size=1000)
 
     def test_1_course_experiment_with_defaults(self):
         res = self.search()  # every field zero/empty: the course's 100 x 100 on CartPole-v1, seed 0
@@ -177,6 +181,37 @@ class TestCartPoleSearchNode(unittest.TestCase):
             time.sleep(1.0)
             later = self.search(iterations=3, episodes=3, seed=99)
         self.assertTrue(wait_file(later.plot_path, 60), later.message)
+
+    def test_6b_a_plot_not_acknowledged_in_time_counts_as_behind(self):
+        """Issue 18: with the plot process stopped, 13 small searches all answered "being drawn" (their jobs fit in
+        the pipe), nothing was written or logged. Now a plot unacknowledged for ACK_SECONDS means "behind", in the
+        answer and the log, and the silent plot process is replaced."""
+        from robot_ai.nodes.agent_common import PlotProcess
+        worker = plot_worker_of('cartpole_search')
+        os.kill(worker, signal.SIGSTOP)
+        try:
+            first = self.search(iterations=3, episodes=3, seed=201)
+            self.assertIn('learning curve being drawn', first.message)
+            time.sleep(PlotProcess.ACK_SECONDS + 1.5)
+            late = self.search(iterations=3, episodes=3, seed=202)
+            self.assertTrue(late.success)
+            self.assertIn('learning curve skipped: the plot process is behind', late.message)
+            self.assertIn(os.path.basename(first.plot_path), late.message)
+            self.assertEqual(late.plot_path, '')
+        finally:
+            if os.path.exists(f'/proc/{worker}'):
+                os.kill(worker, signal.SIGCONT)
+        deadline = time.time() + 10   # the silent process is killed and a new one started
+        while os.path.exists(f'/proc/{worker}') and time.time() < deadline:
+            time.sleep(0.2)
+        self.assertFalse(os.path.exists(f'/proc/{worker}'), 'the silent plot process still runs')
+        after = self.search(iterations=3, episodes=3, seed=203)
+        self.assertIn('learning curve being drawn', after.message)
+        self.assertTrue(wait_file(after.plot_path, 60), after.message)
+        self.assertNotEqual(plot_worker_of('cartpole_search'), worker)
+        self.assertTrue(wait_for(lambda: any('plot skipped: the plot process is behind' in m for m in self.log), 10))
+        self.assertTrue(wait_for(lambda: any(f'plots not written: {first.plot_path}' in m for m in self.log), 10),
+                        self.log[-10:])
 
     def test_7_leftovers_removed_and_links_not_followed(self):
         """Issue 12: kill -9 during a video left its temporary files; a planted link led a plot outside."""

@@ -6,15 +6,15 @@ milliseconds, which a thread in the node would take from the service answering a
     line = {"path": "/abs/file.png", "job": <a plot job of robot_ai.cartpole.artifacts>}
 
 For every line it prints ``written <path>`` on stdout, or ``failed <path>: <reason>`` on stderr, and goes on
-with the next. It ends quietly, with status 0, at the end of its input and on SIGINT or SIGTERM: a Ctrl-C
-in a terminal reaches it as well as the node that started it.
+with the next. It ends quietly, with status 0, at the end of its input, on SIGINT or SIGTERM, and when the node
+that started it ends, however it ends (it gets a SIGTERM then; see robot_ai.child_process).
 """
 import json
 import signal
 import sys
 
 
-def job_line(job, path):
+def job_line(job: dict, path: str) -> str:
     """The line that asks the plot process to draw job into path."""
     return json.dumps({'path': path, 'job': job}) + '\n'
 
@@ -23,10 +23,12 @@ def _quit(signum, frame):
     raise SystemExit(0)
 
 
-def main():
+def main() -> int:
     signal.signal(signal.SIGINT, _quit)
     signal.signal(signal.SIGTERM, _quit)
     try:
+        from robot_ai.child_process import die_with_parent
+        die_with_parent(signal.SIGTERM)  # started by a node (child_process.spawn): end with it, however it ends
         from robot_ai.cartpole.artifacts import write_plot
         for line in sys.stdin:
             path = '?'
@@ -34,9 +36,9 @@ def main():
                 request = json.loads(line)
                 path = request['path']
                 write_plot(request['job'], path)
-                print('written %s' % path, flush=True)
+                print(f'written {path}', flush=True)
             except Exception as e:  # one bad job must not stop the next ones
-                print('failed %s: %s' % (path, e), file=sys.stderr, flush=True)
+                print(f'failed {path}: {e}', file=sys.stderr, flush=True)
     except (SystemExit, BrokenPipeError):
         pass
     return 0

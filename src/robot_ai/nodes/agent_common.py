@@ -10,7 +10,6 @@ within a second; the response's message says so.
 import os
 import queue
 import subprocess
-import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ from robot_ai.cartpole.artifacts import (artifact_stem, default_output_dir, remo
                                          write_csv)
 from robot_ai.cartpole.dynamics import RequestError
 from robot_ai.cartpole.policies import Policy, PolicyError
+from robot_ai.child_process import spawn
 from robot_ai.plot_worker import job_line
 from robot_ai.srv import LoadPolicyResponse
 
@@ -79,48 +79,84 @@ def output_dir_param() -> str:
 class PlotProcess:
     """The node's plot process, fed by a thread of its own: draw() never waits for it.
 
-    A job waits in a queue of PENDING; a writer thread hands it to the plot process (restarted if it died). A
-    plot process that hangs only stalls that thread: once PENDING jobs wait, draw() says no and the plot is
-    skipped, never a search or a training."""
+    A job waits in a queue of PENDING; a writer thread hands it to the plot process (restarted if it died), which
+    acknowledges every plot (written or failed). A plot process that hangs only stalls that thread: once PENDING
+    jobs wait, or a plot handed over ACK_SECONDS ago is not acknowledged, draw() says the plot process is behind
+    and the plot is skipped, never a search or a training; a plot process that stays silent that long is killed
+    (its plots logged as lost) and the next plot starts another. The plot process (robot_ai.child_process.spawn)
+    ends with the node however the node ends, and a Ctrl-C meant for the node never reaches it."""
     PENDING = 8
+    ACK_SECONDS = 15.0
 
     def __init__(self):
         self.jobs = queue.Queue(maxsize=self.PENDING)
+        self.lock = threading.Lock()
+        self.handed: dict[str, float] = {}  # path -> when it was handed to the plot process, until acknowledged
         self.proc = None
         self._start()
         threading.Thread(target=self._hand_over, name='plot jobs', daemon=True).start()
         rospy.on_shutdown(self.close)
 
     def _start(self):
-        self.proc = subprocess.Popen([sys.executable, '-m', 'robot_ai.plot_worker'], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, text=True, bufsize=1)
-        threading.Thread(target=self._log, args=(self.proc,), name='plots', daemon=True).start()
+        self.proc = spawn('robot_ai.plot_worker', text=True, stderr=subprocess.PIPE)
+        for stream in (self.proc.stdout, self.proc.stderr):
+            threading.Thread(target=self._log, args=(stream,), name='plots', daemon=True).start()
 
-    @staticmethod
-    def _log(proc):
-        for line in proc.stdout:
-            rospy.loginfo(f'plot {line.strip()}')
+    def _log(self, stream):
+        """Log the plot process's lines; `written <path>` and `failed <path>: <why>` acknowledge a plot."""
+        for line in stream:
+            line = line.rstrip()
+            status, _, rest = line.partition(' ')
+            if status in ('written', 'failed'):
+                with self.lock:
+                    self.handed.pop(rest.split(': ', 1)[0] if status == 'failed' else rest, None)
+                (rospy.loginfo if status == 'written' else rospy.logerr)(f'plot {line}')
+            elif line:
+                rospy.logwarn(f'plot process: {line}')
+
+    def overdue(self) -> str:
+        """Why the plot process is behind ('' if it is not): a plot handed over ACK_SECONDS ago not acknowledged."""
+        with self.lock:
+            if not self.handed:
+                return ''
+            path, since = min(self.handed.items(), key=lambda item: item[1])
+        waited = time.monotonic() - since
+        if waited < self.ACK_SECONDS:
+            return ''
+        return f'the plot process is behind ({os.path.basename(path)} handed to it {waited:.0f} s ago is not written)'
 
     def draw(self, job: dict, path: str) -> str:
         """Queue a plot job; '' if queued, else why the plot is skipped."""
-        try:
-            self.jobs.put_nowait((job, path))
-            return ''
-        except queue.Full:
-            rospy.logwarn_throttle(10.0, f'plot skipped: the plot process is behind ({self.PENDING} plots waiting)')
-            return f'the plot process is behind ({self.PENDING} plots waiting)'
+        behind = self.overdue()
+        if not behind:
+            try:
+                self.jobs.put_nowait((job, path))
+                return ''
+            except queue.Full:
+                behind = f'the plot process is behind ({self.PENDING} plots waiting)'
+        rospy.logwarn(f'plot skipped: {behind}')
+        return behind
 
     def _hand_over(self):
         while True:
-            item = self.jobs.get()
+            try:
+                item = self.jobs.get(timeout=1.0)
+            except queue.Empty:
+                self._restart_if_silent()
+                continue
             if item is None:
                 return
+            self._restart_if_silent()
             job, path = item
             for _ in range(2):
                 if self.proc.poll() is not None:
                     rospy.logwarn(f'the plot process ended (status {self.proc.returncode}); starting another')
+                    with self.lock:
+                        self.handed.clear()
                     self._start()
                 try:
+                    with self.lock:
+                        self.handed[path] = time.monotonic()
                     self.proc.stdin.write(job_line(job, path))
                     self.proc.stdin.flush()
                     break
@@ -129,20 +165,47 @@ class PlotProcess:
             else:
                 rospy.logerr(f'plot not written: {path}')
 
+    def _restart_if_silent(self) -> None:
+        """Kill a plot process that has not acknowledged a plot for ACK_SECONDS (stopped, hung): the next plot
+        starts another."""
+        behind = self.overdue()
+        if not behind or self.proc.poll() is not None:
+            return
+        with self.lock:
+            lost = sorted(self.handed)
+            self.handed.clear()
+        rospy.logerr(f'{behind}: killed it, a new one draws the next plot; plots not written: {", ".join(lost)}')
+        self.proc.kill()
+        self.proc.wait()
+
     def close(self) -> None:
-        """End of input once the queued plots are handed over: the plot process draws them and ends (bounded)."""
+        """End of input once the queued plots are handed over: the plot process draws them and ends (bounded; at
+        once if it is behind)."""
         try:
             self.jobs.put(None, timeout=2.0)
         except queue.Full:
             pass
         deadline = time.time() + 10
-        while not self.jobs.empty() and time.time() < deadline:
+        while not self.jobs.empty() and time.time() < deadline and not self.overdue():
             time.sleep(0.05)
         try:
             self.proc.stdin.close()
-            self.proc.wait(max(0.1, deadline - time.time()))
-        except (OSError, subprocess.TimeoutExpired):
+        except OSError:
+            pass
+        while self.proc.poll() is None and time.time() < deadline and not self.overdue() and not stopped(self.proc):
+            time.sleep(0.05)
+        if self.proc.poll() is None:
             self.proc.kill()
+            self.proc.wait()
+
+
+def stopped(proc: subprocess.Popen) -> bool:
+    """Whether a child is stopped (SIGSTOP, a Ctrl-Z): it will not finish anything before it is continued."""
+    try:
+        with open(f'/proc/{proc.pid}/stat') as f:
+            return f.read().rsplit(')', 1)[1].split()[0] in ('T', 't')
+    except (OSError, IndexError):
+        return False
 
 
 def prepare_output_dir(output_dir: str) -> str:
