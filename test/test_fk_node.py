@@ -2,7 +2,10 @@
 """forward_kinematics on bad input, a late robot_description and ~reload: it keeps running and keeps
 publishing frames equal to robot_state_publisher's afterwards."""
 import os
+import random
 import sys
+import threading
+import time
 import unittest
 
 import numpy as np
@@ -22,6 +25,28 @@ UR5 = ['shoulder_pan_joint', 'shoulder_lift_joint', 'elbow_joint', 'wrist_1_join
 def read(name):
     with open(robot_path(name)) as f:
         return f.read()
+
+
+def wide_tree(joints: int) -> str:
+    """A URDF of `joints` revolute joints, each child under one of the 50 links before it, with inertias and
+    limits, random origins: about 370 bytes a joint, like a big real robot description."""
+    r = random.Random(0)
+    parts = ['<robot name="wide"><link name="l0"/>']
+    for i in range(1, joints + 1):
+        xyz = ' '.join(f'{r.random():.6f}' for _ in range(3))
+        rpy = ' '.join(f'{r.random():.6f}' for _ in range(3))
+        parts.append(f'<link name="l{i}"><inertial><mass value="1"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" '
+                     f'iyz="0" izz="0.1"/></inertial></link><joint name="j{i}" type="revolute"><parent '
+                     f'link="l{r.randrange(max(0, i - 50), i)}"/><child link="l{i}"/><origin xyz="{xyz}" '
+                     f'rpy="{rpy}"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>')
+    return ''.join(parts) + '</robot>'
+
+
+def memory_mib(pid: int) -> dict:
+    """VmRSS and VmHWM (peak) of a process, MiB."""
+    with open(f'/proc/{pid}/status') as f:
+        fields = dict(line.split(':', 1) for line in f)
+    return {k: int(fields[k].split()[0]) / 1024 for k in ('VmRSS', 'VmHWM')}
 
 
 class TestForwardKinematicsNode(unittest.TestCase):
@@ -92,7 +117,7 @@ class TestForwardKinematicsNode(unittest.TestCase):
             self.assertTrue(res.success, res.message)
             self.assertIn('lwr', res.message.lower())
             rospy.sleep(0.05)
-            stamp = pair.send({'lwr_arm_%d_joint' % i: 0.0 for i in range(7)})
+            stamp = pair.send({f'lwr_arm_{i}_joint': 0.0 for i in range(7)})
             self.assertTrue(wait_for(lambda: fk.buffer.can_transform('world_link', 'lwr_arm_7_link', stamp), 10))
             t = fk.buffer.lookup_transform('world_link', 'lwr_arm_7_link', stamp).transform.translation
             self.assertAlmostEqual(t.z, 1.3785, places=9)  # SOURCES.md: zero pose of the KUKA LWR
@@ -134,7 +159,7 @@ class TestForwardKinematicsNode(unittest.TestCase):
                 self.assertIn('kept the current robot', res.message)
 
             # 100,000 unknown names beside a known one: published, and the warning stays one short line
-            names = ['ghost_%d' % i for i in range(100000)] + ['j0']
+            names = [f'ghost_{i}' for i in range(100000)] + ['j0']
             rospy.sleep(0.1)
             msg = JointState(name=names, position=[0.0] * 100000 + [0.25])
             msg.header.stamp = rospy.Time.now()
@@ -154,6 +179,38 @@ class TestForwardKinematicsNode(unittest.TestCase):
         self.assertIn('and 99990 more', err)
         self.assertLess(max(len(line) for line in err.splitlines()), 2000)
         self.assertNotIn('Traceback', err)
+
+    def test_a_reload_storm_runs_one_reload_at_a_time_and_gives_memory_back(self):
+        """Issue 18: 8 concurrent reloads of a 20,000-joint URDF took 88 s, peaked at 1.09 GB and kept 891 MB.
+        Now requests that come during a reload share the next one, and each reload gives its memory back."""
+        pair = NodePair('/storm', wide_tree(8000), who=('fk',))
+        try:
+            pair.wait_connected(120)
+            pid = pair.procs['fk'].pid
+            rospy.wait_for_service('/storm/fk/reload', 10)
+            t0 = time.time()
+            self.assertTrue(rospy.ServiceProxy('/storm/fk/reload', Trigger)().success)
+            single = time.time() - t0
+            before = memory_mib(pid)
+            answers = []
+            calls = [threading.Thread(target=lambda: answers.append(rospy.ServiceProxy('/storm/fk/reload', Trigger)()))
+                     for _ in range(8)]
+            t0 = time.time()
+            for c in calls:
+                c.start()
+            for c in calls:
+                c.join(300)
+            storm = time.time() - t0
+            after = memory_mib(pid)
+            self.assertEqual(len(answers), 8)
+            self.assertTrue(all(a.success for a in answers), [a.message for a in answers])
+            self.assertLess(storm, 2 * single + 10, f'one reload {single:.1f} s, 8 at once {storm:.1f} s')
+            self.assertLess(after['VmHWM'] - before['VmHWM'], 100, (before, after))  # no 8 parses at once
+            self.assertLess(after['VmRSS'] - before['VmRSS'], 50, (before, after))   # and nothing kept
+            stamp = pair.send({'j1': 0.3})
+            self.assertTrue(wait_for(lambda: stamp in pair.recorders['fk'].stamps, 20))
+        finally:
+            pair.close()
 
 
 if __name__ == '__main__':
