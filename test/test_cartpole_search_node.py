@@ -198,10 +198,11 @@ class TestCartPoleSearchNode(unittest.TestCase):
             self.assertIn('learning curve skipped: the plot process is behind', late.message)
             self.assertIn(os.path.basename(first.plot_path), late.message)
             self.assertEqual(late.plot_path, '')
-        finally:
+        except BaseException:
             if os.path.exists(f'/proc/{worker}'):
                 os.kill(worker, signal.SIGCONT)
-        deadline = time.time() + 10   # the silent process is killed and a new one started
+            raise
+        deadline = time.time() + PlotProcess.ACK_SECONDS + 10   # the silent process is killed (at twice ACK_SECONDS)
         while os.path.exists(f'/proc/{worker}') and time.time() < deadline:
             time.sleep(0.2)
         self.assertFalse(os.path.exists(f'/proc/{worker}'), 'the silent plot process still runs')

@@ -82,8 +82,8 @@ class PlotProcess:
     A job waits in a queue of PENDING; a writer thread hands it to the plot process (restarted if it died), which
     acknowledges every plot (written or failed). A plot process that hangs only stalls that thread: once PENDING
     jobs wait, or a plot handed over ACK_SECONDS ago is not acknowledged, draw() says the plot process is behind
-    and the plot is skipped, never a search or a training; a plot process that stays silent that long is killed
-    (its plots logged as lost) and the next plot starts another. The plot process (robot_ai.child_process.spawn)
+    and the plot is skipped, never a search or a training; a plot process silent twice that long is killed (its
+    plots logged as lost) and the next plot starts another. The plot process (robot_ai.child_process.spawn)
     ends with the node however the node ends, and a Ctrl-C meant for the node never reaches it."""
     PENDING = 8
     ACK_SECONDS = 15.0
@@ -114,14 +114,15 @@ class PlotProcess:
             elif line:
                 rospy.logwarn(f'plot process: {line}')
 
-    def overdue(self) -> str:
-        """Why the plot process is behind ('' if it is not): a plot handed over ACK_SECONDS ago not acknowledged."""
+    def overdue(self, seconds: float | None = None) -> str:
+        """Why the plot process is behind ('' if it is not): a plot handed over `seconds` (ACK_SECONDS) ago is
+        not acknowledged."""
         with self.lock:
             if not self.handed:
                 return ''
             path, since = min(self.handed.items(), key=lambda item: item[1])
         waited = time.monotonic() - since
-        if waited < self.ACK_SECONDS:
+        if waited < (self.ACK_SECONDS if seconds is None else seconds):
             return ''
         return f'the plot process is behind ({os.path.basename(path)} handed to it {waited:.0f} s ago is not written)'
 
@@ -166,9 +167,9 @@ class PlotProcess:
                 rospy.logerr(f'plot not written: {path}')
 
     def _restart_if_silent(self) -> None:
-        """Kill a plot process that has not acknowledged a plot for ACK_SECONDS (stopped, hung): the next plot
-        starts another."""
-        behind = self.overdue()
+        """Kill a plot process that has not acknowledged a plot for twice ACK_SECONDS (stopped, hung): the next
+        plot starts another."""
+        behind = self.overdue(2 * self.ACK_SECONDS)
         if not behind or self.proc.poll() is not None:
             return
         with self.lock:
