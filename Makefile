@@ -19,7 +19,7 @@ APT_PACKAGES := ros-core-dev catkin catkin-lint ros-message-generation rosbash r
 	python3-sensor-msgs python3-geometry-msgs python3-std-msgs python3-std-srvs libstd-msgs-dev \
 	python3-actionlib python3-actionlib-msgs ros-actionlib-msgs libactionlib-msgs-dev \
 	ros-robot-state-publisher joint-state-publisher joint-state-publisher-gui rviz \
-	tf-tools tf2-tools xvfb x11-utils iproute2 imagemagick python3-venv python3-numpy
+	tf-tools tf2-tools xvfb x11-utils iproute2 nftables imagemagick python3-venv python3-numpy
 
 # Everything a target runs sees the venv first on PATH (ROS nodes start with `#!/usr/bin/env python3`), the
 # workspace sourced, and caches kept inside the repository.
@@ -74,11 +74,12 @@ test: build
 	$(RUN) python $(ROOT)/test/summarize.py $(WS)/build/test_results/robot_ai
 
 # A master of its own on a free port, like the tests: never one that already runs on 11311 (its robot_description).
+# launch_guard: whatever ends roslaunch (a SIGKILL too), the processes it started end with it and tee sees the end.
 demo: build
 	mkdir -p $(OUT)
 	port=$$($(SYS_PYTHON) -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'); \
 	$(RUN) export ROS_MASTER_URI=http://localhost:$$port && \
-	  roslaunch -p $$port robot_ai demo.launch output_dir:=$(OUT) 2>&1 | tee $(OUT)/demo.log
+	  python -m robot_ai.launch_guard roslaunch -p $$port robot_ai demo.launch output_dir:=$(OUT) 2>&1 | tee $(OUT)/demo.log
 	@# roslaunch exits 0 when its required client ends, whatever the client's status: the verdict decides
 	@grep -q '^verdict: OK' $(OUT)/demo.log
 

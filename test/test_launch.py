@@ -159,6 +159,7 @@ class TestLaunch(unittest.TestCase):
     def test_ctrl_c_prints_no_traceback(self):
         """A terminal's Ctrl-C: SIGINT to roslaunch and every node, while they serve and while they work."""
         for launch_file, wait in (('cartpole_search.launch', 6), ('forward_kinematics.launch', 6),
+                                  ('cartpole_search.launch', 1.5), ('cartpole_q_learning.launch', 2.5),
                                   ('demo.launch', 3), ('demo.launch', 5)):
             proc = launch(['output_dir:=' + os.path.join(ARTIFACTS, 'ctrl_c')] if launch_file != 'forward_kinematics.launch'
                           else [], launch_file=launch_file)
@@ -166,8 +167,43 @@ class TestLaunch(unittest.TestCase):
             os.killpg(proc.pid, signal.SIGINT)
             out, _ = proc.communicate(timeout=30)
             text = out.decode(errors='replace')
-            self.assertNotIn('Traceback', text, '%s after %d s:\n%s' % (launch_file, wait, text[-3000:]))
+            self.assertNotIn('Traceback', text, f'{launch_file} after {wait} s:\n{text[-3000:]}')
             self.assertNotIn('KeyboardInterrupt', text, launch_file)
+
+    def test_sigkill_of_roslaunch_under_the_guard_leaves_nothing_behind(self):
+        """Issue 18: SIGKILL of roslaunch orphaned every node (the master, rosout, the nodes), and `make demo`'s
+        tee, fed by their output, waited forever. make demo runs roslaunch under robot_ai.launch_guard."""
+        port = free_port()
+        env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{port}')
+        log = os.path.join(ARTIFACTS, 'guard.log')
+        shell = subprocess.Popen(['bash', '-o', 'pipefail', '-c', f'python -m robot_ai.launch_guard roslaunch -p {port} '
+                                  f'robot_ai forward_kinematics.launch 2>&1 | tee {log}'], env=env,
+                                 stdout=subprocess.DEVNULL, preexec_fn=os.setsid)
+        try:
+            deadline = time.time() + 60
+            while time.time() < deadline and len(descendants(shell.pid)) < 8:  # bash, guard, tee, roslaunch, nodes
+                time.sleep(0.5)
+            time.sleep(2.0)
+            started = descendants(shell.pid)
+            roslaunch = [p for p in started if b'roslaunch' in open(f'/proc/{p}/cmdline', 'rb').read()
+                         and b'launch_guard' not in open(f'/proc/{p}/cmdline', 'rb').read()]
+            self.assertEqual(len(roslaunch), 1, started)
+            os.kill(int(roslaunch[0]), signal.SIGKILL)
+            shell.wait(30)   # tee saw the end of its input: nothing holds roslaunch's output any more
+            self.assertEqual(shell.returncode, 128 + signal.SIGKILL)
+            left = [p for p in started if os.path.exists(f'/proc/{p}')
+                    and open(f'/proc/{p}/stat').read().rsplit(')', 1)[1].split()[0] != 'Z']
+            self.assertEqual(left, [])
+        finally:
+            if shell.poll() is None:
+                os.killpg(shell.pid, signal.SIGKILL)
+                for p in descendants(shell.pid):
+                    try:
+                        os.kill(int(p), signal.SIGKILL)
+                    except ProcessLookupError:
+                        pass
+        with open(log) as f:
+            self.assertIn('launch_guard: roslaunch ended (killed by SIGKILL) and left', f.read())
 
     def test_ctrl_c_during_a_training_ends_it_at_once(self):
         """The learners run in worker processes: a Ctrl-C ends them and the node, the caller is told."""

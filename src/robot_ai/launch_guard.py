@@ -1,0 +1,105 @@
+"""Run a command (roslaunch) so that nothing it started outlives it. No rospy.
+
+    python -m robot_ai.launch_guard roslaunch -p 11411 robot_ai demo.launch 2>&1 | tee demo.log
+
+roslaunch starts every node in a session of its own and ends them itself; killed with SIGKILL it cannot, and its
+nodes (the master, rosout, rviz, ...) run on, holding its output pipe, so that `make demo`'s `tee` waited forever.
+The guard makes itself the subreaper of the command's descendants (Linux's PR_SET_CHILD_SUBREAPER): when the
+command ends, however it ends, what it left behind is reparented to the guard, which sends it SIGINT (what
+roslaunch sends), then SIGTERM after GRACE_SECONDS, then SIGKILL, and exits with the command's status.
+
+A Ctrl-C reaches the command from the terminal and the guard waits for it; a SIGTERM or SIGHUP to the guard is
+passed on to the command.
+"""
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+import time
+
+PR_SET_CHILD_SUBREAPER = 36
+GRACE_SECONDS = 5.0
+
+
+def descendants(pid: int) -> list[int]:
+    """Every live process below pid (children first), from /proc."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir('/proc'):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f'/proc/{entry}/stat') as f:
+                fields = f.read().rsplit(')', 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if fields[0] != 'Z':
+            children.setdefault(int(fields[1]), []).append(int(entry))
+    found, todo = [], list(children.get(pid, []))
+    while todo:
+        p = todo.pop(0)
+        found.append(p)
+        todo.extend(children.get(p, []))
+    return found
+
+
+def reap() -> None:
+    """Collect the exit status of every ended child (orphans become the guard's children)."""
+    while True:
+        try:
+            pid, _ = os.waitpid(-1, os.WNOHANG)
+        except ChildProcessError:
+            return
+        if pid == 0:
+            return
+
+
+def end_leftovers(grace: float = GRACE_SECONDS) -> list[int]:
+    """SIGINT, then SIGTERM, then SIGKILL to every process left below the guard; the pids that were left."""
+    left = descendants(os.getpid())
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+        for pid in descendants(os.getpid()):
+            try:
+                os.kill(pid, signum)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + grace
+        while time.monotonic() < deadline:
+            reap()
+            if not descendants(os.getpid()):
+                return left
+            time.sleep(0.05)
+    return left
+
+
+def main(argv: list[str] | None = None) -> int:
+    command = sys.argv[1:] if argv is None else argv
+    if not command:
+        print('usage: python -m robot_ai.launch_guard COMMAND [ARG ...]', file=sys.stderr)
+        return 2
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0) != 0:
+        print('launch_guard: this system cannot adopt orphans (PR_SET_CHILD_SUBREAPER); running the command '
+              'unguarded', file=sys.stderr)
+    proc = subprocess.Popen(command)
+
+    def pass_on(signum, frame):
+        if proc.poll() is None:
+            proc.send_signal(signum)
+    signal.signal(signal.SIGINT, lambda signum, frame: None)  # the terminal sends it to the command too
+    signal.signal(signal.SIGTERM, pass_on)
+    signal.signal(signal.SIGHUP, pass_on)
+    status = proc.wait()
+    left = end_leftovers()
+    if left:
+        print(f'launch_guard: {command[0]} ended ({describe(status)}) and left {len(left)} processes running; '
+              'ended them', file=sys.stderr)
+    return status if status >= 0 else 128 - status
+
+
+def describe(status: int) -> str:
+    return f'killed by {signal.Signals(-status).name}' if status < 0 else f'status {status}'
+
+
+if __name__ == '__main__':
+    sys.exit(main())
