@@ -1,0 +1,212 @@
+#!/usr/bin/env python3
+"""ROS across machines, and closing ROS to an untrusted network: three hosts made of network namespaces.
+
+Host A runs `cartpole.launch` (master, rosout, the sim, forward_kinematics, the controller); host B is a
+trusted machine, host C an untrusted one; A is joined to each by a veth pair. Every packet stays inside the
+namespaces this test makes. Needs root (ip netns), as CI has.
+
+- The README's "Across machines" steps: with ROS_IP set on A and B, B echoes A's frames with tf_echo and calls
+  A's services; C, which nobody set up, reaches A's master too (ROS 1 has no authentication).
+- The README's firewall for that case (nftables on A: new connections only from loopback and B): B still works,
+  C reaches nothing.
+- Loopback mode (ROS_HOSTNAME=localhost, as make demo): from B the master and the rospy nodes refuse
+  connections, but Debian's roscpp rosout answers XML-RPC (getPid; its `shutdown` would answer too). The README's
+  loopback firewall (no new connection from any other interface) closes it, and the graph on A still works.
+"""
+import ast
+import os
+import subprocess
+import textwrap
+import time
+import unittest
+
+import rostest
+
+TAG = f'{os.getpid() % 100000}'
+A, B, C = f'rai{TAG}a', f'rai{TAG}b', f'rai{TAG}c'
+A_TO_B, B_ADDR = '10.231.0.1', '10.231.0.2'
+A_TO_C, C_ADDR = '10.232.0.1', '10.232.0.2'
+
+XMLRPC_CALL = textwrap.dedent('''
+    import sys, xmlrpc.client
+    try:
+        print(xmlrpc.client.ServerProxy(sys.argv[1]).__getattr__(sys.argv[2])('/probe', *sys.argv[3:]))
+    except Exception as e:
+        print('refused', type(e).__name__, e)
+''')
+
+
+def sh(*args, check=True, timeout=30, **kw):
+    return subprocess.run(list(args), check=check, capture_output=True, text=True, timeout=timeout, **kw)
+
+
+def in_ns(ns, env, *args, timeout=30):
+    """Run args inside namespace ns with env (the ROS variables of that host); (status, output)."""
+    proc = subprocess.run(['ip', 'netns', 'exec', ns] + host_env(env) + list(args),
+                          capture_output=True, text=True, timeout=timeout)
+    return proc.returncode, proc.stdout + proc.stderr
+
+
+def host_env(env):
+    """`env` arguments that give a host exactly these ROS variables (the test's own ROS_HOSTNAME is not A's)."""
+    return ['env', '-u', 'ROS_HOSTNAME', '-u', 'ROS_IP', '-u', 'ROS_MASTER_URI'] + [f'{k}={v}' for k, v in env.items()]
+
+
+def xmlrpc(ns, url, method, *args, timeout=10):
+    """The answer of an XML-RPC call from namespace ns (ROS's getPid, getSystemState, ...), or 'refused ...'."""
+    _, out = in_ns(ns, {}, 'timeout', str(timeout), 'python3', '-c', XMLRPC_CALL, url, method, *args,
+                   timeout=timeout + 10)
+    return out.strip() or 'refused: no answer within the timeout'
+
+
+def nft(ns, rules):
+    proc = subprocess.run(['ip', 'netns', 'exec', ns, 'nft', '-f', '-'], input=rules, capture_output=True,
+                          text=True, timeout=30)
+    assert proc.returncode == 0, proc.stderr
+
+
+# The README's rules, word for word (README "Security: ROS 1 on a network").
+TRUSTED_PEERS_RULES = '''
+table inet ros_guard {
+  chain input {
+    type filter hook input priority 0; policy accept;
+    iifname "lo" accept
+    ct state established,related accept
+    ip saddr { TRUSTED } accept
+    tcp flags syn drop
+  }
+}
+'''
+LOOPBACK_ONLY_RULES = '''
+table inet ros_guard {
+  chain input {
+    type filter hook input priority 0; policy accept;
+    iifname "lo" accept
+    ct state established,related accept
+    tcp flags syn drop
+  }
+}
+'''
+
+
+class Hosts:
+    """Namespaces A, B, C; A joined to B and to C by veth pairs."""
+
+    def __init__(self):
+        for ns in (A, B, C):
+            sh('ip', 'netns', 'add', ns)
+            sh('ip', 'netns', 'exec', ns, 'ip', 'link', 'set', 'lo', 'up')
+        for other, here, there in ((B, A_TO_B, B_ADDR), (C, A_TO_C, C_ADDR)):
+            a_end, o_end = f'{A}{other[-1]}', f'{other}a'
+            sh('ip', 'link', 'add', a_end, 'netns', A, 'type', 'veth', 'peer', 'name', o_end, 'netns', other)
+            for ns, dev, addr in ((A, a_end, here), (other, o_end, there)):
+                sh('ip', 'netns', 'exec', ns, 'ip', 'addr', 'add', f'{addr}/24', 'dev', dev)
+                sh('ip', 'netns', 'exec', ns, 'ip', 'link', 'set', dev, 'up')
+
+    def close(self):
+        for ns in (A, B, C):
+            pids = sh('ip', 'netns', 'pids', ns, check=False).stdout.split()
+            for pid in pids:
+                try:
+                    os.kill(int(pid), 9)
+                except (ProcessLookupError, ValueError):
+                    pass
+            sh('ip', 'netns', 'del', ns, check=False)
+
+
+class Launch:
+    """cartpole.launch on host A with the given ROS variables, in a session of its own."""
+
+    def __init__(self, env):
+        self.env = env
+        self.proc = subprocess.Popen(['ip', 'netns', 'exec', A] + host_env(env) +
+                                     ['roslaunch', 'robot_ai', 'cartpole.launch'], stdout=subprocess.PIPE,
+                                     stderr=subprocess.STDOUT, start_new_session=True)
+        deadline = time.time() + 90
+        while time.time() < deadline:
+            status, out = in_ns(A, env, 'rosservice', 'list')
+            if status == 0 and '/cartpole_sim/push' in out:
+                return
+            time.sleep(1.0)
+        raise AssertionError(f'cartpole.launch on host A did not come up: {out}')
+
+    def uri_of(self, node):
+        """A node's XML-RPC URI, asked of the master on A."""
+        answer = xmlrpc(A, self.env['ROS_MASTER_URI'], 'lookupNode', node)
+        code, _, uri = ast.literal_eval(answer)
+        assert code == 1, answer
+        return uri
+
+    def close(self):
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, 2)
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, 9)
+                self.proc.wait()
+
+
+class TestAcrossMachines(unittest.TestCase):
+
+    @classmethod
+    def setUpClass(cls):
+        if os.geteuid() != 0:
+            raise AssertionError('this test makes network namespaces: run it as root (CI does)')
+        cls.hosts = Hosts()
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.hosts.close()
+
+    def tearDown(self):
+        sh('ip', 'netns', 'exec', A, 'nft', 'flush', 'ruleset', check=False)
+
+    def test_1_across_machines_as_the_readme_says_and_its_firewall(self):
+        master = f'http://{A_TO_B}:11311'
+        launch = Launch({'ROS_IP': A_TO_B, 'ROS_MASTER_URI': master})
+        try:
+            b = {'ROS_IP': B_ADDR, 'ROS_MASTER_URI': master}
+            self.assert_b_uses_a(b)
+            # C was never set up: ROS 1 lets it read the whole graph (and could stop any node)
+            state = xmlrpc(C, f'http://{A_TO_C}:11311', 'getSystemState')
+            self.assertIn('/cartpole_sim/push', state)
+            nft(A, TRUSTED_PEERS_RULES.replace('TRUSTED', B_ADDR))
+            self.assertIn('refused', xmlrpc(C, f'http://{A_TO_C}:11311', 'getSystemState', timeout=5))
+            sim = launch.uri_of('/cartpole_sim').replace(A_TO_B, A_TO_C)
+            self.assertIn('refused', xmlrpc(C, sim, 'getPid', timeout=5))
+            self.assert_b_uses_a(b)
+        finally:
+            launch.close()
+
+    def assert_b_uses_a(self, b):
+        status, out = in_ns(B, b, 'timeout', '-s', 'INT', '15', 'rosrun', 'tf', 'tf_echo', 'rail', 'pole', timeout=40)
+        self.assertIn('- Translation:', out)
+        self.assertIn('- Rotation: in Quaternion', out)
+        status, out = in_ns(B, b, 'rosservice', 'call', '/cartpole_sim/push', 'angular_velocity: 0.01')
+        self.assertEqual(status, 0, out)
+        self.assertIn('success: True', out)
+
+    def test_2_loopback_mode_rosout_answers_other_hosts_until_the_firewall(self):
+        env = {'ROS_HOSTNAME': 'localhost', 'ROS_MASTER_URI': 'http://localhost:11311'}
+        launch = Launch(env)
+        try:
+            rosout = launch.uri_of('/rosout')        # http://localhost:<port>/
+            sim = launch.uri_of('/cartpole_sim')
+            other_host = lambda uri: uri.replace('localhost', A_TO_B)  # noqa: E731
+            self.assertIn('refused ConnectionRefusedError', xmlrpc(B, f'http://{A_TO_B}:11311', 'getSystemState'))
+            self.assertIn('refused ConnectionRefusedError', xmlrpc(B, other_host(sim), 'getPid'))
+            # the README says so: Debian's roscpp rosout listens on every interface and answers anyone
+            self.assertRegex(xmlrpc(B, other_host(rosout), 'getPid'), r'^\[1, .*, \d+\]$')
+            nft(A, LOOPBACK_ONLY_RULES)
+            self.assertIn('refused', xmlrpc(B, other_host(rosout), 'getPid', timeout=5))
+            # on A, ROS still works
+            status, out = in_ns(A, env, 'rosservice', 'call', '/cartpole_sim/push', 'angular_velocity: 0.01')
+            self.assertIn('success: True', out)
+            self.assertRegex(xmlrpc(A, rosout, 'getPid'), r'^\[1, .*, \d+\]$')
+        finally:
+            launch.close()
+
+
+if __name__ == '__main__':
+    rostest.rosrun('robot_ai', 'test_across_machines', TestAcrossMachines)
