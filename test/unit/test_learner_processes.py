@@ -163,11 +163,16 @@ def test_a_result_cut_short_never_blocks_the_parent(monkeypatch, after):
 @pytest.mark.parametrize('signum', [signal.SIGKILL, signal.SIGTERM])
 def test_workers_end_with_their_parent_however_it_ends(signum):
     parent = python('''
+        import socket
         from robot_ai.cartpole import q_learning as ql
+        server = socket.create_server(('127.0.0.1', 0))   # a node's port: no worker may hold it
         ql.train(ql.resolve(episodes=5000, components=200, learners=2), 0, workers=2)
     ''')
     try:
         workers = wait_for(lambda: len(workers_of(parent.pid)) == 2 and workers_of(parent.pid), 30, 'two workers')
+        for w in workers:   # nothing of the parent's but the pipes to it: no socket, no other child's pipe
+            links = [os.readlink(f'/proc/{w}/fd/{fd}') for fd in os.listdir(f'/proc/{w}/fd')]
+            assert not [link for link in links if link.startswith('socket:')], links
         os.kill(parent.pid, signum)
         parent.wait(10)
         wait_for(lambda: not any(alive(w) for w in workers), 5, f'workers gone after a {signum.name} of the parent')

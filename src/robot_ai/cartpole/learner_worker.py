@@ -8,6 +8,7 @@ HEARTBEAT_SECONDS from a thread of its own (a stopped or hung process falls sile
 when learner j has played every episode. The process ends with its parent (SIGKILL: it has nothing to save; the
 parent has every episode's total already), and its BLAS runs on one thread: each worker has a core of its own.
 """
+import importlib
 import os
 import signal
 import sys
@@ -27,7 +28,8 @@ def main() -> int:
     from robot_ai.cartpole.dynamics import CartPoleDynamics
     from robot_ai.cartpole.q_learning import Training, greedy_average, train_one
     threadpool_limits(1)
-    warnings.simplefilter('ignore', DeprecationWarning)  # gymnasium's CartPole-v0 warning: the parent has shown it
+    importlib.import_module('gymnasium')  # it sets its warning filters at import: ignore its deprecations after
+    warnings.simplefilter('ignore', DeprecationWarning)  # CartPole-v0's: the parent has shown it
     # The frames get stdout's pipe to themselves; anything a library prints goes to stderr.
     out = os.fdopen(os.dup(sys.stdout.fileno()), 'wb')
     os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
