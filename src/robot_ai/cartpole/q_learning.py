@@ -442,7 +442,7 @@ def _result(training: Training, seed: int, learners: dict, cancelled: bool, elap
 
 
 # ------------------------------------------------------------------------------------------ worker processes
-SILENCE_SECONDS = 5.0  # a worker that sends nothing for this long (stopped, hung) is killed: its learner failed
+SILENCE_SECONDS = 10.0  # a worker that sends nothing for this long (stopped, hung) is killed: its learner failed
 
 
 @dataclass
