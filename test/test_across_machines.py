@@ -65,18 +65,8 @@ def nft(ns, rules):
     assert proc.returncode == 0, proc.stderr
 
 
-# The README's rules, word for word (README "Security: ROS 1 on a network").
-TRUSTED_PEERS_RULES = '''
-table inet ros_guard {
-  chain input {
-    type filter hook input priority 0; policy accept;
-    iifname "lo" accept
-    ct state established,related accept
-    ip saddr { TRUSTED } accept
-    tcp flags syn drop
-  }
-}
-'''
+# The README's rules, word for word (README "Security: ROS 1 on a network"); across machines, the other ROS
+# machines are admitted before the last line.
 LOOPBACK_ONLY_RULES = '''
 table inet ros_guard {
   chain input {
@@ -87,6 +77,7 @@ table inet ros_guard {
   }
 }
 '''
+TRUSTED_PEERS_RULES = LOOPBACK_ONLY_RULES.replace('    tcp flags syn drop', '    ip saddr { TRUSTED } accept\n    tcp flags syn drop')
 
 
 class Hosts:

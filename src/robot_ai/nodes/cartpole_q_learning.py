@@ -13,7 +13,8 @@ ROS Services
     ~train (robot_ai/QLearning): train; when it ends, every learner's greedy agent plays 100 greedy episodes
         (start states from the training's seed), the best (greedy average, then last-100 average) is saved as a
         policy file, and becomes the node's agent if it does at least as well as the current agent on those
-        same episodes.
+        same episodes. Learners run in worker processes (q_learning.train): a learner whose process dies or hangs
+        is named in the message and the log, and the others' results come back.
     ~evaluate (robot_ai/EvaluateAgent): greedy episodes of the agent, one call at a time (later calls wait).
     ~act (robot_ai/Act): the agent's greedy action for one state.
     ~load_policy (robot_ai/LoadPolicy): load a Q-learning policy file as the agent; a bad file changes nothing.
