@@ -81,15 +81,27 @@ def main(argv: list[str] | None = None) -> int:
     if libc.prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0) != 0:
         print('launch_guard: this system cannot adopt orphans (PR_SET_CHILD_SUBREAPER); running the command '
               'unguarded', file=sys.stderr)
-    proc = subprocess.Popen(command)
+    child: dict = {'pid': None, 'pending': []}
 
     def pass_on(signum, frame):
-        if proc.poll() is None:
-            proc.send_signal(signum)
+        if child['pid'] is None:
+            child['pending'].append(signum)  # before the command has started: sent once it has
+        else:
+            os.kill(child['pid'], signum)    # not reaped before the loop below reaps it: the pid is still the command's
     signal.signal(signal.SIGINT, lambda signum, frame: None)  # the terminal sends it to the command too
     signal.signal(signal.SIGTERM, pass_on)
     signal.signal(signal.SIGHUP, pass_on)
-    status = proc.wait()
+    proc = subprocess.Popen(command)
+    child['pid'] = proc.pid
+    for signum in child['pending']:
+        os.kill(proc.pid, signum)
+    while True:  # reap the orphans the command's processes leave as they go, until the command itself ends
+        pid, wait_status = os.waitpid(-1, 0)
+        if pid == proc.pid:
+            status = os.waitstatus_to_exitcode(wait_status)
+            break
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
     left = end_leftovers()
     if left:
         print(f'launch_guard: {command[0]} ended ({describe(status)}) and left {len(left)} processes running; '
