@@ -81,7 +81,7 @@ class PlotProcess:
 
     A job waits in a queue of PENDING; a writer thread hands it to the plot process (restarted if it died), which
     acknowledges every plot (written or failed). A plot process that hangs only stalls that thread: once PENDING
-    jobs wait, or a plot handed over ACK_SECONDS ago is not acknowledged, draw() says the plot process is behind
+    jobs wait, or plots wait and none was acknowledged for ACK_SECONDS, draw() says the plot process is behind
     and the plot is skipped, never a search or a training; a plot process silent twice that long is killed (its
     plots logged as lost) and the next plot starts another. The plot process (robot_ai.child_process.spawn)
     ends with the node however the node ends, and a Ctrl-C meant for the node never reaches it."""
@@ -92,6 +92,7 @@ class PlotProcess:
         self.jobs = queue.Queue(maxsize=self.PENDING)
         self.lock = threading.Lock()
         self.handed: dict[str, float] = {}  # path -> when it was handed to the plot process, until acknowledged
+        self.last_ack = time.monotonic()     # the plot process's last `written` or `failed`
         self.proc = None
         self._start()
         threading.Thread(target=self._hand_over, name='plot jobs', daemon=True).start()
@@ -110,21 +111,23 @@ class PlotProcess:
             if status in ('written', 'failed'):
                 with self.lock:
                     self.handed.pop(rest.split(': ', 1)[0] if status == 'failed' else rest, None)
+                    self.last_ack = time.monotonic()
                 (rospy.loginfo if status == 'written' else rospy.logerr)(f'plot {line}')
             elif line:
                 rospy.logwarn(f'plot process: {line}')
 
     def overdue(self, seconds: float | None = None) -> str:
-        """Why the plot process is behind ('' if it is not): a plot handed over `seconds` (ACK_SECONDS) ago is
-        not acknowledged."""
+        """Why the plot process is behind ('' if it is not): plots wait for it and it has acknowledged none for
+        `seconds` (ACK_SECONDS) since the oldest was handed over. A backlog it works through is not behind."""
         with self.lock:
             if not self.handed:
                 return ''
             path, since = min(self.handed.items(), key=lambda item: item[1])
-        waited = time.monotonic() - since
-        if waited < (self.ACK_SECONDS if seconds is None else seconds):
+            silent = time.monotonic() - max(since, self.last_ack)
+        if silent < (self.ACK_SECONDS if seconds is None else seconds):
             return ''
-        return f'the plot process is behind ({os.path.basename(path)} handed to it {waited:.0f} s ago is not written)'
+        return (f'the plot process is behind ({os.path.basename(path)} not written, nothing acknowledged for '
+                f'{silent:.0f} s)')
 
     def draw(self, job: dict, path: str) -> str:
         """Queue a plot job; '' if queued, else why the plot is skipped."""
