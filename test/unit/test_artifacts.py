@@ -101,6 +101,14 @@ def test_q_learning_plot(tmp_path):
     assert [h['y'] for h in job['hlines']] == [result.baseline_total_reward, 199]
     path = artifacts.write_plot(job, str(tmp_path / 'q.png'))
     assert Image.open(path).size == (1000, 560)
+    assert 'failed' not in job['title']
+    # a learner whose process died: its curve stops early, and the title says so beside the finished learners
+    partial = {0: (result.total_rewards[0], result.agents[0], 100.0), 1: (result.total_rewards[1][:40], None, None),
+               2: (result.total_rewards[2], result.agents[2], 120.0)}
+    failed = q_learning._result(result.training, 0, partial, False, 1.0, {1: 'its process was killed by SIGKILL'})
+    assert artifacts.q_learning_plot_job(failed)['title'].endswith(
+        f'2 learners, last-100 average {failed.mean_last100:.1f} $\\pm$ {failed.ci95_last100:.1f}\n'
+        'learner 1 failed: the curve stops where the process did')
 
 
 def test_unwritable_reason_for_a_full_disk(tmp_path, monkeypatch):

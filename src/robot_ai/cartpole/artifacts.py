@@ -89,6 +89,9 @@ def q_learning_plot_job(result) -> dict:
     spread = (f'{len(result.last100_averages)} learners, last-100 average {result.mean_last100:.1f} '
               f'$\\pm$ {result.ci95_last100:.1f}' if len(result.last100_averages) > 1   # mathtext: a real +-
               else f'last-100 average {result.mean_last100:.1f}')
+    if result.failed:   # their curves stop where their processes did
+        spread += (f'\n{"learners" if len(result.failed) > 1 else "learner"} {", ".join(map(str, result.failed))} '
+                   'failed: the curve stops where the process did')
     return dict(
         title=f'{result.env_id} Q-learning, {t.regressor} regressor, {len(RBF_GAMMAS)} x {t.components} RBF features, '
               f'seed {result.seed}: {spread}',
