@@ -17,6 +17,8 @@ import rostest
 import numpy as np
 from PIL import Image
 
+from robot_ai.child_process import process_stat
+
 ARTIFACTS = os.path.join(rospkg.RosPack().get_path('robot_ai'), '..', '..', 'build', 'test_artifacts')
 
 
@@ -191,8 +193,7 @@ class TestLaunch(unittest.TestCase):
             os.kill(int(roslaunch[0]), signal.SIGKILL)
             shell.wait(30)   # tee saw the end of its input: nothing holds roslaunch's output any more
             self.assertEqual(shell.returncode, 128 + signal.SIGKILL)
-            left = [p for p in started if os.path.exists(f'/proc/{p}')
-                    and open(f'/proc/{p}/stat').read().rsplit(')', 1)[1].split()[0] != 'Z']
+            left = [p for p in started if (stat := process_stat(int(p))) is not None and stat.state != 'Z']
             self.assertEqual(left, [])
         finally:
             if shell.poll() is None:

@@ -24,6 +24,7 @@ import signal
 import struct
 import subprocess
 import sys
+from dataclasses import dataclass
 from typing import BinaryIO
 
 PARENT_PID_ENV = 'ROBOT_AI_PARENT_PID'
@@ -46,10 +47,33 @@ def die_with_parent(signum: int = signal.SIGTERM) -> None:
     parent = os.environ.get(PARENT_PID_ENV)
     if not sys.platform.startswith('linux'):
         return
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(PR_SET_PDEATHSIG, int(signum), 0, 0, 0)
+    prctl(PR_SET_PDEATHSIG, int(signum))
     if parent and os.getppid() != int(parent):  # the parent ended before prctl: no signal will come
         os._exit(1)
+
+
+def prctl(option: int, value: int) -> bool:
+    """Linux's prctl(option, value); whether it succeeded."""
+    return ctypes.CDLL(None, use_errno=True).prctl(option, value, 0, 0, 0) == 0
+
+
+@dataclass(frozen=True)
+class ProcessStat:
+    """What /proc/<pid>/stat says of a process: its state letter ('R', 'S', 'T' stopped, 'Z' zombie, ...) and its
+    parent's pid."""
+    state: str
+    ppid: int
+
+
+def process_stat(pid: int) -> ProcessStat | None:
+    """/proc/<pid>/stat's state and parent; None if there is no such process. (The name, in parentheses, may hold
+    spaces and parentheses: the fields are read after its last ')'.)"""
+    try:
+        with open(f'/proc/{pid}/stat') as f:
+            fields = f.read().rsplit(')', 1)[1].split()
+        return ProcessStat(fields[0], int(fields[1]))
+    except (OSError, IndexError, ValueError):
+        return None
 
 
 def write_frame(stream: BinaryIO, message) -> None:

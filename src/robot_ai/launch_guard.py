@@ -11,12 +11,13 @@ roslaunch sends), then SIGTERM after GRACE_SECONDS, then SIGKILL, and exits with
 A Ctrl-C reaches the command from the terminal and the guard waits for it; a SIGTERM or SIGHUP to the guard is
 passed on to the command.
 """
-import ctypes
 import os
 import signal
 import subprocess
 import sys
 import time
+
+from robot_ai.child_process import prctl, process_stat
 
 PR_SET_CHILD_SUBREAPER = 36
 GRACE_SECONDS = 5.0
@@ -25,16 +26,10 @@ GRACE_SECONDS = 5.0
 def descendants(pid: int) -> list[int]:
     """Every live process below pid (children first), from /proc."""
     children: dict[int, list[int]] = {}
-    for entry in os.listdir('/proc'):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f'/proc/{entry}/stat') as f:
-                fields = f.read().rsplit(')', 1)[1].split()
-        except (OSError, IndexError):
-            continue
-        if fields[0] != 'Z':
-            children.setdefault(int(fields[1]), []).append(int(entry))
+    for entry in filter(str.isdigit, os.listdir('/proc')):
+        stat = process_stat(int(entry))
+        if stat is not None and stat.state != 'Z':
+            children.setdefault(stat.ppid, []).append(int(entry))
     found, todo = [], list(children.get(pid, []))
     while todo:
         p = todo.pop(0)
@@ -77,8 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     if not command:
         print('usage: python -m robot_ai.launch_guard COMMAND [ARG ...]', file=sys.stderr)
         return 2
-    libc = ctypes.CDLL(None, use_errno=True)
-    if libc.prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0) != 0:
+    if not prctl(PR_SET_CHILD_SUBREAPER, 1):
         print('launch_guard: this system cannot adopt orphans (PR_SET_CHILD_SUBREAPER); running the command '
               'unguarded', file=sys.stderr)
     child: dict = {'pid': None, 'pending': []}

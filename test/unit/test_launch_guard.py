@@ -6,6 +6,8 @@ import subprocess
 import sys
 import time
 
+from robot_ai.child_process import ProcessStat, process_stat
+
 SRC = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..', 'src'))
 
 
@@ -53,15 +55,8 @@ def test_orphans_are_reaped_while_the_command_runs():
     """Processes that end while the command runs leave no zombie under the guard."""
     proc = guard('bash', '-c', '(sleep 0.2 &) ; (sleep 0.2 &) ; sleep 2')
     time.sleep(1.2)
-    zombies = []
-    for entry in filter(str.isdigit, os.listdir('/proc')):
-        try:
-            with open(f'/proc/{entry}/stat') as f:
-                fields = f.read().rsplit(')', 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == proc.pid and fields[0] == 'Z':
-            zombies.append(entry)
+    zombies = [e for e in filter(str.isdigit, os.listdir('/proc'))
+               if process_stat(int(e)) == ProcessStat('Z', proc.pid)]
     proc.communicate(timeout=30)
     assert zombies == []
     assert proc.returncode == 0

@@ -12,6 +12,7 @@ import time
 import pytest
 
 from robot_ai.cartpole import q_learning as ql
+from robot_ai.child_process import process_stat
 
 SRC = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..', 'src'))
 
@@ -22,26 +23,13 @@ def small(episodes, learners, components=50):
 
 def workers_of(pid: int) -> list[int]:
     """The processes whose parent is pid (its learner processes in these tests)."""
-    found = []
-    for entry in os.listdir('/proc'):
-        if not entry.isdigit():
-            continue
-        try:
-            with open(f'/proc/{entry}/stat') as f:
-                ppid = int(f.read().rsplit(')', 1)[1].split()[1])
-        except (OSError, IndexError, ValueError):
-            continue
-        if ppid == pid:
-            found.append(int(entry))
-    return found
+    return [int(e) for e in filter(str.isdigit, os.listdir('/proc'))
+            if (stat := process_stat(int(e))) is not None and stat.ppid == pid]
 
 
 def alive(pid: int) -> bool:
-    try:
-        with open(f'/proc/{pid}/stat') as f:
-            return f.read().rsplit(')', 1)[1].split()[0] != 'Z'
-    except OSError:
-        return False
+    stat = process_stat(pid)
+    return stat is not None and stat.state != 'Z'
 
 
 def wait_for(predicate, timeout: float, what: str):

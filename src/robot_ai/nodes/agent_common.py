@@ -22,7 +22,7 @@ from robot_ai.cartpole.artifacts import (artifact_stem, default_output_dir, remo
                                          write_csv)
 from robot_ai.cartpole.dynamics import RequestError
 from robot_ai.cartpole.policies import Policy, PolicyError
-from robot_ai.child_process import spawn
+from robot_ai.child_process import process_stat, spawn
 from robot_ai.plot_worker import job_line
 from robot_ai.srv import LoadPolicyResponse
 
@@ -205,11 +205,8 @@ class PlotProcess:
 
 def stopped(proc: subprocess.Popen) -> bool:
     """Whether a child is stopped (SIGSTOP, a Ctrl-Z): it will not finish anything before it is continued."""
-    try:
-        with open(f'/proc/{proc.pid}/stat') as f:
-            return f.read().rsplit(')', 1)[1].split()[0] in ('T', 't')
-    except (OSError, IndexError):
-        return False
+    stat = process_stat(proc.pid)
+    return stat is not None and stat.state in ('T', 't')
 
 
 def prepare_output_dir(output_dir: str) -> str:
