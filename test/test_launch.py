@@ -5,6 +5,7 @@ under Xvfb, a screenshot of rviz's 3D view shows the robot and its frames, not o
 Each launch gets its own master on a free port, so it does not disturb rostest's."""
 import os
 import random
+import re
 import shutil
 import signal
 import socket
@@ -318,7 +319,8 @@ class TestLaunch(unittest.TestCase):
             env = dict(os.environ, DISPLAY=display, HOME=home, ROS_HOME=rospkg.get_ros_home())
             proc = launch(launch_args, env, launch_file)
             shot = os.path.abspath(os.path.join(ARTIFACTS, name))
-            counts = {}
+            counts, output, restarted = {}, b'', False
+            os.set_blocking(proc.stdout.fileno(), False)
             deadline = time.time() + 90
             while time.time() < deadline:
                 time.sleep(3.0)
@@ -327,6 +329,16 @@ class TestLaunch(unittest.TestCase):
                 counts = colour_counts(shot)
                 if drawn(counts):
                     break
+                output += proc.stdout.read() or b''
+                crash = re.search(rb'\[rviz[^\]]*\] process has died \[pid \d+, exit code -\d+', output)
+                if crash and not restarted:
+                    # Debian's rviz under software GL crashed at start (SIGSEGV 1 s in, seen once in about 35
+                    # launches): not this package's doing. Once, the launch starts over; a second crash fails.
+                    print(f'{crash.group().decode()} under {launch_file}: starting the launch again')
+                    stop(proc)
+                    proc = launch(launch_args, env, launch_file)
+                    os.set_blocking(proc.stdout.fileno(), False)
+                    output, restarted, deadline = b'', True, time.time() + 90
             print(f'rviz screenshot: {shot} {counts}')
             if keep_running:
                 self.assertIsNone(proc.poll(), 'with rviz:=true the launch keeps running until stopped')
