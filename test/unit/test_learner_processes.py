@@ -3,6 +3,7 @@ its learner and is noticed within seconds, workers never outlive their parent, t
 
 Every test is bounded in time: a hang is a failure, never a stuck test run."""
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -12,7 +13,7 @@ import time
 import pytest
 
 from robot_ai.cartpole import q_learning as ql
-from robot_ai.child_process import process_stat
+from robot_ai.child_process import FrameReader, process_stat, spawn
 
 SRC = os.path.abspath(os.path.join(os.path.dirname(__file__), '..', '..', 'src'))
 
@@ -71,6 +72,9 @@ def test_trainings_started_while_other_threads_run_blas_never_deadlock():
             n += 1
             print(n, flush=True)
         stop.set()
+        for t in threading.enumerate():   # none left inside OpenBLAS at exit: its exit handler would wait for them
+            if t is not threading.main_thread():
+                t.join()
         print('trainings', n, flush=True)
     ''')
     try:
@@ -127,6 +131,55 @@ def test_a_stopped_worker_is_killed_within_seconds_and_its_learner_reported():
     assert len(result.failed) == 1 and 'sent nothing' in list(result.failed.values())[0], result.failed
     assert len(result.finished) == 1
     assert time.monotonic() - t0 < ql.SILENCE_SECONDS + 20
+
+
+def test_a_worker_is_heard_from_its_start_not_only_once_it_has_work():
+    """A worker's imports (numpy, gymnasium) take seconds on a loaded machine: that is not silence. It sends its
+    heartbeat from its start, before it is told anything."""
+    worker = spawn('robot_ai.cartpole.learner_worker')
+    try:
+        reader, frames, deadline = FrameReader(), [], time.monotonic() + 30
+        while len(frames) < 3 and time.monotonic() < deadline:
+            if select.select([worker.stdout], [], [], 1)[0]:
+                frames += reader.feed(os.read(worker.stdout.fileno(), 1 << 16))
+        assert frames[:3] == [('alive',)] * 3, frames
+    finally:
+        worker.kill()
+        worker.communicate()
+
+
+def test_a_pause_of_the_whole_machine_is_nobodys_silence():
+    """The parent and its workers all stopped for longer than SILENCE_SECONDS (a paused VM, a starved machine),
+    then running again, the parent first: no worker is taken for silent, every learner finishes."""
+    parent = python('''
+        import sys
+        from robot_ai.cartpole import q_learning as ql
+        def progress(j, episode, total, eps):
+            if episode == 1 and j == 0:
+                print('started', flush=True)
+        training = ql.resolve(env_id='CartPole-v0', episodes=5000, components=200, learners=2)
+        result = ql.train(training, 0, progress=progress, workers=2)
+        print(result.finished, result.failed, flush=True)
+    ''')
+    try:
+        assert parent.stdout.readline() == 'started\n'
+        workers = workers_of(parent.pid)
+        assert len(workers) == 2
+        for pid in workers + [parent.pid]:
+            os.kill(pid, signal.SIGSTOP)
+        time.sleep(ql.SILENCE_SECONDS + 2)
+        os.kill(parent.pid, signal.SIGCONT)
+        time.sleep(0.5)
+        for pid in workers:
+            try:
+                os.kill(pid, signal.SIGCONT)
+            except ProcessLookupError:   # taken for silent and killed: the parent's output says so
+                pass
+        out, err = parent.communicate(timeout=120)
+        assert out == '[0, 1] {}\n', err[-2000:]
+    finally:
+        parent.kill()
+        parent.communicate()
 
 
 @pytest.mark.parametrize('after', ['exit', 'sleep'])

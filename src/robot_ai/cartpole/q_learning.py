@@ -38,7 +38,7 @@ from typing import Callable, ClassVar, NamedTuple
 import numpy as np
 
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError, check_state, rng_for, start_states
-from robot_ai.child_process import FrameReader, spawn, write_frame
+from robot_ai.child_process import FrameReader, process_stat, spawn, write_frame
 
 DEFAULTS = dict(env_id='CartPole-v0', episodes=500, gamma=0.99, regressor='tf', components=1000, learners=1)
 REGRESSORS = {'tf': 0.2, 'sgd': 0.1}            # the rate of w += rate (G - x.w) x
@@ -443,6 +443,11 @@ def _result(training: Training, seed: int, learners: dict, cancelled: bool, elap
 
 # ------------------------------------------------------------------------------------------ worker processes
 SILENCE_SECONDS = 10.0  # a worker that sends nothing for this long (stopped, hung) is killed: its learner failed
+# Silence counts only while the parent listens: when more than _PARENT_STALL_SECONDS passes between two of its polls
+# beyond the poll's own wait (the parent starved of the CPU, the machine paused), that time is nobody's silence: the
+# workers may not have run either.
+_POLL_SECONDS = 0.1
+_PARENT_STALL_SECONDS = 1.0
 
 
 @dataclass
@@ -469,6 +474,12 @@ class _Worker:
                 pass
         self.proc.wait()
         self.proc.stdout.close()
+
+    def why_silent(self, seconds: float) -> str:
+        stat = process_stat(self.proc.pid)
+        state = {'T': 'stopped', 't': 'stopped', 'D': 'waiting on the disk', 'R': 'running', 'S': 'sleeping'}.get(
+            stat.state if stat else '', 'gone')
+        return f'its process sent nothing for {seconds:.0f} s ({state}) and was killed'
 
     def why_gone(self) -> str:
         code = self.proc.wait()
@@ -509,6 +520,7 @@ def _train_in_processes(training, seed, workers, progress, should_stop, failed):
                 hand_out(w)
             else:
                 lose(w, 'its process could not be reached')
+        polled = time.monotonic()
         while len(finished) + len(failed) < training.learners:
             if not cancelled and should_stop is not None and should_stop():
                 # Cancel: the learners that played every episode still send their agents; the others end now.
@@ -519,7 +531,12 @@ def _train_in_processes(training, seed, workers, progress, should_stop, failed):
                     lose(w, '')
             if cancelled and not pool:
                 break
-            ready, _, _ = select.select([w.proc.stdout for w in pool], [], [], 0.1)
+            ready, _, _ = select.select([w.proc.stdout for w in pool], [], [], _POLL_SECONDS)
+            now = time.monotonic()
+            stalled, polled = now - polled - _POLL_SECONDS, now  # time the parent itself did not run, if any
+            if stalled > _PARENT_STALL_SECONDS:
+                for w in pool:
+                    w.heard += stalled
             for stream in ready:
                 w = next(w for w in pool if w.proc.stdout is stream)
                 chunk = os.read(stream.fileno(), 1 << 20)
@@ -535,9 +552,8 @@ def _train_in_processes(training, seed, workers, progress, should_stop, failed):
                     elif message[0] == 'done':
                         finished[message[1]] = message[2:]
                         hand_out(w)
-            now = time.monotonic()
-            for w in [w for w in pool if now - w.heard > SILENCE_SECONDS]:
-                lose(w, f'its process sent nothing for {now - w.heard:.0f} s (stopped or hung) and was killed')
+            for w in [w for w in pool if polled - w.heard > SILENCE_SECONDS]:
+                lose(w, w.why_silent(polled - w.heard))
     finally:
         for w in pool:
             w.end()
