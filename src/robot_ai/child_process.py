@@ -25,7 +25,7 @@ import struct
 import subprocess
 import sys
 from dataclasses import dataclass
-from typing import BinaryIO
+from typing import BinaryIO, ClassVar
 
 PARENT_PID_ENV = 'ROBOT_AI_PARENT_PID'
 PR_SET_PDEATHSIG = 1
@@ -63,6 +63,19 @@ class ProcessStat:
     parent's pid."""
     state: str
     ppid: int
+
+    _WORDS: ClassVar[dict[str, str]] = {'R': 'running', 'S': 'sleeping', 'D': 'waiting on the disk', 'T': 'stopped',
+                                        't': 'stopped', 'Z': 'ended'}
+
+    @property
+    def stopped(self) -> bool:
+        """Stopped (SIGSTOP, a Ctrl-Z, a debugger): it will not do anything before it is continued."""
+        return self.state in ('T', 't')
+
+    @property
+    def in_words(self) -> str:
+        """The state for a message: 'running', 'stopped', ..."""
+        return self._WORDS.get(self.state, f'state {self.state}')
 
 
 def process_stat(pid: int) -> ProcessStat | None:

@@ -477,9 +477,7 @@ class _Worker:
 
     def why_silent(self, seconds: float) -> str:
         stat = process_stat(self.proc.pid)
-        state = {'T': 'stopped', 't': 'stopped', 'D': 'waiting on the disk', 'R': 'running', 'S': 'sleeping'}.get(
-            stat.state if stat else '', 'gone')
-        return f'its process sent nothing for {seconds:.0f} s ({state}) and was killed'
+        return f'its process sent nothing for {seconds:.0f} s ({stat.in_words if stat else "gone"}) and was killed'
 
     def why_gone(self) -> str:
         code = self.proc.wait()

@@ -206,7 +206,7 @@ class PlotProcess:
 def stopped(proc: subprocess.Popen) -> bool:
     """Whether a child is stopped (SIGSTOP, a Ctrl-Z): it will not finish anything before it is continued."""
     stat = process_stat(proc.pid)
-    return stat is not None and stat.state in ('T', 't')
+    return stat is not None and stat.stopped
 
 
 def prepare_output_dir(output_dir: str) -> str:
