@@ -15,12 +15,26 @@ namespaces this test makes. Needs root (ip netns), as CI has.
 """
 import ast
 import os
+import shutil
 import subprocess
 import textwrap
 import time
 import unittest
 
 import rostest
+
+
+def system_tool(name):
+    """The absolute path of an administrator's tool: Debian puts nft (and ip's other name) in /usr/sbin, which a
+    plain user's PATH (/usr/local/bin:/usr/bin:/bin) does not hold."""
+    found = shutil.which(name, path=os.pathsep.join([os.environ.get('PATH', ''), '/usr/sbin', '/sbin']))
+    if found is None:
+        raise RuntimeError(f'{name} is not installed (Debian: apt-get install {PACKAGES[name]})')
+    return found
+
+
+PACKAGES = {'ip': 'iproute2', 'nft': 'nftables'}
+IP, NFT = system_tool('ip'), system_tool('nft')
 
 TAG = f'{os.getpid() % 100000}'
 A, B, C = f'rai{TAG}a', f'rai{TAG}b', f'rai{TAG}c'
@@ -42,7 +56,7 @@ def sh(*args, check=True, timeout=30, **kw):
 
 def in_ns(ns, env, *args, timeout=30):
     """Run args inside namespace ns with env (the ROS variables of that host); (status, output)."""
-    proc = subprocess.run(['ip', 'netns', 'exec', ns] + host_env(env) + list(args),
+    proc = subprocess.run([IP, 'netns', 'exec', ns] + host_env(env) + list(args),
                           capture_output=True, text=True, timeout=timeout)
     return proc.returncode, proc.stdout + proc.stderr
 
@@ -60,7 +74,7 @@ def xmlrpc(ns, url, method, *args, timeout=10):
 
 
 def nft(ns, rules):
-    proc = subprocess.run(['ip', 'netns', 'exec', ns, 'nft', '-f', '-'], input=rules, capture_output=True,
+    proc = subprocess.run([IP, 'netns', 'exec', ns, NFT, '-f', '-'], input=rules, capture_output=True,
                           text=True, timeout=30)
     assert proc.returncode == 0, proc.stderr
 
@@ -85,24 +99,24 @@ class Hosts:
 
     def __init__(self):
         for ns in (A, B, C):
-            sh('ip', 'netns', 'add', ns)
-            sh('ip', 'netns', 'exec', ns, 'ip', 'link', 'set', 'lo', 'up')
+            sh(IP, 'netns', 'add', ns)
+            sh(IP, 'netns', 'exec', ns, IP, 'link', 'set', 'lo', 'up')
         for other, here, there in ((B, A_TO_B, B_ADDR), (C, A_TO_C, C_ADDR)):
             a_end, o_end = f'{A}{other[-1]}', f'{other}a'
-            sh('ip', 'link', 'add', a_end, 'netns', A, 'type', 'veth', 'peer', 'name', o_end, 'netns', other)
+            sh(IP, 'link', 'add', a_end, 'netns', A, 'type', 'veth', 'peer', 'name', o_end, 'netns', other)
             for ns, dev, addr in ((A, a_end, here), (other, o_end, there)):
-                sh('ip', 'netns', 'exec', ns, 'ip', 'addr', 'add', f'{addr}/24', 'dev', dev)
-                sh('ip', 'netns', 'exec', ns, 'ip', 'link', 'set', dev, 'up')
+                sh(IP, 'netns', 'exec', ns, IP, 'addr', 'add', f'{addr}/24', 'dev', dev)
+                sh(IP, 'netns', 'exec', ns, IP, 'link', 'set', dev, 'up')
 
     def close(self):
         for ns in (A, B, C):
-            pids = sh('ip', 'netns', 'pids', ns, check=False).stdout.split()
+            pids = sh(IP, 'netns', 'pids', ns, check=False).stdout.split()
             for pid in pids:
                 try:
                     os.kill(int(pid), 9)
                 except (ProcessLookupError, ValueError):
                     pass
-            sh('ip', 'netns', 'del', ns, check=False)
+            sh(IP, 'netns', 'del', ns, check=False)
 
 
 class Launch:
@@ -110,7 +124,7 @@ class Launch:
 
     def __init__(self, env):
         self.env = env
-        self.proc = subprocess.Popen(['ip', 'netns', 'exec', A] + host_env(env) +
+        self.proc = subprocess.Popen([IP, 'netns', 'exec', A] + host_env(env) +
                                      ['roslaunch', 'robot_ai', 'cartpole.launch'], stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, start_new_session=True)
         deadline = time.time() + 90
@@ -151,7 +165,7 @@ class TestAcrossMachines(unittest.TestCase):
         cls.hosts.close()
 
     def tearDown(self):
-        sh('ip', 'netns', 'exec', A, 'nft', 'flush', 'ruleset', check=False)
+        sh(IP, 'netns', 'exec', A, NFT, 'flush', 'ruleset', check=False)
 
     def test_1_across_machines_as_the_readme_says_and_its_firewall(self):
         master = f'http://{A_TO_B}:11311'
