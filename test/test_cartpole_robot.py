@@ -26,7 +26,24 @@ from robot_ai.cartpole.dynamics import CartPoleDynamics
 from robot_ai.msg import CartPoleEpisode
 from robot_ai.srv import PushPole
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from test_launch import free_port  # noqa: E402
+
 STARTED = time.time()
+# a /clock for use_sim_time: 4 s forward, back 0.5 s, then forward again (for a minute at most)
+CLOCK_BACKWARDS = '''
+import time, rospy
+from rosgraph_msgs.msg import Clock
+rospy.init_node('clock', anonymous=True)
+pub = rospy.Publisher('/clock', Clock, queue_size=10)
+t, start, back = 100.0, time.time(), False
+while not rospy.is_shutdown() and time.time() - start < 60:
+    if not back and time.time() - start > 4:
+        t, back = t - 0.5, True
+    t += 0.002
+    pub.publish(Clock(clock=rospy.Time.from_sec(t)))
+    time.sleep(0.002)
+'''
 REAL_TIME_SECONDS = 60       # the rt1 cart-pole must keep its pole up this long
 
 
@@ -59,7 +76,8 @@ class TestCartPoleRobot(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.episodes = {ns: Episodes(f'/{ns}/') for ns in ('rt1', 'rt5', 'file')}
-        for ns in ('lockstep', 'rt1', 'rt5', 'file'):
+        cls.episodes.update({ns: Episodes(f'/{ns}/') for ns in ('lsctl', 'pause')})
+        for ns in ('lockstep', 'rt1', 'rt5', 'file', 'lsctl', 'pause'):
             rospy.wait_for_service(f'/{ns}/cartpole_sim/reset', 60)
 
     # ------------------------------------------------------------------------------------- lockstep
@@ -72,6 +90,9 @@ class TestCartPoleRobot(unittest.TestCase):
         deadline = time.time() + 20
         while (pub.get_num_connections() < 1 or sub.get_num_connections() < 1) and time.time() < deadline:
             time.sleep(0.05)
+        time.sleep(0.5)
+        while not states.empty():                   # the latched state a lockstep sim sends a new subscriber
+            states.get()
         self.assertTrue(reset().success)
         start = states.get(timeout=10)
         env = gym.make('CartPole-v1').unwrapped
@@ -100,11 +121,16 @@ class TestCartPoleRobot(unittest.TestCase):
                 env.state = np.array(start, dtype=np.float64)
         self.assertGreater(steps, 30)
         self.assertGreater(pushes, 3)
-        # NaN and inf are ignored: no step, and the sim goes on with the next finite force
-        for bad in (float('nan'), float('inf')):
+        # NaN, inf and forces beyond MAX_FORCE are ignored: no step, and the sim goes on with the next finite force
+        for bad in (float('nan'), float('inf'), 1e308, -2e4):
             pub.publish(Float64(bad))
         with self.assertRaises(queue.Empty):
             states.get(timeout=1.0)
+        # pushes that would make theta_dot non-finite (two of 1e308 gave inf and nan) are refused
+        for _ in range(2):
+            answer = push(angular_velocity=1e308)
+            self.assertFalse(answer.success)
+            self.assertIn('refused', answer.message)
         pub.publish(Float64(force_mag))
         got = states.get(timeout=10)
         env.step(1)
@@ -199,6 +225,97 @@ class TestCartPoleRobot(unittest.TestCase):
         self.assertGreaterEqual(longest, 1000)
         self.assertFalse([m for m in ended[1:] if m.steps < 200], [(m.steps, m.reason) for m in ended])
         self.assertIn(b'q_learning policy from ' + path.encode(), controller.stdout.read())
+
+    def test_6_lockstep_launch_starts_by_itself_and_extra_forces_do_not_circulate(self):
+        """cartpole.launch lockstep:=true: the sim's start state came before the controller subscribed and each waited
+        for the other (0 states/s). And one extra cart_force by hand circulated for ever (6 gave 297 falls in 6 s)."""
+        states = []
+        sub = rospy.Subscriber('/lsctl/joint_states', JointState, lambda m: states.append(state_of(m)), queue_size=10000)
+        try:
+            deadline = time.time() + 30
+            while len(states) < 2000 and time.time() < deadline:
+                time.sleep(0.1)
+            self.assertGreaterEqual(len(states), 2000, 'the lockstep cart-pole did not start by itself')
+            pub = rospy.Publisher('/lsctl/cart_force', Float64, queue_size=10)
+            while pub.get_num_connections() < 1 and time.time() < deadline + 10:
+                time.sleep(0.05)
+            t = time.time()
+            for _ in range(6):
+                pub.publish(Float64(10.0))
+                time.sleep(0.05)
+            time.sleep(5.0)
+            pub.unregister()
+        finally:
+            sub.unregister()
+        ended = self.episodes['lsctl'].since(t)
+        print(f'lsctl episodes after 6 extra forces: {[(m.steps, m.reason) for m in ended]}')
+        self.assertFalse([m for m in ended if m.reason == 'pole fell'], [(m.steps, m.reason) for m in ended])
+        self.assertTrue(all(m.steps >= 200 for m in ended[1:]), [(m.steps, m.reason) for m in ended])
+
+    def test_7_reset_during_a_long_reset_pause_starts_the_episode_at_once(self):
+        """~reset while the sim waited out a reset pause of 1e9 s published one state and nothing more."""
+        pause = self.episodes['pause']
+        self.assertTrue(pause.wait(1, STARTED, 30), 'the uncontrolled pole did not fall')
+        states = []
+        sub = rospy.Subscriber('/pause/joint_states', JointState, lambda m: states.append(state_of(m)), queue_size=1000)
+        try:
+            time.sleep(1.0)
+            self.assertEqual(states, [], 'the sim stepped during its reset pause')
+            t = time.time()
+            self.assertTrue(rospy.ServiceProxy('/pause/cartpole_sim/reset', Trigger)().success)
+            fell = pause.wait(1, t, 30)
+        finally:
+            sub.unregister()
+        self.assertTrue(fell, f'{len(states)} states after ~reset, and no episode')
+        self.assertGreater(fell[0].steps, 5)
+        self.assertEqual(len(states), fell[0].steps + 1, 'the new start state and every step until the fall')
+
+    def test_8_a_starved_controller_is_waited_for(self):
+        """The sim steps on the clock and also waits for the controller's answer: a controller that gets no CPU for
+        3 s (SIGSTOP, as a loaded machine does in short) makes the loop pause, not act on stale states."""
+        import rosgraph
+        import xmlrpc.client
+        uri = rosgraph.Master('/test_cartpole_robot').lookupNode('/rt5/cartpole_controller')
+        pid = xmlrpc.client.ServerProxy(uri).getPid('/test_cartpole_robot')[2]
+        t = time.time()
+        os.kill(pid, 19)     # SIGSTOP
+        try:
+            time.sleep(3.0)
+        finally:
+            os.kill(pid, 18)  # SIGCONT
+        ended = self.episodes['rt5'].wait(1, t + 3.0, 60)
+        self.assertTrue(ended, 'no episode ended after the controller went on')
+        self.assertFalse([m for m in ended if m.reason == 'pole fell'], [(m.steps, m.reason, m.missed_steps)
+                                                                         for m in ended])
+        missed = sum(m.missed_steps for m in ended)
+        self.assertLessEqual(missed, 5, 'steps taken without an answer: at most one per ~answer_timeout (1 s)')
+
+    def test_8b_clock_going_backwards_under_sim_time(self):
+        """Under use_sim_time, /clock going back 0.5 s ended cartpole_sim silently with status 0: it goes on."""
+        port = free_port()
+        env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{port}')
+        core = subprocess.Popen(['roscore', '-p', str(port)], env=env, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL, start_new_session=True)
+        procs = []
+        try:
+            deadline = time.time() + 30
+            while subprocess.run(['rosparam', 'set', '/use_sim_time', 'true'], env=env,
+                                 capture_output=True).returncode != 0 and time.time() < deadline:
+                time.sleep(0.3)
+            procs.append(subprocess.Popen([sys.executable, '-c', CLOCK_BACKWARDS], env=env))
+            procs.append(subprocess.Popen(['rosrun', 'robot_ai', 'cartpole_sim'], env=env, stdout=subprocess.PIPE,
+                                          stderr=subprocess.STDOUT, start_new_session=True))
+            time.sleep(9.0)                   # 4 s of /clock, back 0.5 s, 5 s more
+            self.assertIsNone(procs[1].poll(), 'cartpole_sim ended when ROS time went backwards')
+            echo = subprocess.run(['rostopic', 'echo', '-n', '3', '/joint_states/position'], env=env,
+                                  capture_output=True, text=True, timeout=30)
+            self.assertEqual(echo.stdout.count('---'), 3, echo.stdout + echo.stderr)
+        finally:
+            for proc in procs[1:] + [core]:
+                if proc.poll() is None:
+                    os.killpg(proc.pid, 2)
+                    proc.wait(20)
+            procs[0].kill()
 
     def test_9_real_time_no_fall_for_a_minute(self):
         rt1 = self.episodes['rt1']

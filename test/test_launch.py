@@ -74,6 +74,20 @@ def descendants(pid):
     return out
 
 
+def tracebacks(text):
+    """The tracebacks in a launch's output, each as its frame lines (up to the first line that is not indented)."""
+    found, lines = [], text.splitlines()
+    for i, line in enumerate(lines):
+        if line.startswith('Traceback (most recent call last):'):
+            frames = []
+            for frame in lines[i + 1:]:
+                if not frame.startswith(' '):
+                    break
+                frames.append(frame)
+            found.append(frames)
+    return found
+
+
 def start_xvfb():
     """(display name, Xvfb process) of a new virtual screen."""
     display = ':%d' % free_display()
@@ -172,6 +186,20 @@ class TestLaunch(unittest.TestCase):
             text = out.decode(errors='replace')
             self.assertNotIn('Traceback', text, f'{launch_file} after {wait} s:\n{text[-3000:]}')
             self.assertNotIn('KeyboardInterrupt', text, launch_file)
+
+    def test_ctrl_c_at_any_moment_of_the_start_prints_no_traceback_of_the_package(self):
+        """Issue 23: a Ctrl-C while a node was still importing (or inside init_node) printed a KeyboardInterrupt or
+        ROSInitException traceback. Ten random moments of the first 2 s of cartpole_search.launch: none from the
+        package's processes. (Debian's roslaunch can print its own while it imports, in its first half second.)"""
+        moments = sorted(random.uniform(0.0, 2.0) for _ in range(10))
+        for wait in moments:
+            proc = launch(['output_dir:=' + os.path.join(ARTIFACTS, 'ctrl_c')], launch_file='cartpole_search.launch')
+            time.sleep(wait)
+            os.killpg(proc.pid, signal.SIGINT)
+            out, _ = proc.communicate(timeout=60)
+            text = out.decode(errors='replace')
+            ours = [tb for tb in tracebacks(text) if any('/robot_ai/' in line for line in tb)]
+            self.assertEqual(ours, [], f'Ctrl-C after {wait:.2f} s:\n{text[-3000:]}')
 
     def test_sigkill_of_roslaunch_under_the_guard_leaves_nothing_behind(self):
         """Issue 18: SIGKILL of roslaunch orphaned every node (the master, rosout, the nodes), and `make demo`'s

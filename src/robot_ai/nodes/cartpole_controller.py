@@ -19,6 +19,8 @@ ROS Services
     ~enable (std_srvs/SetBool): switch the controller on (true) or off (false).
     ~load_policy (robot_ai/LoadPolicy): drive with another policy file (either kind); a bad file changes nothing.
 """
+import time
+
 import numpy as np
 import rospy
 from sensor_msgs.msg import JointState
@@ -32,6 +34,8 @@ from robot_ai.nodes.agent_common import answer_load
 from robot_ai.nodes.cartpole_sim import JOINTS
 from robot_ai.nodes.params import publish, run_node, str_param
 from robot_ai.srv import LoadPolicy
+
+SIM_CONNECT = 2.0    # seconds the first answer waits for the sim to connect to cart_force
 
 
 def course_policy() -> policies.Policy:
@@ -58,6 +62,7 @@ class CartPoleController:
         self.force_mag = CartPoleDynamics.of(self.policy.env_id).force_mag
         self.enabled = True
         self.layout = None                    # (names, indices of cart_slider and pole_hinge) of the last message
+        self.waited_for_sim = False           # a state came while no sim listened to cart_force, and we waited
         self.force_pub = rospy.Publisher('cart_force', Float64, queue_size=10, tcp_nodelay=True)
         self.sub = rospy.Subscriber('joint_states', JointState, self._on_state, queue_size=10, tcp_nodelay=True)
         self.services = [rospy.Service('~enable', SetBool, self._on_enable),
@@ -80,6 +85,7 @@ class CartPoleController:
             return
         (i, j), policy = indices, self.policy
         if not self.enabled:
+            self._wait_for_sim()
             publish(self.force_pub, Float64(0.0))
             return
         # the agents saw gymnasium's float32 observation: the policy sees the same here
@@ -89,7 +95,21 @@ class CartPoleController:
         except RequestError as e:
             rospy.logwarn_throttle(5.0, f'state skipped: {e}')
             return
+        self._wait_for_sim()
         publish(self.force_pub, Float64(self.force_mag if action == 1 else -self.force_mag))
+
+    def _wait_for_sim(self) -> None:
+        """A state can reach this node before the sim has connected to its cart_force: the answer would be lost,
+        and a lockstep sim would wait for it for ever. Wait for the connection, once, up to SIM_CONNECT seconds."""
+        if self.force_pub.get_num_connections() > 0:
+            self.waited_for_sim = False
+            return
+        if self.waited_for_sim:
+            return
+        deadline = time.monotonic() + SIM_CONNECT
+        while self.force_pub.get_num_connections() == 0 and time.monotonic() < deadline and not rospy.is_shutdown():
+            time.sleep(0.01)
+        self.waited_for_sim = self.force_pub.get_num_connections() == 0
 
     def _on_enable(self, req) -> SetBoolResponse:
         self.enabled = bool(req.data)

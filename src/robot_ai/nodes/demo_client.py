@@ -30,11 +30,12 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from robot_ai.msg import CartPoleEpisode
-from robot_ai.nodes.params import bool_param, int_param, number_param, str_param
+from robot_ai.nodes.params import bool_param, int_param, number_param, quiet_on_shutdown, str_param
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.srv import LoadPolicy, PushPole, QLearning, RandomSearch
 
 UPRIGHT = 0.02           # rad: the pole counts as back upright within this of vertical
+STALL = 20.0             # seconds without a cart-pole state after which the closed loop counts as stopped
 
 
 def wait_plot(path: str, timeout: float = 10.0) -> bool:
@@ -43,6 +44,14 @@ def wait_plot(path: str, timeout: float = 10.0) -> bool:
     while path and not os.path.isfile(path) and time.time() < deadline:
         time.sleep(0.1)
     return bool(path) and os.path.isfile(path)
+
+
+def artifact_failures(what: str, plot_ok: bool, record_video: bool, video_path: str) -> list[str]:
+    """The missing files of a search or a training, as verdict items."""
+    failed = [] if plot_ok else [f'the {what}\'s learning-curve plot is missing']
+    if record_video and not os.path.isfile(video_path):
+        failed.append(f'the {what}\'s video is missing')
+    return failed
 
 
 def frames(base: str, tip: str) -> tuple[str, str]:
@@ -56,31 +65,32 @@ def frames(base: str, tip: str) -> tuple[str, str]:
     return base or tree.root, tip or tree.end_effector()
 
 
-def watch(states: queue.Queue, episodes: list, steps: int, timeout: float) -> tuple[list, list, float]:
+def watch(states: queue.Queue, episodes: list, steps: int, stall: float = STALL) -> tuple[list, list, float]:
     """The next `steps` cart-pole states (x, theta), the episodes that ended meanwhile, and the wall seconds it
-    took (bounded by timeout)."""
+    took. It waits as long as states keep coming (the sim waits for its controller, so a busy machine makes it
+    slower, not wrong); it gives up after `stall` seconds without one."""
     seen, first = [], len(episodes)
-    t0 = time.time()
-    deadline = t0 + timeout
-    while len(seen) < steps and time.time() < deadline:
+    t0 = last = time.time()
+    while len(seen) < steps and time.time() - last < stall and not rospy.is_shutdown():
         try:
             seen.append(states.get(timeout=0.5))
+            last = time.time()
         except queue.Empty:
             pass
     return seen, episodes[first:], time.time() - t0
 
 
-def closed_loop(ns: str, policy_path: str, balance_steps: int, push: float) -> tuple[list[str], bool]:
-    """Drive the cart-pole with the policy file, watch it, push it: (summary lines, whether it held)."""
+def closed_loop(ns: str, policy_path: str, balance_steps: int, push: float) -> tuple[list[str], list[str]]:
+    """Drive the cart-pole with the policy file, watch it, push it: (summary lines, the checks that failed)."""
     lines = []
     try:
         for name in ('cartpole_controller/load_policy', 'cartpole_sim/reset', 'cartpole_sim/push'):
             rospy.wait_for_service(f'{ns}/{name}', 30)
         loaded = rospy.ServiceProxy(f'{ns}/cartpole_controller/load_policy', LoadPolicy)(path=policy_path)
     except (rospy.ROSException, rospy.ServiceException) as e:
-        return [f'  cartpole_sim and cartpole_controller not reached: {e}'], False
+        return [f'  cartpole_sim and cartpole_controller not reached: {e}'], [f'cart-pole nodes not reached: {e}']
     if not loaded.success:
-        return [f'  the controller refused the policy: {loaded.message}'], False
+        return [f'  the controller refused the policy: {loaded.message}'], ['the controller refused the policy']
     tau = 0.02
     rtf = rospy.get_param(f'{ns}/cartpole_sim/real_time_factor', 1.0)
     states, episodes = queue.Queue(), []
@@ -88,22 +98,30 @@ def closed_loop(ns: str, policy_path: str, balance_steps: int, push: float) -> t
                            queue_size=10000)
     ep_sub = rospy.Subscriber(f'{ns}/cartpole_sim/episodes', CartPoleEpisode, episodes.append, queue_size=100)
     try:
-        time.sleep(0.5)                                       # the subscriptions connect
+        deadline = time.time() + 10
+        while (sub.get_num_connections() < 1 or ep_sub.get_num_connections() < 1) and time.time() < deadline:
+            time.sleep(0.05)                                  # the subscriptions connect
         rospy.ServiceProxy(f'{ns}/cartpole_sim/reset', Trigger)()
         while not states.empty():
             states.get()
-        wall = 3 * balance_steps * tau / rtf + 10
-        seen, ended, seconds = watch(states, episodes, balance_steps, wall)
+        seen, ended, seconds = watch(states, episodes, balance_steps)
         fell = [e for e in ended if e.reason == 'pole fell']
         up = (fell[0].steps if fell else len(seen)) * tau
         drift = sum(e.reason == 'cart left the rail' for e in ended)
+        missed = sum(e.missed_steps for e in ended)
         lines.append(f'  {loaded.message}')
         lines.append(f'cartpole: the pole stayed up {up:.1f} s of {len(seen) * tau:.1f} s of simulated time '
-                     f'(real_time_factor {rtf:g}: {len(seen) / max(1e-9, seconds):.0f} states/s measured)'
+                     f'(real_time_factor {rtf:g}: {len(seen) / max(1e-9, seconds):.0f} states/s measured'
+                     + (f', {missed} steps without the controller\'s answer' if missed else '') + ')'
                      + (f'; the cart left the rail {drift} time(s) and the sim reset (the policy\'s drift)'
                         if drift else ''))
+        failed = []
+        if fell:
+            failed.append(f'the pole fell after {fell[0].steps} steps')
+        if len(seen) < balance_steps:
+            failed.append(f'{len(seen)} of {balance_steps} states arrived (none for {STALL:g} s)')
         rospy.ServiceProxy(f'{ns}/cartpole_sim/push', PushPole)(angular_velocity=push)
-        after, ended, _ = watch(states, episodes, 250, 3 * 250 * tau / rtf + 10)
+        after, ended, _ = watch(states, episodes, 250)
         fell_after = [e for e in ended if e.reason == 'pole fell']
         peak = max((abs(theta) for _, theta in after), default=float('nan'))
         back = next((i for i, (_, theta) in enumerate(after) if i > 5 and abs(theta) < UPRIGHT), None)
@@ -111,12 +129,16 @@ def closed_loop(ns: str, policy_path: str, balance_steps: int, push: float) -> t
         lines.append(f'  push of {push:+g} rad/s: the pole leaned to {math.degrees(peak):.1f} degrees, '
                      + (f'back within {math.degrees(UPRIGHT):.1f} degrees after {back * tau:.2f} s: recovered'
                         if recovered else 'and fell: NOT recovered' if fell_after else 'and did not come back'))
-        return lines, not fell and len(seen) >= balance_steps and recovered
+        if not recovered:
+            failed.append(f'the push of {push:+g} rad/s: peak {math.degrees(peak):.1f} degrees, '
+                          + ('the pole fell' if fell_after else f'{len(after)} states, never back upright'))
+        return lines, failed
     finally:
         sub.unregister()
         ep_sub.unregister()
 
 
+@quiet_on_shutdown
 def main():
     rospy.init_node('demo_client')
     base, tip = frames(str_param('~base_frame', ''), str_param('~tip_frame', ''))
@@ -131,7 +153,7 @@ def main():
     push = number_param('~push', 0.2, 'a number of rad/s', lambda v: True)
     buf = tf2_ros.Buffer()
     tf2_ros.TransformListener(buf)
-    ok = True
+    failed = []                           # the checks that failed, with their figures
     lines = ['', '=' * 72, 'robot_ai demo', '=' * 72, f'forward_kinematics: {base} -> {tip} from /tf']
     positions, first = [], None
     for i in range(samples):
@@ -139,7 +161,7 @@ def main():
             t = buf.lookup_transform(base, tip, rospy.Time(0), rospy.Duration(20.0 if i == 0 else 2.0))
         except (tf2_ros.LookupException, tf2_ros.ExtrapolationException, tf2_ros.ConnectivityException) as e:
             lines.append(f'  no transform: {e}')
-            ok = False
+            failed.append(f'no transform {base} -> {tip} on /tf')
             break
         p, q = t.transform.translation, t.transform.rotation
         positions.append((p.x, p.y, p.z))
@@ -149,7 +171,8 @@ def main():
         rospy.sleep(interval)
     moved = len(positions) > 1 and max(math.dist(positions[0], p) for p in positions[1:]) > 1e-4
     lines.append(f'  the end effector {"moves" if moved else "does NOT move"}')
-    ok = ok and moved
+    if positions and not moved:
+        failed.append(f'the end effector {tip} did not move')
 
     lines.append('cartpole_search: the course experiment (100 candidates x 100 episodes, CartPole-v1, seed 0)')
     search_policy = ''
@@ -160,9 +183,13 @@ def main():
         round_trip = time.time() - t0
     except (rospy.ROSException, rospy.ServiceException) as e:
         lines.append(f'  service failed: {e}')
-        res, ok = None, False
+        res = None
+        failed.append(f'the search service failed: {e}')
     if res is not None:
-        ok = ok and res.success and res.best_avg_length >= 195.0  # CartPole's own 'solved' threshold (v0)
+        if not res.success:
+            failed.append(f'the search failed: {res.message}')
+        elif res.best_avg_length < 195.0:  # CartPole's own 'solved' threshold (v0)
+            failed.append(f'the search\'s best average {res.best_avg_length:.2f} is below 195')
         search_policy = res.policy_path
         lines.append(f'  {res.message}')
         lines.append(f'  best weights       [{", ".join(f"{w:+.4f}" for w in res.best_weights)}]')
@@ -173,7 +200,7 @@ def main():
         lines.append(f'  learning curve     {res.plot_path if plot_ok else "MISSING"}')
         lines.append(f'  policy file        {res.policy_path or "(not written)"}')
         lines.append(f'  video              {res.video_path or "(not recorded)"}')
-        ok = ok and plot_ok and (not record_video or os.path.isfile(res.video_path))
+        failed += artifact_failures('search', plot_ok, record_video, res.video_path)
 
     lines.append('cartpole_q_learning: the course\'s Q-learning with RBF features (CartPole-v0, 500 episodes), '
                  f'{q_learners} learner{"s" if q_learners > 1 else ""}')
@@ -183,10 +210,15 @@ def main():
         res = rospy.ServiceProxy(q_service, QLearning)(learners=q_learners, record_video=record_video)
     except (rospy.ROSException, rospy.ServiceException) as e:
         lines.append(f'  service failed: {e}')
-        res, ok = None, False
+        res = None
+        failed.append(f'the Q-learning service failed: {e}')
     if res is not None:
         # learned: far above random actions (about 22) in every learner; the course's run reached 198.79
-        ok = ok and res.success and len(res.last100_averages) == q_learners and min(res.last100_averages) > 150
+        if not res.success:
+            failed.append(f'the Q-learning training failed: {res.message}')
+        elif len(res.last100_averages) != q_learners or min(res.last100_averages) <= 150:
+            failed.append(f'Q-learning: {len(res.last100_averages)} of {q_learners} learners finished, last-100 '
+                          f'averages {", ".join(f"{v:.2f}" for v in res.last100_averages)} (each must be above 150)')
         q_policy = res.policy_path
         lines.append(f'  {res.message.split("; ")[0]}')
         lines.append(f'  every learner      {", ".join(f"{v:.2f}" for v in res.last100_averages)}')
@@ -199,22 +231,24 @@ def main():
         lines.append(f'  policy file        {res.policy_path or "(not written)"}')
         lines.append(f'  video              {res.video_path or "(not recorded)"}')
         lines.append(f'avg reward for last 100 episodes: {res.mean_last100:.2f}')
-        ok = ok and plot_ok and (not record_video or os.path.isfile(res.video_path))
+        failed += artifact_failures('Q-learning', plot_ok, record_video, res.video_path)
 
     if cartpole_ns:
         which = 'the Q-learning agent\'s' if q_policy else 'the search\'s'
         lines.append(f'cartpole_sim + cartpole_controller: {which} saved policy drives the cart-pole, then a push')
         if q_policy or search_policy:
-            loop, held = closed_loop(cartpole_ns.rstrip('/'), q_policy or search_policy, balance_steps, push)
+            loop, loop_failed = closed_loop(cartpole_ns.rstrip('/'), q_policy or search_policy, balance_steps, push)
             lines += loop
-            ok = ok and held
+            failed += [f'cart-pole: {f}' for f in loop_failed]
         else:
             lines.append('  no policy file to drive with')
-            ok = False
-    lines.append('verdict: ' + ('OK - frames move, the search balanced the pole, the Q-learning agents learned'
-                                + (', the saved policy balanced the cart-pole robot' if cartpole_ns else '')
-                                if ok else 'FAILED'))
+            failed.append('cart-pole: no policy file to drive with')
+    if failed:
+        lines.append('verdict: FAILED - ' + '; '.join(failed))
+    else:
+        lines.append('verdict: OK - frames move, the search balanced the pole, the Q-learning agents learned'
+                     + (', the saved policy balanced the cart-pole robot' if cartpole_ns else ''))
     lines.append('=' * 72)
     print('\n'.join(lines))
     sys.stdout.flush()
-    sys.exit(0 if ok else 1)
+    sys.exit(1 if failed else 0)

@@ -35,7 +35,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger, TriggerResponse
 from tf2_msgs.msg import TFMessage
 
-from robot_ai.nodes.params import bool_param, number_param, publish
+from robot_ai.nodes.params import bool_param, number_param, publish, quiet_on_shutdown
 from robot_ai.nodes.robot_description import load_tree, wait_for_tree
 from robot_ai.tf_wire import JointStateDecoder, TFMessageEncoder, WireError, raw_message_class
 
@@ -257,6 +257,7 @@ class ForwardKinematicsNode:
         self.last_publish[slots] = stamp_ns
 
 
+@quiet_on_shutdown
 def main():
     rospy.init_node('forward_kinematics')
     node = ForwardKinematicsNode()

@@ -20,7 +20,7 @@ import math
 import rospy
 from sensor_msgs.msg import JointState
 
-from robot_ai.nodes.params import number_param
+from robot_ai.nodes.params import number_param, quiet_on_shutdown
 from robot_ai.nodes.robot_description import wait_for_tree
 
 
@@ -56,6 +56,7 @@ def joint_map(name: str) -> dict:
     return {}
 
 
+@quiet_on_shutdown
 def main():
     rospy.init_node('joint_sweep')
     rate = number_param('~rate', 50.0, 'a positive number (Hz)', lambda v: v > 0)

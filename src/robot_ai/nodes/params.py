@@ -1,12 +1,28 @@
 """Private parameters read once at start: a value of the wrong kind falls back to the default with one warning
 that names the parameter and says what is allowed, never a traceback; run_node for nodes whose bad parameters
 end them with one line instead."""
+import functools
 import math
 from typing import Callable
 
 import rospy
 
 
+def quiet_on_shutdown(main: Callable) -> Callable:
+    """A node's main(), ended quietly by a Ctrl-C at any moment of its start: rospy then raises ROSInitException
+    ("init_node interrupted") or ROSInterruptException out of whatever the node was doing; that is no error."""
+    @functools.wraps(main)
+    def wrapped(*args, **kwargs):
+        try:
+            return main(*args, **kwargs)
+        except (rospy.ROSInitException, rospy.ROSInterruptException):
+            if rospy.core.is_shutdown_requested() or rospy.is_shutdown():
+                raise SystemExit(0)
+            raise
+    return wrapped
+
+
+@quiet_on_shutdown
 def run_node(name: str, build: Callable[[], object]) -> None:
     """init_node(name), build the node, spin; a bad parameter (a ValueError from build) ends it with one line."""
     rospy.init_node(name)

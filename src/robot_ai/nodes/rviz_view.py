@@ -20,7 +20,7 @@ import numpy as np
 import rospy
 
 from robot_ai.kinematics import KinematicTree
-from robot_ai.nodes.params import str_param
+from robot_ai.nodes.params import quiet_on_shutdown, str_param
 from robot_ai.nodes.robot_description import wait_for_tree
 
 VIEW_ANGLE = 0.785        # rviz's vertical field of view (rad)
@@ -46,6 +46,7 @@ def configure(template: str, fixed_frame: str, focal: tuple, distance: float) ->
     return re.sub(r'(\n\s*Distance: ).*', lambda m: m.group(1) + f'{distance}', text, count=1)
 
 
+@quiet_on_shutdown
 def main():
     argv = rospy.myargv()
     rospy.init_node('rviz_view', anonymous=True)

@@ -11,6 +11,8 @@ import threading
 
 import rospy
 
+from robot_ai.nodes.params import quiet_on_shutdown
+
 
 def patched_gui_module():
     """joint_state_publisher_gui, whose sliders take the float positions it computes, rounded."""
@@ -25,6 +27,7 @@ def patched_gui_module():
     return joint_state_publisher_gui
 
 
+@quiet_on_shutdown
 def main():
     import joint_state_publisher
     from python_qt_binding.QtWidgets import QApplication
