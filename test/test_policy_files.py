@@ -226,6 +226,56 @@ class TestPolicyFiles(unittest.TestCase):
         self.assertEqual(result.best_avg_length, max(result.avg_lengths))
         self.assertIn('best so far', result.message)
 
+    def test_8_a_bomb_costs_the_node_nothing_and_a_false_claim_pins_nothing(self):
+        """Issue 23: a 2 MB file inflating to 2 GiB took 2.15 GB of cartpole_q_learning for good; a policy averaging
+        8.7 steps that claimed a final average of 501 could never be replaced by a search."""
+        import xmlrpc.client
+        import zipfile
+        import rosgraph
+        folder = os.path.join(self.output_dir, 'bad_policies')
+        lin = policies.save(os.path.join(folder, 'ok.npz'), LinearPolicy(np.zeros(4)), 'CartPole-v1', 0)
+        bomb = os.path.join(folder, 'bomb.npz')
+        with zipfile.ZipFile(lin) as good, zipfile.ZipFile(bomb, 'w', zipfile.ZIP_DEFLATED) as z:
+            for name in good.namelist():
+                z.writestr(name, good.read(name))
+            with z.open('extra.npy', 'w', force_zip64=True) as f:
+                header = b"{'descr': '<f8', 'fortran_order': False, 'shape': (268435456,), }"
+                header += b' ' * (63 - (len(header) + 10) % 64) + b'\n'
+                f.write(b'\x93NUMPY\x01\x00' + len(header).to_bytes(2, 'little') + header)
+                chunk = bytes(1 << 24)
+                for _ in range(128):          # 2 GiB of zeros, deflated to about 2 MB
+                    f.write(chunk)
+        self.assertLess(os.path.getsize(bomb), 8 * 1024 * 1024)
+
+        def rss_mb(node):
+            uri = rosgraph.Master('/test_policy_files').lookupNode(node)
+            pid = xmlrpc.client.ServerProxy(uri).getPid('/test_policy_files')[2]
+            with open(f'/proc/{pid}/status') as f:
+                return int(next(line for line in f if line.startswith('VmRSS')).split()[1]) / 1024
+
+        for node, load in (('/cartpole_search', self.s_load), ('/cartpole_q_learning', self.q_load)):
+            before, t = rss_mb(node), time.time()
+            for _ in range(2):
+                res = load(path=bomb)
+                self.assertFalse(res.success)
+                self.assertIn('unexpected extra', res.message)
+            self.assertLess(time.time() - t, 10.0)
+            self.assertLess(rss_mb(node) - before, 50, f'{node} kept memory after refusing the bomb')
+        # a poor policy (always push left: about 9 steps) that claims a perfect 500
+        meta = policies.load(lin).metadata
+        with np.load(lin, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files}
+        import json
+        arrays['metadata'] = np.array(json.dumps(dict(meta, figures={'final_avg_length': 500.0})))
+        liar = os.path.join(folder, 'liar.npz')
+        np.savez(liar, **arrays)
+        loaded = self.s_load(path=liar)
+        self.assertTrue(loaded.success, loaded.message)
+        self.assertIn('measured on loading, the file says 500.0', loaded.message)
+        res = self.search(iterations=20, episodes=20, seed=3)
+        self.assertIn('its best is now the node\'s policy', res.message)
+        self.assertIn('from search', self.s_act(state=[0, 0, 0.1, 0]).message)
+
     def test_7_a_bad_policy_parameter_ends_the_node_with_one_line(self):
         good_linear = os.path.join(self.output_dir, 'bad_policies', 'good.npz')
         for node_type, (path, message) in (('cartpole_search', self.bad[1]), ('cartpole_q_learning', self.bad[3]),

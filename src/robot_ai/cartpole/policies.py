@@ -13,24 +13,30 @@ a JSON string (``format`` "robot_ai-policy/1", ``kind``, ``env_id``, ``seed`` (t
     policy.evaluate(CartPoleDynamics.of(policy.env_id), 100, 500, seed=0)
 """
 import datetime
+import io
 import json
-import math
 import os
+import stat
 import zipfile
 from dataclasses import dataclass
 
 import numpy as np
 
 from robot_ai.cartpole.artifacts import write_whole
-from robot_ai.cartpole.dynamics import SUPPORTED_ENVS
+from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.cartpole.q_learning import Agent
 
 FORMAT = 'robot_ai-policy/1'
 KINDS = ('linear', 'q_learning')
 EXTENSION = '.npz'
-MAX_FILE_BYTES = 64 * 1024 * 1024        # a 10,000-component agent is 1.1 MB; anything far larger is not a policy
+MAX_FILE_BYTES = 16 * 1024 * 1024        # a 10,000-component agent is 1.1 MB; anything far larger is not a policy
 MAX_DIMENSIONS = 4 * 10000               # q_learning.MAX_COMPONENTS banks of 4
+MAX_ELEMENTS = 4 * MAX_DIMENSIONS        # the largest array a policy holds (feature_weights, 4 x D)
+MAX_HEADER_BYTES = 4096                  # of an .npy header (numpy writes about 128)
+MAX_METADATA_CHARS = 65536               # a policy's metadata is about 1,000 characters
+MAX_TEXT = 1000                          # characters of a source, a created date, a setting's or figure's text
+AVERAGE_FIGURES = ('best_avg_length', 'final_avg_length', 'last100_average', 'greedy_average')
 
 
 class PolicyError(ValueError):
@@ -98,99 +104,280 @@ def save(path: str, actor: LinearPolicy | Agent, env_id: str, seed: int, setting
     arrays = arrays_of(actor)
     _check_arrays(actor.kind, arrays)  # never write a file that load() would refuse
     text = json.dumps(metadata, allow_nan=False)
+    _check_figures(_metadata(np.array(text)))
     return write_whole(path, lambda f: np.savez(f, metadata=np.array(text), **arrays))
 
 
 def load(path: str) -> Policy:
     """The policy in a file written by save(); PolicyError (one line) for anything else: a missing or unreadable
     file, not an npz, pickled objects, another format or kind, missing or extra arrays, wrong shapes or types,
-    non-finite numbers."""
+    numbers that are not finite (or subnormal) in the type the policy computes in, figures its env cannot give.
+
+    Nothing is inflated before it is known to be what it should be: the archive's directory and each member's .npy
+    header (name, dtype, shape, size) are checked first, so a file that would inflate to gigabytes is refused
+    having read a few hundred bytes of it. The file is opened without blocking (a FIFO is refused, not waited on).
+    """
+    if not str(path).strip():
+        raise PolicyError('the path is empty: give a policy file (.npz), absolute or ~/...')
     path = os.path.abspath(os.path.expanduser(str(path)))
-    if not os.path.exists(path):
-        raise PolicyError(f'no policy file at {path}')
-    if not os.path.isfile(path):
-        raise PolicyError(f'{path} is not a file')
-    size = os.path.getsize(path)
-    if size > MAX_FILE_BYTES:
-        raise PolicyError(f'{path} is {size // (1024 * 1024)} MiB: too large for a policy file')
-    if not zipfile.is_zipfile(path):
-        raise PolicyError(f'{path} is not a policy file (not an .npz archive)')
+    data = _read_regular_file(path)
     try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {name: data[name] for name in data.files}
-    except (ValueError, OSError, zipfile.BadZipFile, EOFError, KeyError) as e:
-        raise PolicyError(f'{path} is not a policy file: {_one_line(e)}')
-    try:
-        metadata = _metadata(arrays.pop('metadata', None))
+        metadata, arrays = _read_archive(data)
+        metadata = _metadata(metadata)
         kind = metadata['kind']
         _check_arrays(kind, arrays)
+        _check_figures(metadata)
     except PolicyError as e:
-        raise PolicyError(f'{path}: {e}')
+        raise PolicyError(f'{path}: {e}') from None
     if kind == 'linear':
-        actor = LinearPolicy(arrays['weights'].astype(np.float64))
+        actor = LinearPolicy(arrays['weights'])
     else:
         actor = Agent(arrays['feature_weights'], arrays['feature_offsets'], float(arrays['amplitude']),
                       arrays['q_weights'])
     return Policy(actor, metadata, path)
 
 
-def _one_line(e: BaseException) -> str:
-    return ' '.join(str(e).split()) or type(e).__name__
+def _read_regular_file(path: str) -> bytes:
+    """The bytes of a regular file of at most MAX_FILE_BYTES, opened without blocking and checked once open (a path
+    swapped for a FIFO or a device between a check and the open is refused, never waited on)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        raise PolicyError(f'no policy file at {path}') from None
+    except OSError as e:
+        raise PolicyError(f'{path}: cannot open it: {e.strerror}') from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise PolicyError(f'{path} is not a file' if stat.S_ISDIR(st.st_mode) else
+                              f'{path} is not a regular file (a FIFO, a device or a socket)')
+        if st.st_size > MAX_FILE_BYTES:
+            raise PolicyError(f'{path} is {st.st_size // (1024 * 1024)} MiB: too large for a policy file '
+                              f'(at most {MAX_FILE_BYTES // (1024 * 1024)} MiB)')
+        chunks, left = [], MAX_FILE_BYTES + 1
+        while left > 0:
+            chunk = os.read(fd, min(left, 1 << 20))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            left -= len(chunk)
+        if left <= 0:
+            raise PolicyError(f'{path} is too large for a policy file (at most {MAX_FILE_BYTES // (1024 * 1024)} MiB)')
+        return b''.join(chunks)
+    except OSError as e:
+        raise PolicyError(f'{path}: cannot read it: {e.strerror}') from None
+    finally:
+        os.close(fd)
 
 
-def _metadata(raw) -> dict:
-    if raw is None:
+def _read_archive(data: bytes) -> tuple[np.ndarray, dict]:
+    """(the metadata array, {name: array}) of an .npz's bytes, every member's header checked before its data is
+    read (see _check_header)."""
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(data))
+        members = archive.infolist()
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, EOFError, OSError):
+        raise PolicyError('not a policy file (not an .npz archive)') from None
+    names = [m.filename for m in members]
+    if len(names) > 16:
+        raise PolicyError(f'an archive of {len(names)} members: a policy holds at most 4 arrays and its metadata')
+    if len(set(names)) != len(names):
+        raise PolicyError('an archive that holds a member twice')
+    not_npy = [n for n in names if not n.endswith('.npy')]
+    if not_npy:
+        raise PolicyError(f'not a policy file: {len(not_npy)} member(s) are not .npy arrays')
+    by_name = {n[:-4]: m for n, m in zip(names, members)}
+    if 'metadata' not in by_name:
         raise PolicyError('no metadata: not a robot_ai policy file')
+    with archive:
+        metadata = _read_member(archive, by_name['metadata'], 'metadata')
+        kind = _peek_kind(metadata)
+        want = _wanted_shapes(kind, archive, by_name)
+        missing = sorted(set(want) - set(by_name))
+        extra = sorted(set(by_name) - set(want) - {'metadata'})
+        if missing or extra:
+            raise PolicyError(f'a {kind} policy holds the arrays {", ".join(sorted(want))}; '
+                              + '; '.join(p for p in (f'missing {", ".join(missing)}' if missing else '',
+                                                      f'unexpected {", ".join(_shown(n) for n in extra)}'
+                                                      if extra else '') if p))
+        arrays = {name: _read_member(archive, by_name[name], name, shape) for name, shape in want.items()}
+    return metadata, arrays
+
+
+def _peek_kind(metadata: np.ndarray) -> str:
+    """The kind a metadata array names (fully checked later by _metadata); PolicyError if it names none."""
+    kind = _metadata_json(metadata).get('kind')
+    if kind not in KINDS:
+        raise PolicyError(f'kind is {_shown(kind)}, not one of {", ".join(KINDS)}')
+    return kind
+
+
+def _wanted_shapes(kind: str, archive: zipfile.ZipFile, by_name: dict) -> dict:
+    """{array name: shape} a policy of kind holds; a Q-learning agent's D is read from feature_offsets' header."""
+    if kind == 'linear':
+        return {'weights': (4,)}
+    if 'feature_offsets' not in by_name:
+        raise PolicyError(f'feature_offsets must have shape (D,) with D from 1 to {MAX_DIMENSIONS}: a q_learning '
+                          'policy holds it, this file does not')
+    with archive.open(by_name['feature_offsets']) as f:
+        shape, _, _ = _check_header(f, by_name['feature_offsets'], 'feature_offsets')
+    if len(shape) != 1 or not 1 <= shape[0] <= MAX_DIMENSIONS:
+        raise PolicyError(f'feature_offsets must have shape (D,) with D from 1 to {MAX_DIMENSIONS}, got '
+                          f'{_shown(shape)}')
+    d = shape[0]
+    return {'feature_weights': (4, d), 'feature_offsets': (d,), 'amplitude': (), 'q_weights': (2, d)}
+
+
+def _check_header(f, member: zipfile.ZipInfo, name: str) -> tuple[tuple, np.dtype, int]:
+    """(shape, dtype, data bytes) from a member's .npy header, checked: real numbers of at most 8 bytes (metadata:
+    a unicode string of at most MAX_METADATA_CHARS), and a member exactly as large as the header says."""
+    try:
+        version = np.lib.format.read_magic(f)
+        read_header = {(1, 0): np.lib.format.read_array_header_1_0,
+                       (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+        if read_header is None:
+            raise ValueError
+        shape, _, dtype = read_header(f, max_header_size=MAX_HEADER_BYTES)
+        header_bytes = f.tell()
+    except Exception:    # numpy's own messages quote the header's bytes: say what is wrong, not what it holds
+        raise PolicyError(f'{name} is not a readable .npy array (its header is not numpy\'s)') from None
+    if not (isinstance(shape, tuple) and len(shape) <= 2
+            and all(isinstance(n, int) and 0 <= n <= MAX_ELEMENTS for n in shape)):
+        raise PolicyError(f'{name} has a shape no policy array has')
+    if name == 'metadata':
+        if dtype.kind != 'U' or shape != ():
+            raise PolicyError('metadata is not a JSON string')
+        if dtype.itemsize // 4 > MAX_METADATA_CHARS:
+            raise PolicyError(f'metadata of {dtype.itemsize // 4} characters: at most {MAX_METADATA_CHARS}')
+    elif dtype.kind not in 'fiu' or dtype.itemsize > 8 or dtype.hasobject or dtype.fields is not None:
+        raise PolicyError(f'{name} must hold real numbers of at most 64 bits, got dtype {_shown(str(dtype))}')
+    elements = int(np.prod(shape, dtype=np.int64))
+    if elements > MAX_ELEMENTS:
+        raise PolicyError(f'{name} has {elements} numbers: more than any policy array')
+    size = elements * dtype.itemsize
+    if member.file_size != header_bytes + size:
+        raise PolicyError(f'{name} is {member.file_size} bytes where its header says {header_bytes + size}')
+    return shape, dtype, size
+
+
+def _read_member(archive: zipfile.ZipFile, member: zipfile.ZipInfo, name: str, shape: tuple | None = None):
+    """A member's array, its header checked (and its shape, when given) before any of its data is read."""
+    try:
+        with archive.open(member) as f:
+            got, dtype, size = _check_header(f, member, name)
+            if shape is not None and got != shape:
+                raise PolicyError(f'{name} must have shape {shape}, got {_shown(got)}')
+            raw = f.read(size + 1)
+    except PolicyError:
+        raise
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError, RuntimeError, NotImplementedError):
+        raise PolicyError(f'{name} cannot be read: the archive is damaged or uses an unknown compression') from None
+    if len(raw) != size:
+        raise PolicyError(f'{name} is cut short')
+    return np.frombuffer(raw, dtype=dtype).reshape(got).copy()
+
+
+def _metadata_json(raw: np.ndarray) -> dict:
     if raw.shape != () or raw.dtype.kind != 'U':
         raise PolicyError('metadata is not a JSON string')
     try:
         metadata = json.loads(str(raw))
-    except ValueError as e:
-        raise PolicyError(f'metadata is not JSON: {_one_line(e)}')
+    except RecursionError:
+        raise PolicyError('metadata is not JSON a policy holds: nested too deep') from None
+    except ValueError:
+        raise PolicyError('metadata is not JSON') from None
     if not isinstance(metadata, dict):
         raise PolicyError('metadata is not a JSON object')
-    if metadata.get('format') != FORMAT:
-        raise PolicyError(f'format is {metadata.get("format")!r}, this version reads {FORMAT!r}')
-    if metadata.get('kind') not in KINDS:
-        raise PolicyError(f'kind is {metadata.get("kind")!r}, not one of {", ".join(KINDS)}')
-    if metadata.get('env_id') not in SUPPORTED_ENVS:
-        raise PolicyError(f'env_id is {metadata.get("env_id")!r}, not one of {", ".join(SUPPORTED_ENVS)}')
-    if not isinstance(metadata.get('seed'), int) or isinstance(metadata.get('seed'), bool):
-        raise PolicyError(f'seed is {metadata.get("seed")!r}, not a whole number')
-    for name in ('settings', 'figures'):
-        if not isinstance(metadata.setdefault(name, {}), dict):
-            raise PolicyError(f'{name} is not a JSON object')
-    metadata.setdefault('created', '')
-    metadata.setdefault('source', '')
     return metadata
 
 
+def _shown(value) -> str:
+    """A value from a file, for a message: short, never its bytes at length (a plain short name as it is)."""
+    if isinstance(value, str) and len(value) <= 40 and value.replace('_', '').isalnum() and value.isascii():
+        return value
+    text = ascii(value)
+    return text if len(text) <= 40 else text[:37] + '...'
+
+
+def _metadata(raw: np.ndarray) -> dict:
+    metadata = _metadata_json(raw)
+    if metadata.get('format') != FORMAT:
+        raise PolicyError(f'format is {_shown(metadata.get("format"))}, this version reads {FORMAT!r}')
+    if metadata.get('kind') not in KINDS:
+        raise PolicyError(f'kind is {_shown(metadata.get("kind"))}, not one of {", ".join(KINDS)}')
+    if metadata.get('env_id') not in SUPPORTED_ENVS:
+        raise PolicyError(f'env_id is {_shown(metadata.get("env_id"))}, not one of {", ".join(SUPPORTED_ENVS)}')
+    if not isinstance(metadata.get('seed'), int) or isinstance(metadata.get('seed'), bool):
+        raise PolicyError(f'seed is {_shown(metadata.get("seed"))}, not a whole number')
+    for name in ('settings', 'figures'):
+        value = metadata.setdefault(name, {})
+        if not isinstance(value, dict):
+            raise PolicyError(f'{name} is not a JSON object')
+        for key, v in value.items():
+            if len(key) > MAX_TEXT or not (v is None or isinstance(v, (bool, int, float))
+                                           or isinstance(v, str) and len(v) <= MAX_TEXT):
+                raise PolicyError(f'{name} must map short names to numbers, text of at most {MAX_TEXT} characters, '
+                                  'true/false or null')
+    for name in ('created', 'source'):
+        value = metadata.setdefault(name, '')
+        if not isinstance(value, str) or len(value) > MAX_TEXT:
+            raise PolicyError(f'{name} must be text of at most {MAX_TEXT} characters')
+    return metadata
+
+
+def _check_figures(metadata: dict) -> None:
+    """A file's claimed figures are within what its env can give: an average length or reward from 0 to the env's
+    step limit (CartPole-v1: 500). A node never compares with a figure nobody could have measured."""
+    limit = CartPoleDynamics.of(metadata['env_id']).max_episode_steps
+    for key in AVERAGE_FIGURES:
+        if key not in metadata['figures']:
+            continue
+        v = metadata['figures'][key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v <= limit:
+            raise PolicyError(f'figures.{key} is {_shown(v)}: {metadata["env_id"]} gives 0 to {limit}')
+
+
 def _check_arrays(kind: str, arrays: dict) -> None:
-    """PolicyError unless arrays are exactly what a policy of kind needs: names, shapes, real finite numbers."""
+    """PolicyError unless arrays are exactly what a policy of kind needs: names, shapes, real numbers that are finite
+    and not subnormal in the type the policy computes in (a Q-learning agent: float32; a linear policy: float64).
+    Converts them to that type, in place."""
     if kind == 'linear':
-        want = {'weights': (4,)}
+        want = {'weights': ((4,), np.float64)}
     else:
         d = arrays.get('feature_offsets', np.zeros(0)).shape
         dimensions = d[0] if len(d) == 1 else -1
         if not 1 <= dimensions <= MAX_DIMENSIONS:
             raise PolicyError(f'feature_offsets must have shape (D,) with D from 1 to {MAX_DIMENSIONS}, got {d}')
-        want = {'feature_weights': (4, dimensions), 'feature_offsets': (dimensions,), 'amplitude': (),
-                'q_weights': (2, dimensions)}
+        want = {'feature_weights': ((4, dimensions), np.float32), 'feature_offsets': ((dimensions,), np.float32),
+                'amplitude': ((), np.float64), 'q_weights': ((2, dimensions), np.float32)}
     missing = sorted(set(want) - set(arrays))
     extra = sorted(set(arrays) - set(want))
     if missing or extra:
         raise PolicyError(f'a {kind} policy holds the arrays {", ".join(sorted(want))}; '
                           + '; '.join(p for p in (f'missing {", ".join(missing)}' if missing else '',
                                                   f'unexpected {", ".join(extra)}' if extra else '') if p))
-    for name, shape in want.items():
-        a = arrays[name]
-        if a.dtype.kind not in 'fiu':
-            raise PolicyError(f'{name} must hold real numbers, got dtype {a.dtype}')
+    for name, (shape, compute) in want.items():
+        a = np.asarray(arrays[name])
+        if a.dtype.kind not in 'fiu' or a.dtype.itemsize > 8:
+            raise PolicyError(f'{name} must hold real numbers of at most 64 bits, got dtype {_shown(str(a.dtype))}')
         if a.shape != shape:
-            raise PolicyError(f'{name} must have shape {shape}, got {a.shape}')
-        if not np.isfinite(a).all():
-            raise PolicyError(f'{name} holds {int((~np.isfinite(a)).sum())} NaN or infinite numbers')
-        if kind == 'q_learning' and name != 'amplitude':
-            arrays[name] = a.astype(np.float32, copy=False)  # what the agent computes in
-    if kind == 'q_learning' and not (0 < float(arrays['amplitude']) < math.inf):
-        raise PolicyError(f'amplitude must be positive, got {float(arrays["amplitude"])}')
+            raise PolicyError(f'{name} must have shape {shape}, got {_shown(a.shape)}')
+        with np.errstate(over='ignore', invalid='ignore'):
+            converted = a.astype(compute)
+        bad = ~np.isfinite(converted)
+        if bad.any():
+            raise PolicyError(f'{name} holds {int(bad.sum())} NaN or infinite number(s) in {np.dtype(compute).name}, '
+                              'the type the policy computes in')
+        subnormal = (converted != 0) & (np.abs(converted) < np.finfo(compute).smallest_normal)
+        if subnormal.any():
+            raise PolicyError(f'{name} holds {int(subnormal.sum())} subnormal number(s) (below '
+                              f'{np.finfo(compute).smallest_normal:.3g} in {np.dtype(compute).name})')
+        arrays[name] = converted
+    if kind == 'q_learning':
+        amplitude = float(arrays['amplitude'])
+        if not amplitude > 0:
+            raise PolicyError(f'amplitude must be positive, got {amplitude:g}')
+        with np.errstate(over='ignore', invalid='ignore'):     # the agent computes in float32 (rbf_transform)
+            bound = np.float32(amplitude) * np.abs(arrays['q_weights']).sum(axis=1, dtype=np.float32)
+        if not np.isfinite(bound).all():
+            raise PolicyError('amplitude x q_weights exceed float32: the Q-values would be infinite')

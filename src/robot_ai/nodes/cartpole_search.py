@@ -36,7 +36,7 @@ import numpy as np
 import rospy
 
 from robot_ai.cartpole import artifacts, linear_search, policies
-from robot_ai.cartpole.dynamics import RequestError
+from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchResult, SearchProgress
 from robot_ai.nodes.agent_common import (PlotProcess, agent_settings, answer, answer_goal, answer_load, policy_param,
@@ -128,11 +128,16 @@ class CartPoleSearchNode:
 
     def _install(self, policy: policies.Policy) -> str:
         """A loaded file becomes the node's policy; later searches replace it if their final average is at least
-        the file's (0 if the file does not say)."""
-        final = policy.metadata['figures'].get('final_avg_length', 0.0)
-        final = float(final) if isinstance(final, (int, float)) and np.isfinite(final) else 0.0
+        the file's, as this node measures it (~final_episodes episodes of the file's env, seed 0): a file's own
+        claims are never what a search is compared with."""
+        dynamics = CartPoleDynamics.of(policy.env_id)
+        episodes = int(self.defaults.get('final_episodes') or linear_search.DEFAULTS['final_episodes'])
+        final = float(policy.evaluate(dynamics, episodes, dynamics.max_episode_steps, 0).mean())
+        claimed = policy.metadata['figures'].get('final_avg_length')
+        claim = f', the file says {claimed:.1f}' if isinstance(claimed, (int, float)) and claimed != final else ''
         self.policy = ServedPolicy(policy.actor.weights.copy(), final, f'the file {policy.path}'
-                                   f' ({policy.env_id}, seed {policy.seed}, final {final:.1f})')
+                                   f' ({policy.env_id}, seed {policy.seed}, final {final:.1f} over {episodes} episodes '
+                                   f'measured on loading{claim})')
         return f'the node\'s policy is now {self.policy.origin}'
 
     # ------------------------------------------------------------------------------------- handlers
