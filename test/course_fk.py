@@ -18,6 +18,10 @@ rospy.Time.now(), the transforms computed with tf.transformations. PARENT is the
   kuka       publishes the KUKA LWR's link names whatever the URDF (a node written for another robot)
   flood      right, and it also publishes 200 ever-new frame names a message, and once a 100 KB frame name
   abandon    starts a child that keeps its stdout and stderr open (sleep 600), then exits with status 3
+  stubborn   right, but it ignores SIGINT itself, starts a child that ignores SIGINT and a grandchild that
+             double-forks into a session of its own (all marked by COURSE_FK_MARK)
+  escape     right, and a grandchild double-forked into a session of its own (marked) outlives it
+  bigline    right, and it writes 1 GiB to stdout without a newline
 """
 import os
 import subprocess
@@ -61,8 +65,25 @@ def main():
         subprocess.Popen(['sh', '-c', 'sleep 600; : ' + os.environ.get('COURSE_FK_MARK', '')])
         print('leaving my child behind', flush=True)
         os._exit(3)
-    if mistake == 'orphan':
-        subprocess.Popen(['sh', '-c', 'trap "" INT; sleep 600; : ' + os.environ.get('COURSE_FK_MARK', '')])
+    mark = os.environ.get('COURSE_FK_MARK', '')
+    if mistake in ('orphan', 'stubborn'):
+        subprocess.Popen(['sh', '-c', 'trap "" INT; sleep 600; : ' + mark])
+    if mistake in ('stubborn', 'escape'):
+        # setsid's child forks the sleeper and exits: the sleeper is an orphan in a session of its own
+        subprocess.Popen(['setsid', 'sh', '-c', f'(trap "" INT HUP TERM; sleep 601; : {mark}_escaped) & exit 0'],
+                         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    if mistake == 'stubborn':
+        import signal
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if mistake == 'bigline':
+        import threading
+
+        def write_a_gigabyte():
+            chunk = b'y' * (1 << 20)
+            for _ in range(1024):
+                sys.stdout.buffer.write(chunk)
+            sys.stdout.buffer.flush()
+        threading.Thread(target=write_a_gigabyte, daemon=True).start()
     moving = [j.name for j in joints if j.type != 'fixed']
     pub = rospy.Publisher('/tf', TFMessage, queue_size=10)
     sent = []      # the flood's messages so far

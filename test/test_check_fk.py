@@ -235,6 +235,80 @@ class TestCheckFk(unittest.TestCase):
         names = subprocess.run(['rosparam', 'list'], capture_output=True, text=True, timeout=30).stdout.split()
         self.assertEqual([n for n in names if n.startswith('/check_fk_')], [])
 
+    def test_nothing_is_left_behind_however_it_is_stopped(self):
+        """Issue 23: a second SIGINT or SIGTERM during the clean-up, or a SIGHUP (the terminal closed), left the
+        candidate, its child (both ignoring SIGINT) and the parameters on the master, and a double SIGINT printed a
+        traceback; a grandchild that double-forked into its own session outlived even a normal FAIL."""
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        for signals in ((signal.SIGINT, signal.SIGINT), (signal.SIGTERM, signal.SIGTERM), (signal.SIGHUP,),
+                        (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)):
+            mark = 'check_fk_stubborn_%d_%d' % (os.getpid(), signals[0])
+            env = dict(os.environ, COURSE_FK_MISTAKE='stubborn', COURSE_FK_MARK=mark)   # rostest's master
+            proc = subprocess.Popen(['rosrun', 'robot_ai', 'check_fk', '--model', kuka, '--candidate',
+                                     'robot_ai/course_fk.py', '--configurations', '200'], env=env,
+                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+            deadline = time.time() + 60
+            while len(processes(mark)) < 2 and time.time() < deadline:
+                time.sleep(0.2)
+            self.assertGreaterEqual(len(processes(mark)), 2, 'the candidate did not start its children')
+            time.sleep(1.0)
+            for sig in signals:
+                proc.send_signal(sig)
+                time.sleep(0.5)          # the next one arrives while check_fk waits for its SIGINT-proof candidate
+            out, _ = proc.communicate(timeout=60)
+            time.sleep(0.5)
+            text = out.decode(errors='replace')
+            self.assertNotIn('Traceback', text, text[-2000:])
+            self.assertEqual(processes(mark), [], signals)
+            names = subprocess.run(['rosparam', 'list'], capture_output=True, text=True, timeout=30).stdout.split()
+            self.assertEqual([n for n in names if n.startswith('/check_fk_')], [], signals)
+            self.assertNotIn('/robot_description', names, signals)
+        # a normal verdict: the escaped grandchild is gone too
+        mark = 'check_fk_escape_%d' % os.getpid()
+        code, lines, _ = check_fk(kuka, 'robot_ai/course_fk.py', '--configurations', '3', mistake='escape',
+                                  mark=mark)
+        self.assertEqual(code, 0, lines)
+        time.sleep(0.5)
+        self.assertEqual(processes(mark), [])
+
+    def test_a_gigabyte_without_a_newline_keeps_memory_bounded(self):
+        """A candidate writing 1 GiB without a newline raised check_fk to 1.24 GB: its output is read in pieces."""
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        env = dict(os.environ, COURSE_FK_MISTAKE='bigline')
+        proc = subprocess.Popen(['rosrun', 'robot_ai', 'check_fk', '--model', kuka, '--candidate',
+                                 'robot_ai/course_fk.py', '--configurations', '20'], env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        peak = 0
+        while proc.poll() is None:
+            for pid in descendants_of(proc.pid):
+                try:
+                    with open(f'/proc/{pid}/cmdline', 'rb') as f:
+                        cmdline = f.read()
+                    if b'check_fk' not in cmdline or b'__name:=candidate' in cmdline:
+                        continue
+                    with open(f'/proc/{pid}/status') as f:
+                        hwm = [int(l.split()[1]) for l in f if l.startswith('VmHWM')]
+                    peak = max([peak] + [h // 1024 for h in hwm])
+                except OSError:
+                    pass
+            time.sleep(0.2)
+        out = proc.stdout.read().decode(errors='replace')
+        self.assertEqual(proc.returncode, 0, out[-2000:])
+        self.assertGreater(peak, 0)
+        self.assertLess(peak, 400, f'check_fk peaked at {peak} MB')
+
+
+def descendants_of(pid):
+    out = subprocess.run(['ps', '-eo', 'pid=,ppid='], capture_output=True, text=True).stdout.split()
+    children, found, todo = {}, [], [str(pid)]
+    for child, parent in zip(out[::2], out[1::2]):
+        children.setdefault(parent, []).append(child)
+    while todo:
+        p = todo.pop()
+        found.append(int(p))
+        todo.extend(children.get(p, []))
+    return found
+
 
 def free_port():
     with socket.socket() as s:

@@ -26,6 +26,7 @@ import time
 
 import numpy as np
 
+from robot_ai.child_process import process_stat
 from robot_ai.fk_grading import Grade, comparison_frame, configurations
 from robot_ai.kinematics import KinematicTree, URDFError, prefix_frame
 
@@ -39,6 +40,8 @@ MAX_NAME = 120          # characters of a frame name kept for the report
 TAIL_LINES = 20         # lines of the candidate's output quoted in a verdict
 TAIL_CHARS = 300        # characters kept of each of them
 LOG_BYTES = 10 * 1024 * 1024   # the candidate's log file stops growing here (its output is still drained)
+CHUNK = 64 * 1024              # bytes of the candidate's output read at a time
+PR_SET_CHILD_SUBREAPER = 36
 
 
 def free_port() -> int:
@@ -99,20 +102,38 @@ class Output:
         self.thread.start()
 
     def _drain(self, stream):
-        written = 0
+        """Read the output in pieces of at most CHUNK bytes, whatever it writes (1 GiB without a newline
+        included): the log is cut at LOG_BYTES, a line kept for the tail at TAIL_CHARS."""
+        written, line = 0, b''
         try:
             log = open(self.path, 'wb')
         except OSError:
             log, self.path = None, ''
-        for line in iter(stream.readline, b''):
+        fd = stream.fileno()
+        while True:
+            try:
+                chunk = os.read(fd, CHUNK)
+            except OSError:
+                break
+            if not chunk:
+                break
             if log is not None and written < LOG_BYTES:
-                log.write(line[:LOG_BYTES - written])
-                written += len(line)
-            text = line.decode(errors='replace').rstrip()
-            if text:
-                self.tail.append(text[:TAIL_CHARS])
+                log.write(chunk[:LOG_BYTES - written])
+                written += len(chunk)
+            *complete, rest = chunk.split(b'\n')
+            for piece in complete:
+                self._keep((line + piece)[:4 * TAIL_CHARS])
+                line = b''
+            line = (line + rest)[:4 * TAIL_CHARS]
+        if line:
+            self._keep(line)
         if log is not None:
             log.close()
+
+    def _keep(self, line: bytes) -> None:
+        text = line.decode(errors='replace').rstrip()
+        if text:
+            self.tail.append(text[:TAIL_CHARS])
 
     def quote(self) -> str:
         """The last lines, indented, and where the whole output is; '' if there was none."""
@@ -252,8 +273,20 @@ def main(argv=None) -> int:
     except ValueError as e:
         print(f'check_fk: {e}', file=sys.stderr)
         return 2
-    # SIGTERM (what `timeout` sends) cleans up as a Ctrl-C does: the finally below stops everything this started
-    signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(143))
+    # Ctrl-C, SIGTERM (what `timeout` sends) and SIGHUP (the terminal closed) end the grade and clean up; a second
+    # signal while it cleans up is ignored, so that the clean-up always finishes. As a child subreaper, check_fk
+    # inherits every process the candidate leaves behind (a double fork into a session of its own included).
+    stopping = []
+
+    def on_signal(signum, frame):
+        if stopping:
+            return
+        stopping.append(signum)
+        raise SystemExit(128 + signum)
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, on_signal)
+    from robot_ai.child_process import prctl
+    prctl(PR_SET_CHILD_SUBREAPER, 1)
     core = proc = None
     own_global = False
     try:
@@ -283,16 +316,45 @@ def main(argv=None) -> int:
             write_junit(a.gtest_output[4:], a.candidate, lines, time.time() - t0)
         return status
     finally:
+        stopping.append('clean-up')
         stop(proc)
+        end_descendants(keep=core)
         try:
-            rospy.delete_param(f'/check_fk_{os.getpid()}')
-            if own_global:
-                rospy.delete_param('/robot_description')
+            if rospy.core.is_initialized():
+                rospy.delete_param(f'/check_fk_{os.getpid()}')
+                if own_global:
+                    rospy.delete_param('/robot_description')
         except Exception:
             pass
         if rospy.core.is_initialized():
             rospy.signal_shutdown('check_fk done')
         stop(core)
+        end_descendants()
+
+
+def end_descendants(keep=None) -> None:
+    """SIGKILL every process left below this one (but keep, a Popen), and reap them: check_fk is a child subreaper,
+    so whatever the candidate started and left behind has become its child."""
+    me = os.getpid()
+    for _ in range(100):
+        left = []
+        for entry in os.listdir('/proc'):
+            if entry.isdigit() and (keep is None or int(entry) != keep.pid):
+                stat = process_stat(int(entry))
+                if stat is not None and stat.ppid == me:
+                    left.append(int(entry))
+        if not left:
+            return
+        for pid in left:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        for pid in left:
+            try:
+                os.waitpid(pid, 0)
+            except ChildProcessError:
+                pass
 
 
 def write_junit(path: str, candidate: str, lines: list, seconds: float) -> None:
