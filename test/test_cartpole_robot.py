@@ -230,7 +230,8 @@ class TestCartPoleRobot(unittest.TestCase):
         """cartpole.launch lockstep:=true: the sim's start state came before the controller subscribed and each waited
         for the other (0 states/s). And one extra cart_force by hand circulated for ever (6 gave 297 falls in 6 s)."""
         states = []
-        sub = rospy.Subscriber('/lsctl/joint_states', JointState, lambda m: states.append(state_of(m)), queue_size=10000)
+        sub = rospy.Subscriber('/lsctl/joint_states', JointState, lambda m: states.append(state_of(m)),
+                               queue_size=10000)
         try:
             deadline = time.time() + 30
             while len(states) < 2000 and time.time() < deadline:

@@ -124,3 +124,19 @@ def test_termination_says_why():
     assert dyn.termination(0.0, 0.21) == 'pole fell' and dyn.termination(0.0, -0.21) == 'pole fell'
     assert dyn.termination(2.41, 0.0) == 'cart left the rail' and dyn.termination(-2.41, 0.0) == 'cart left the rail'
     assert dyn.termination(2.4, 0.2094) == ''   # gymnasium's thresholds are strict
+
+
+def test_one_float32_rule_for_both_kinds_of_policy():
+    """Issue 27: cartpole_search's ~act took a state of 1.0e+39 (beyond float32, the observation type) and
+    cartpole_q_learning's refused it: one rule, one message."""
+    from robot_ai.cartpole import linear_search, q_learning
+    from robot_ai.cartpole.dynamics import RequestError
+    agent = q_learning.train_one(q_learning.resolve(episodes=2, components=5), 0)[1]
+    messages = set()
+    for act in (lambda s: linear_search.act(np.ones(4), s), agent.act):
+        assert act([0.0, 0.0, 0.01, 0.0]) in (0, 1)
+        assert act([3.4e38, 0.0, 0.0, 0.0]) in (0, 1)
+        with pytest.raises(RequestError) as e:
+            act([1.0e39, 0.0, 0.0, 0.0])
+        messages.add(str(e.value))
+    assert len(messages) == 1 and 'float32' in messages.pop()

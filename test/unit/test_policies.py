@@ -179,7 +179,8 @@ def test_a_file_that_inflates_to_gigabytes_is_refused_before_it_is_inflated(tmp_
         'extra': (archive(tmp_path / 'extra.npz', dict(lin_members, **{'bomb.npy': lambda f: (
             f.write(bomb_header), zeros_into(gib // 4)(f))}), zipfile.ZIP_DEFLATED), 'unexpected'),
         'offsets': (archive(tmp_path / 'offsets.npz', dict(q_members, **{'feature_offsets.npy': lambda f: (
-            f.write(npy_header('<f4', (gib // 4,))), zeros_into(gib // 4)(f))}), zipfile.ZIP_DEFLATED), 'feature_offsets'),
+            f.write(npy_header('<f4', (gib // 4,))), zeros_into(gib // 4)(f))}), zipfile.ZIP_DEFLATED),
+                    'feature_offsets'),
         'metadata': (archive(tmp_path / 'meta.npz', dict(lin_members, **{'metadata.npy': lambda f: (
             f.write(npy_header('<U268435456', ())), zeros_into(gib // 4)(f))}), zipfile.ZIP_DEFLATED), 'characters'),
     }

@@ -173,3 +173,16 @@ def check_state(state, what: str = 'state') -> np.ndarray:
     if not np.isfinite(s).all():
         raise RequestError(f'{what} must be finite numbers, got {[float(v) for v in s]}')
     return s
+
+
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def check_observation(state) -> np.ndarray:
+    """A state a policy can act on (both kinds: one rule, one message): 4 finite numbers whose float32, gymnasium's
+    observation type, is finite too. Returns them as float64."""
+    s = check_state(state)
+    if np.abs(s).max() > FLOAT32_MAX:
+        raise RequestError(f'state must be within float32 range (|v| <= {FLOAT32_MAX:.3g}): a policy sees '
+                           f'gymnasium\'s float32 observation, got {[float(v) for v in s]}')
+    return s

@@ -21,7 +21,8 @@ from typing import Callable, ClassVar, NamedTuple
 
 import numpy as np
 
-from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError, check_state, rng_for, start_states
+from robot_ai.cartpole.dynamics import (CartPoleDynamics, RequestError, check_observation, check_state, rng_for,
+                                       start_states)
 
 DEFAULTS = dict(env_id='CartPole-v1', iterations=100, episodes=100, final_episodes=100)
 MAX_ITERATIONS = 100000
@@ -66,7 +67,7 @@ def check_weights(weights) -> np.ndarray:
 
 def act(weights, state) -> int:
     """The course's policy: 1 (push right) if state.w > 0, else 0."""
-    return 1 if float(np.dot(check_state(state), weights)) > 0 else 0
+    return 1 if float(np.dot(check_observation(state), weights)) > 0 else 0
 
 
 def evaluate(dynamics: CartPoleDynamics, weights, episodes: int, max_steps: int, seed: int) -> np.ndarray:

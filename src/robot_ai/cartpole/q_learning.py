@@ -37,7 +37,7 @@ from typing import Callable, ClassVar, NamedTuple
 
 import numpy as np
 
-from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError, check_state, rng_for, start_states
+from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError, check_observation, rng_for, start_states
 from robot_ai.child_process import FrameReader, process_stat, spawn, write_frame
 
 DEFAULTS = dict(env_id='CartPole-v0', episodes=500, gamma=0.99, regressor='tf', components=1000, learners=1)
@@ -58,7 +58,6 @@ MAX_SECONDS = 120.0
 MAX_EVAL_EPISODES = 1000         # greedy episodes stepped together: (1,000 x 4,000) float32 features a step
 GREEDY_EPISODES = 100            # greedy episodes that compare the learners when a training ends
 CHUNK_FEATURES = 4 * 1024 * 1024  # float32 features computed at once by a batched policy: 16 MiB, whatever the batch
-FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 class Training(NamedTuple):
@@ -173,15 +172,6 @@ class LinearQ:
     def update(self, x: np.ndarray, action: int, target: float, prediction: float) -> None:
         """w[action] += rate (target - prediction) x, where prediction is x.w[action] before the update."""
         self.w[action] += np.float32(self.rate * (target - prediction)) * x
-
-
-def check_observation(state) -> np.ndarray:
-    """A state the agent can see: 4 finite numbers whose float32 (gymnasium's observation) is finite too."""
-    s = check_state(state)
-    if np.abs(s).max() > FLOAT32_MAX:
-        raise RequestError(f'state must be within float32 range (|v| <= {FLOAT32_MAX:.3g}): the agent sees '
-                           f'gymnasium\'s float32 observation, got {[float(v) for v in s]}')
-    return s
 
 
 @dataclass(frozen=True, eq=False)

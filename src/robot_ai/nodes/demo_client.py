@@ -24,6 +24,7 @@ import queue
 import sys
 import time
 
+import rospkg
 import rospy
 import tf2_ros
 from sensor_msgs.msg import JointState
@@ -44,6 +45,39 @@ def wait_plot(path: str, timeout: float = 10.0) -> bool:
     while path and not os.path.isfile(path) and time.time() < deadline:
         time.sleep(0.1)
     return bool(path) and os.path.isfile(path)
+
+
+def last_words(node: str) -> str:
+    """The last FATAL or ERROR line `node` logged in this launch (rosout.log of the run's log folder), or ''."""
+    try:
+        folder = os.path.join(rospkg.get_log_dir(), str(rospy.get_param('/run_id')))
+        with open(os.path.join(folder, 'rosout.log'), errors='replace') as f:
+            lines = f.readlines()[-20000:]
+    except (OSError, KeyError, rospy.ROSException):
+        return ''
+    for line in reversed(lines):
+        words = line.split(None, 4)
+        if len(words) == 5 and words[1] in ('FATAL', 'ERROR') and words[2] == node:
+            text = words[4].split('] ', 2)[-1].strip()     # after [file:line(function)] [topics: ...]
+            return text[:300]
+    return ''
+
+
+def wait_for_node_service(service: str, timeout: float) -> None:
+    """rospy.wait_for_service, ended early when the node that serves it has died with a fatal error; the
+    ROSException then says which node, and why (its last words), not only that time ran out."""
+    node = '/' + service.strip('/').rsplit('/', 1)[0]
+    deadline = time.time() + timeout
+    while True:
+        try:
+            rospy.wait_for_service(service, min(2.0, max(0.1, deadline - time.time())))
+            return
+        except rospy.ROSException:
+            words = last_words(node)
+            if words or time.time() >= deadline:
+                raise rospy.ROSException(f'{node} is not serving {service}'
+                                         + (f': it ended with "{words}"' if words else
+                                            f' after {timeout:g} s (is it running? rosnode info {node})'))
 
 
 def artifact_failures(what: str, plot_ok: bool, record_video: bool, video_path: str) -> list[str]:
@@ -85,7 +119,7 @@ def closed_loop(ns: str, policy_path: str, balance_steps: int, push: float) -> t
     lines = []
     try:
         for name in ('cartpole_controller/load_policy', 'cartpole_sim/reset', 'cartpole_sim/push'):
-            rospy.wait_for_service(f'{ns}/{name}', 30)
+            wait_for_node_service(f'{ns}/{name}', 30)
         loaded = rospy.ServiceProxy(f'{ns}/cartpole_controller/load_policy', LoadPolicy)(path=policy_path)
     except (rospy.ROSException, rospy.ServiceException) as e:
         return [f'  cartpole_sim and cartpole_controller not reached: {e}'], [f'cart-pole nodes not reached: {e}']
@@ -177,7 +211,7 @@ def main():
     lines.append('cartpole_search: the course experiment (100 candidates x 100 episodes, CartPole-v1, seed 0)')
     search_policy = ''
     try:
-        rospy.wait_for_service(service, 60)
+        wait_for_node_service(service, 60)
         t0 = time.time()
         res = rospy.ServiceProxy(service, RandomSearch)(record_video=record_video)
         round_trip = time.time() - t0
@@ -206,7 +240,7 @@ def main():
                  f'{q_learners} learner{"s" if q_learners > 1 else ""}')
     q_policy = ''
     try:
-        rospy.wait_for_service(q_service, 60)
+        wait_for_node_service(q_service, 60)
         res = rospy.ServiceProxy(q_service, QLearning)(learners=q_learners, record_video=record_video)
     except (rospy.ROSException, rospy.ServiceException) as e:
         lines.append(f'  service failed: {e}')
