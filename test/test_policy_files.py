@@ -211,6 +211,14 @@ class TestPolicyFiles(unittest.TestCase):
         for seed, avg in zip(result.learner_seeds, result.last100_averages):
             self.assertIn(str(seed), result.message)
             self.assertGreater(avg, 0)
+        # issue 27: a cancelled goal keeps its time and its best so far as a policy file and a CSV log
+        self.assertGreater(result.elapsed, 1.0)
+        kept = policies.load(result.policy_path)
+        self.assertIn('cancelled', kept.metadata['source'])
+        self.assertIn(kept.seed, result.learner_seeds)
+        with open(result.log_path) as f:
+            rows = list(csv.reader(f))[1:]
+        self.assertEqual({int(r[1]) for r in rows if int(r[2]) == 1000}, set(result.learner_seeds))
 
         search = actionlib.SimpleActionClient(SEARCH + 'search', RandomSearchAction)
         self.assertTrue(search.wait_for_server(rospy.Duration(30)))
@@ -225,6 +233,12 @@ class TestPolicyFiles(unittest.TestCase):
         self.assertEqual(len(result.best_weights), 4)
         self.assertEqual(result.best_avg_length, max(result.avg_lengths))
         self.assertIn('best so far', result.message)
+        self.assertGreater(result.elapsed, 0.0)
+        kept = policies.load(result.policy_path)
+        self.assertEqual(list(kept.actor.weights), list(result.best_weights))
+        self.assertIn('cancelled', kept.metadata['source'])
+        with open(result.log_path) as f:
+            self.assertEqual(len(list(csv.reader(f))) - 1, len(result.avg_lengths))
 
     def test_8_a_bomb_costs_the_node_nothing_and_a_false_claim_pins_nothing(self):
         """Issue 23: a 2 MB file inflating to 2 GiB took 2.15 GB of cartpole_q_learning for good; a policy averaging

@@ -223,6 +223,21 @@ def prepare_output_dir(output_dir: str) -> str:
 
 
 @dataclass
+class CancelledRun:
+    """What a cancelled goal kept: its result so far, the seconds it ran, and the files of its best so far (None:
+    nothing had finished)."""
+    result: object
+    elapsed: float
+    files: 'Files | None' = None
+
+    def fields(self) -> dict:
+        return dict(elapsed=self.elapsed, **(self.files.fields() if self.files is not None else {}))
+
+    def note(self) -> str:
+        return f'; {self.files.note}' if self.files is not None else '; no files: nothing had finished'
+
+
+@dataclass
 class Files:
     """The files of one search or training: each path '' unless written (the plot: queued for drawing)."""
     plot_path: str = ''

@@ -43,8 +43,8 @@ from robot_ai.cartpole import artifacts, policies, q_learning
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.q_learning import Agent
 from robot_ai.msg import QLearningAction, QLearningFeedback, QLearningProgress, QLearningResult
-from robot_ai.nodes.agent_common import (PlotProcess, agent_settings, answer, answer_goal, answer_load, policy_param,
-                                         write_files)
+from robot_ai.nodes.agent_common import (CancelledRun, PlotProcess, agent_settings, answer, answer_goal, answer_load,
+                                         policy_param, write_files)
 from robot_ai.nodes.params import run_node
 from robot_ai.srv import (Act, ActResponse, EvaluateAgent, EvaluateAgentResponse, LoadPolicy, QLearning,
                           QLearningResponse)
@@ -114,7 +114,7 @@ class CartPoleQLearningNode:
             for j, why in result.failed.items():
                 rospy.logerr(f'training: learner {j} (seed {req.seed + j}) failed: {why}')
             if result.cancelled:
-                return None, result
+                return None, self._cancelled(result, training, req, time.time() - t0)
             self.trainings += 1
             number, env_id = self.trainings, training.dynamics.env_id
             best = result.best_learner()
@@ -138,6 +138,22 @@ class CartPoleQLearningNode:
                     best_learner=best, best_greedy_average=figures['greedy_average'],
                     mean_last100=result.mean_last100, ci95_last100=result.ci95_last100, elapsed=elapsed,
                     **files.fields()), result
+
+    def _cancelled(self, result, training, req, elapsed: float) -> CancelledRun:
+        """A cancelled training keeps the best of its finished learners as a policy file, and every episode played
+        as a CSV log (and their plot); the file's source says it was cancelled."""
+        if not result.finished:
+            return CancelledRun(result, elapsed)
+        env_id, best = training.dynamics.env_id, result.best_learner()
+        agent, figures = result.agents[best], result.figures_of(best)
+        source = (f'a training of cartpole_q_learning cancelled with {len(result.finished)} of {training.learners} '
+                  f'learners finished, learner {best}')
+        files = write_files(
+            self.plots, self.output_dir, 'qlearning', env_id, req.seed, artifacts.q_learning_plot_job(result),
+            policy=lambda path: policies.save(path, agent, env_id, req.seed + best, training.settings(), figures,
+                                              source),
+            log=artifacts.q_learning_log(result))
+        return CancelledRun(result, elapsed, files)
 
     def _keep_better(self, agent: Agent, training, seed: int, number: int, learner: int, figures: dict) -> str:
         """The training's best learner becomes the node's agent if its greedy average is at least the current
@@ -164,14 +180,16 @@ class CartPoleQLearningNode:
         return answer(lambda: self._train(req), QLearningResponse, 'training')
 
     def _on_goal(self, goal):
-        def cancelled(result):
+        def cancelled(run: CancelledRun):
+            result = run.result
             seeds = ', '.join(str(s) for s in result.learner_seeds)
             which = (f'learners {", ".join(str(j) for j in result.finished)} (seeds {seeds}) had finished'
                      if result.finished else 'no learner had finished')
-            return (f'cancelled: {which}, {len(result.finished)} of {result.training.learners}',
+            return (f'cancelled: {which}, {len(result.finished)} of {result.training.learners}{run.note()}',
                     dict(total_rewards=list(result.total_rewards[0]) if result.total_rewards else [],
                          last100_averages=list(result.last100_averages), learner_seeds=result.learner_seeds,
-                         best_learner=-1, mean_last100=result.mean_last100, ci95_last100=result.ci95_last100))
+                         best_learner=-1, mean_last100=result.mean_last100, ci95_last100=result.ci95_last100,
+                         **run.fields()))
         answer_goal(self.action, lambda: self._train(goal, self.action.publish_feedback,
                                                      self.action.is_preempt_requested),
                     QLearningResult, 'training', cancelled)

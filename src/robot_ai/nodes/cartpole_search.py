@@ -39,8 +39,8 @@ from robot_ai.cartpole import artifacts, linear_search, policies
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchResult, SearchProgress
-from robot_ai.nodes.agent_common import (PlotProcess, agent_settings, answer, answer_goal, answer_load, policy_param,
-                                         write_files)
+from robot_ai.nodes.agent_common import (CancelledRun, PlotProcess, agent_settings, answer, answer_goal, answer_load,
+                                         policy_param, write_files)
 from robot_ai.nodes.params import run_node
 from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, LoadPolicy, RandomSearch,
                           RandomSearchResponse)
@@ -96,7 +96,7 @@ class CartPoleSearchNode:
                                                  should_stop=lambda: rospy.is_shutdown() or bool(
                                                      should_stop and should_stop()))
             if result.cancelled:
-                return None, result
+                return None, self._cancelled(result, req, env_id, time.time() - t0)
             self.searches += 1
             number = self.searches
             kept = self._keep_better(result, number)
@@ -116,6 +116,22 @@ class CartPoleSearchNode:
         return dict(success=True, message=message, best_weights=list(result.best_weights),
                     best_avg_length=result.best_avg_length, avg_lengths=list(result.avg_lengths),
                     final_avg_length=result.final_avg_length, elapsed=elapsed, **files.fields()), result
+
+    def _cancelled(self, result, req, env_id: str, elapsed: float) -> CancelledRun:
+        """A cancelled search keeps its best so far as a policy file and its candidates as a CSV log (and their
+        plot); the file's source says it was cancelled, its figures have no final evaluation."""
+        if not len(result.avg_lengths):
+            return CancelledRun(result, elapsed)
+        weights = result.best_weights
+        figures = {k: v for k, v in result.figures().items() if k != 'final_avg_length'}
+        source = (f'a search of cartpole_search cancelled after {len(result.avg_lengths)} of {result.iterations} '
+                  'candidates (its best so far)')
+        files = write_files(
+            self.plots, self.output_dir, 'search', env_id, req.seed, artifacts.search_plot_job(result),
+            policy=lambda path: policies.save(path, LinearPolicy(weights), env_id, req.seed, result.settings(),
+                                              figures, source),
+            log=artifacts.search_log(result))
+        return CancelledRun(result, elapsed, files)
 
     def _keep_better(self, result, number: int) -> str:
         """Make the search's best the node's policy if its final average is at least the current policy's."""
@@ -149,13 +165,14 @@ class CartPoleSearchNode:
             self.action.publish_feedback(RandomSearchFeedback(iteration=i, iterations=n, best_avg_length=best,
                                                               elapsed=elapsed))
 
-        def cancelled(result):
+        def cancelled(run: CancelledRun):
+            result = run.result
             avgs = result.avg_lengths
             best = f'; best so far: candidate {result.best_index + 1}, average {result.best_avg_length:.1f}' \
                 if len(avgs) else ''
-            return (f'cancelled after {len(avgs)} of {result.iterations} candidates{best}',
+            return (f'cancelled after {len(avgs)} of {result.iterations} candidates{best}{run.note()}',
                     dict(avg_lengths=list(avgs), best_avg_length=result.best_avg_length,
-                         best_weights=list(result.best_weights) if len(avgs) else []))
+                         best_weights=list(result.best_weights) if len(avgs) else [], **run.fields()))
         answer_goal(self.action, lambda: self._search(goal, feedback, self.action.is_preempt_requested),
                     RandomSearchResult, 'search', cancelled)
 
