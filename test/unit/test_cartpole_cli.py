@@ -52,7 +52,7 @@ def path_of(proc, label):
     return [l.split()[-1] for l in proc.stdout.splitlines() if l.split() and l.split()[0] == label][0]
 
 
-@pytest.mark.parametrize('args, message', [(['random-search', '--iterations', '-5'], 'iterations must be 1 to'),
+@pytest.mark.parametrize('args, message', [(['random-search', '--iterations', '-5'], '--iterations: must be 1 to 100000, got -5'),
                                            (['random-search', '--env-id', 'x'], 'invalid choice')])
 def test_bad_options_say_what_is_allowed(tmp_path, args, message):
     proc = run(args, tmp_path)
@@ -91,6 +91,22 @@ def test_q_learning_ends_as_the_course_prints(tmp_path):
 def test_bad_files_and_folders_are_one_line_before_any_work(tmp_path, args, message):
     proc = run(args, tmp_path)
     assert proc.returncode == 2 and message in proc.stderr and 'Traceback' not in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize('args, message', [
+    (['random-search', '--iterations', '0'], '--iterations: must be 1 to 100000, got 0'),
+    (['random-search', '--episodes', '0'], '--episodes: must be 1 to 10000, got 0'),
+    (['random-search', '--final-episodes', '0'], '--final-episodes: must be 1 to 10000, got 0'),
+    (['q-learning', '--gamma', '0'], '--gamma: must be in (0, 1], got 0'),
+    (['q-learning', '--learners', '0'], '--learners: must be 1 to 64, got 0'),
+    (['q-learning', '--components', 'many'], "--components: must be a whole number from 1 to 10000, got 'many'"),
+    (['evaluate', 'x.npz', '--episodes', '0'], '--episodes: must be 1 to 1000, got 0')])
+def test_the_cli_refuses_what_its_help_does_not_allow(tmp_path, args, message):
+    """Issue 27: --iterations 0, --episodes 0 and --gamma 0 silently used the defaults while --help gave the ranges
+    1-100000 and (0, 1]. 0 meaning "the default" is a ROS request's habit only."""
+    proc = run(args, tmp_path)
+    assert proc.returncode == 2 and message in proc.stderr.strip().splitlines()[-1], proc.stderr
+    assert not os.listdir(tmp_path) or all(not f.endswith('.npz') for f in os.listdir(tmp_path))
 
 
 def test_the_package_prints_ascii_only():

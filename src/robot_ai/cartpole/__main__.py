@@ -21,6 +21,31 @@ from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics, Request
 from robot_ai.cartpole.linear_search import LinearPolicy
 
 
+def whole_number(low: int, high: int):
+    """An argparse type: a whole number from low to high, or the one-line error (status 2) that --help's range
+    promises. 0 means "the default" in a ROS request only, never here."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f'must be a whole number from {low} to {high}, got {text!r}')
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f'must be {low} to {high}, got {value}')
+        return value
+    return parse
+
+
+def discount(text: str) -> float:
+    """An argparse type: a number in (0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a number in (0, 1], got {text!r}')
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f'must be in (0, 1], got {value:g}')
+    return value
+
+
 def progress_bar(total: int, unit: str):
     from tqdm import tqdm
     return tqdm(total=total, unit=unit, file=sys.stderr, dynamic_ncols=True)
@@ -63,13 +88,13 @@ def random_search_parser(sub) -> None:
                        description='The course\'s random search: draw linear policies w in [-1, 1]^4, keep the '
                        'best average episode length, evaluate it on final episodes.')
     add_common(p, d['env_id'])
-    p.add_argument('--iterations', type=int, default=d['iterations'],
+    p.add_argument('--iterations', type=whole_number(1, linear_search.MAX_ITERATIONS), default=d['iterations'],
                    help=f'candidate policies to try (1 to {linear_search.MAX_ITERATIONS})')
-    p.add_argument('--episodes', type=int, default=d['episodes'],
+    p.add_argument('--episodes', type=whole_number(1, linear_search.MAX_EPISODES), default=d['episodes'],
                    help=f'episodes per candidate (1 to {linear_search.MAX_EPISODES})')
     p.add_argument('--max-steps', type=int, default=0, help='step limit of an episode; 0 = the environment\'s own')
-    p.add_argument('--final-episodes', type=int, default=d['final_episodes'],
-                   help='episodes of the final evaluation of the best policy')
+    p.add_argument('--final-episodes', type=whole_number(1, linear_search.MAX_EPISODES), default=d['final_episodes'],
+                   help=f'episodes of the final evaluation of the best policy (1 to {linear_search.MAX_EPISODES})')
     p.set_defaults(run=run_random_search)
 
 
@@ -116,15 +141,15 @@ def q_learning_parser(sub) -> None:
                        'average total reward of the last 100 episodes (the mean over learners if several). '
                        'The best learner (greedy average over 100 episodes, then last-100 average) is saved.')
     add_common(p, d['env_id'])
-    p.add_argument('--episodes', type=int, default=d['episodes'],
+    p.add_argument('--episodes', type=whole_number(1, q_learning.MAX_EPISODES), default=d['episodes'],
                    help=f'episodes per learner (1 to {q_learning.MAX_EPISODES})')
-    p.add_argument('--gamma', type=float, default=d['gamma'], help='discount, in (0, 1]')
+    p.add_argument('--gamma', type=discount, default=d['gamma'], help='discount, in (0, 1]')
     p.add_argument('--regressor', default=d['regressor'], choices=sorted(q_learning.REGRESSORS),
                    help='tf: the warm-up\'s (w ~ N(0, 1), w += 0.2 (G - x.w) x); sgd: q_learning.py\'s '
                    '(w ~ N(0, 1)/sqrt(D), w += 0.1 (G - x.w) x)')
-    p.add_argument('--components', type=int, default=d['components'],
+    p.add_argument('--components', type=whole_number(1, q_learning.MAX_COMPONENTS), default=d['components'],
                    help=f'random Fourier features per RBF bank (4 banks; 1 to {q_learning.MAX_COMPONENTS})')
-    p.add_argument('--learners', type=int, default=d['learners'],
+    p.add_argument('--learners', type=whole_number(1, q_learning.MAX_LEARNERS), default=d['learners'],
                    help=f'independent learners, seeds seed, seed+1, ... (1 to {q_learning.MAX_LEARNERS}), spread over '
                    'the cores')
     p.add_argument('--bootstrap-at-time-limit', action='store_true',
@@ -187,7 +212,8 @@ def evaluate_parser(sub) -> None:
                        description='Play episodes with the policy of a file (either kind), start states from the '
                        'seed, and print the average episode length.')
     p.add_argument('policy', help='a policy file (.npz)')
-    p.add_argument('--episodes', type=int, default=100, help=f'episodes (1 to {q_learning.MAX_EVAL_EPISODES})')
+    p.add_argument('--episodes', type=whole_number(1, q_learning.MAX_EVAL_EPISODES), default=100,
+                   help=f'episodes (1 to {q_learning.MAX_EVAL_EPISODES})')
     p.add_argument('--seed', type=int, default=0, help='seed of the start states')
     p.add_argument('--env-id', default='', choices=('',) + SUPPORTED_ENVS, help='"" = the policy\'s own env')
     p.add_argument('--max-steps', type=int, default=0, help='step limit of an episode; 0 = the environment\'s own')
