@@ -30,6 +30,7 @@ def patched_gui_module():
 @quiet_on_shutdown
 def main():
     import joint_state_publisher
+    from python_qt_binding.QtCore import QTimer
     from python_qt_binding.QtWidgets import QApplication
     gui_module = patched_gui_module()
     try:
@@ -42,7 +43,16 @@ def main():
         gui.show()
         gui.sliderUpdateTrigger.emit()
         threading.Thread(target=gui.jsp.loop, daemon=True).start()
-        signal.signal(signal.SIGINT, signal.SIG_DFL)
-        sys.exit(app.exec_())
+        # Ctrl-C (roslaunch's SIGINT) and SIGTERM close the window and shut rospy down, which unregisters the node
+        # from the master: killed by the default SIGINT, it stayed in `rosnode list` on a master that stays up.
+        # Qt's event loop runs no Python code by itself: a timer lets the interpreter run the handler.
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, lambda *_: app.quit())
+        timer = QTimer()
+        timer.timeout.connect(lambda: None)
+        timer.start(200)
+        status = app.exec_()
+        rospy.signal_shutdown('the sliders window closed')
+        sys.exit(status)
     except rospy.ROSInterruptException:
         pass
