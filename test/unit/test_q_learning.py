@@ -111,7 +111,8 @@ def test_learner_in_a_batch_is_the_single_run_with_its_seed_and_seeds_repeat():
         assert batch.total_rewards[k].tobytes() == single.tobytes() == inline.total_rewards[k].tobytes()
         for name in ('q_weights', 'feature_weights', 'feature_offsets'):  # every learner's agent comes back whole
             assert getattr(batch.agents[k], name).tobytes() == getattr(agent, name).tobytes()
-        assert batch.greedy_averages[k] == inline.greedy_averages[k] == ql.greedy_average(agent, training, 10)
+        # issue 27: every figure of learner k is the single run's with seed + k, its greedy average too
+        assert batch.greedy_averages[k] == inline.greedy_averages[k] == ql.greedy_average(agent, training, 10 + k)
     assert list(batch.last100_averages) == [r[-100:].mean() for r in batch.total_rewards]
     assert batch.finished == [0, 1, 2] and batch.learner_seeds == [10, 11, 12]
     best = batch.best_learner()
@@ -119,6 +120,8 @@ def test_learner_in_a_batch_is_the_single_run_with_its_seed_and_seeds_repeat():
         zip(batch.greedy_averages, batch.last100_averages))
     other = ql.train(training, 11, workers=2)
     assert other.total_rewards[0].tobytes() == batch.total_rewards[1].tobytes()  # seed 11 = learner 1 of seed 10
+    assert other.greedy_averages[0] == batch.greedy_averages[1] and other.figures_of(0)['greedy_average'] == \
+        batch.figures_of(1)['greedy_average']
     assert ql.train_one(training, -1)[0].tobytes() != ql.train_one(training, 1)[0].tobytes()
 
 
@@ -225,3 +228,15 @@ def test_agent_refuses_states_float32_cannot_hold():
     assert agent.act([0.0, 0.0, 0.01, 0.0]) in (0, 1)
     with pytest.raises(RequestError, match='float32 range'):
         agent.act([1e308, 0.0, 0.0, 0.0])
+
+
+def test_a_collapsed_learner_is_named():
+    """A learner whose final greedy agent is far below its last-100 average is named as collapsed (issue 27:
+    learners with 190-195 last-100 averages and 18-46 greedy averages looked contradictory)."""
+    import numpy as np
+    training = small(episodes=40, learners=2)
+    result = ql.train(training, 0, workers=1)
+    result.greedy_averages = np.array([10.0, result.last100_averages[1]])
+    result.last100_averages = np.array([190.0, result.last100_averages[1]])
+    assert ql.collapsed_learners(result) == [0]
+    assert 'learner 0: the final greedy agent is far below the last-100 average' in ql.collapse_note(result)

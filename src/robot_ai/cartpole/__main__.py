@@ -183,9 +183,14 @@ def run_q_learning(a, parser) -> int:
         print(f'training ended early: {len(result.finished)} of {training.learners} learners finished',
               file=sys.stderr)
     best = result.best_learner()
+    print('last-100 average: the exploring agent\'s total reward over its last 100 training episodes; greedy '
+          f'average: the final agent, greedy, over {q_learning.GREEDY_EPISODES} episodes (far below the other: '
+          'the agent collapsed at the end of its training)')
     for i, j in enumerate(result.finished):
         print(f'learner {j:2d} (seed {a.seed + j})  last-100 average {result.last100_averages[i]:.2f}, greedy '
               f'average {result.greedy_averages[i]:.2f}{"  <- best" if j == best else ""}')
+    if q_learning.collapse_note(result):
+        print(q_learning.collapse_note(result))
     if len(result.last100_averages) > 1:
         print(f'mean of {len(result.last100_averages)} learners    {result.mean_last100:.2f} +/- '
               f'{result.ci95_last100:.2f} (95% interval of the mean)')

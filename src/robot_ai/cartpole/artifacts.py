@@ -89,6 +89,13 @@ def q_learning_plot_job(result) -> dict:
     spread = (f'{len(result.last100_averages)} learners, last-100 average {result.mean_last100:.1f} '
               f'$\\pm$ {result.ci95_last100:.1f}' if len(result.last100_averages) > 1   # mathtext: a real +-
               else f'last-100 average {result.mean_last100:.1f}')
+    if len(result.greedy_averages):
+        greedy = result.greedy_averages
+        spread += (f'; final greedy agents: {greedy.min():.1f} to {greedy.max():.1f} steps' if len(greedy) > 1
+                   else f'; final greedy agent: {greedy[0]:.1f} steps')
+        from robot_ai.cartpole.q_learning import collapse_note
+        if collapse_note(result):
+            spread += '\n' + collapse_note(result)
     if result.failed:   # their curves stop where their processes did
         spread += (f'\n{"learners" if len(result.failed) > 1 else "learner"} {", ".join(map(str, result.failed))} '
                    'failed: the curve stops where the process did')

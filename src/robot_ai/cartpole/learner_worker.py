@@ -60,7 +60,7 @@ def main() -> int:
     while (message := read_frame(sys.stdin.buffer)) is not None:
         j = message[1]
         _, agent = train_one(training, seed + j, lambda e, r, eps: send(('episode', j, e, r, eps)))
-        send(('done', j, agent, greedy_average(agent, training, seed)))
+        send(('done', j, agent, greedy_average(agent, training, seed + j)))
     return 0
 
 

@@ -19,7 +19,11 @@ step the epsilon draw and the random action, per episode the start state), so le
 is exactly the single run with seed + k, in this process or in a worker process.
 
 When a learner finishes, its greedy agent plays GREEDY_EPISODES greedy episodes whose start states come from the
-training's seed (the same episodes for every learner), so that the learners can be compared:
+learner's own seed, so that every figure of learner k equals the single run's with seed + k. Two figures say how
+a learner did, and they answer different questions: its last-100 average is the exploring agent's total reward
+over its last 100 training episodes (epsilon-greedy, learning as it goes); its greedy average is how long the
+final agent, acting greedily and learning no more, keeps the pole up. A learner whose greedy average is far below
+its last-100 average collapsed at the end of its training (its last updates undid what it had learnt):
 
     training = resolve(episodes=500, learners=4)             # defaults filled in, every value checked
     result = train(training, seed=0)                         # result.total_rewards, result.last100_averages
@@ -273,7 +277,7 @@ def train_one(training: Training, seed: int, progress: Callable | None = None,
 
 def greedy_average(agent: Agent, training: Training, seed: int, episodes: int = GREEDY_EPISODES) -> float:
     """The average length of `episodes` greedy episodes of agent on the training's env and step limit, start states
-    from the training's seed: the same episodes for every learner of a training and for the agent it competes with."""
+    from seed (a learner's own: batch seed + k), the final agent's figure beside its last-100 average."""
     return float(agent.evaluate(training.dynamics, episodes, training.max_steps, seed).mean())
 
 
@@ -347,6 +351,25 @@ class TrainingResult:
                     greedy_episodes=GREEDY_EPISODES, learner=learner, batch_seed=self.seed)
 
 
+COLLAPSED = 0.5    # a final greedy agent below this fraction of its last-100 average has collapsed
+
+
+def collapsed_learners(result: TrainingResult) -> list[int]:
+    """The finished learners whose final greedy agent is far below their last-100 average: the exploring agent did
+    well at the end of its training, the final agent does not."""
+    return [j for j, greedy, last100 in zip(result.finished, result.greedy_averages, result.last100_averages)
+            if greedy < COLLAPSED * last100]
+
+
+def collapse_note(result: TrainingResult) -> str:
+    """'' or a sentence naming the collapsed learners."""
+    bad = collapsed_learners(result)
+    if not bad:
+        return ''
+    return (f'{"learners" if len(bad) > 1 else "learner"} {", ".join(map(str, bad))}: the final greedy agent '
+            'is far below the last-100 average (the exploring agent\'s): collapsed at the end of its training')
+
+
 def summary(result: TrainingResult) -> str:
     """One line of what a training gave, ending as the course's script does."""
     t = result.training
@@ -384,7 +407,7 @@ def _finish(training: Training, batch_seed: int, j: int, totals: np.ndarray, age
     """What a learner sends back: its totals, and its agent and greedy average if it played every episode."""
     if len(totals) < training.episodes:
         return totals, None, None
-    return totals, agent, greedy_average(agent, training, batch_seed)
+    return totals, agent, greedy_average(agent, training, batch_seed + j)
 
 
 def train(training: Training, seed: int = 0, progress: Callable | None = None,

@@ -129,8 +129,10 @@ class CartPoleQLearningNode:
                 log=artifacts.q_learning_log(result), video=video)
             elapsed = time.time() - t0
         failures = ''.join(f'; learner {j} (seed {req.seed + j}) failed: {why}' for j, why in result.failed.items())
+        collapsed = f'; {q_learning.collapse_note(result)}' if q_learning.collapse_note(result) else ''
         message = (f'{q_learning.summary(result)}{failures}; best learner {best} (seed {req.seed + best}): greedy '
-                   f'average {figures["greedy_average"]:.1f} over {q_learning.GREEDY_EPISODES} episodes; {kept}; '
+                   f'average {figures["greedy_average"]:.1f} over {q_learning.GREEDY_EPISODES} episodes{collapsed}; '
+                   f'{kept}; '
                    f'{files.note}')
         rospy.loginfo(message)
         return dict(success=True, message=message, total_rewards=list(result.total_rewards[0]),
@@ -157,12 +159,12 @@ class CartPoleQLearningNode:
 
     def _keep_better(self, agent: Agent, training, seed: int, number: int, learner: int, figures: dict) -> str:
         """The training's best learner becomes the node's agent if its greedy average is at least the current
-        agent's on the same greedy episodes (the training's env, start states from its seed)."""
+        agent's on the same greedy episodes (the training's env, start states from the learner's seed)."""
         origin = (f'training {number}, learner {learner} (seed {seed + learner}, {training.dynamics.env_id}, greedy '
                   f'average {figures["greedy_average"]:.1f}, last-100 average {figures["last100_average"]:.1f})')
         current = self.served
         if current is not None:
-            theirs = q_learning.greedy_average(current.agent, training, seed)
+            theirs = q_learning.greedy_average(current.agent, training, seed + learner)
             if figures['greedy_average'] < theirs:
                 return (f'the node keeps its agent from {current.origin}, whose greedy average on the same '
                         f'episodes is {theirs:.1f}')
