@@ -340,6 +340,16 @@ class TestLaunch(unittest.TestCase):
         said = [l for l in text.splitlines() if 'ur6' in l or 'Exception' in l or 'rror' in l]
         self.assertEqual(said, ['robot:=ur6 is not one of the package robots (ur5, kuka_lwr); for any other URDF give '
                                 'model:=/path/to/robot.urdf'], text)
+        # issue 27: a wrong or relative model:= was four lines from roslaunch; now one, naming the path it tried
+        for model, tried in (('urdf/nothere.urdf', '/urdf/nothere.urdf'), ('/nonexistent/robot.urdf', None)):
+            status, text = run_to_end([f'model:={model}'], launch_file='forward_kinematics.launch', timeout=60)
+            self.assertNotEqual(status, 0)
+            said = [l for l in text.splitlines() if 'nothere' in l or 'nonexistent' in l or 'rror' in l
+                    or 'Exception' in l]
+            self.assertEqual(len(said), 1, text)
+            self.assertIn(f'model:={model}: no such file', said[0])
+            if tried:
+                self.assertIn('a relative model:= is taken inside the robot_ai package', said[0])
 
     def test_sliders_under_xvfb(self):
         """gui:=true: the sliders' window opens (Debian 12's joint_state_publisher_gui crashed) and joint_states
