@@ -19,6 +19,7 @@ import numpy as np
 from robot_ai.cartpole import artifacts, linear_search, policies, q_learning
 from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
+from robot_ai.text import counted
 
 
 def whole_number(low: int, high: int):
@@ -117,7 +118,7 @@ def run_random_search(a, parser) -> int:
         bar.close()
     print(f'best weights      {np.array2string(result.best_weights, precision=4)}')
     print(f'best average      {result.best_avg_length:.2f} (candidate {result.best_index + 1} of {search.iterations})')
-    print(f'final average     {result.final_avg_length:.2f} over {search.final_episodes} episodes')
+    print(f'final average     {result.final_avg_length:.2f} over {counted(search.final_episodes, "episode")}')
     print(f'random actions    {result.baseline_avg_length:.2f}')
     print(f'search time       {result.elapsed:.3f} s')
     stem = artifacts.artifact_stem(folder, 'search', result.env_id, a.seed)
@@ -236,7 +237,7 @@ def run_evaluate(a, parser) -> int:
         parser.error(str(e))
     lengths = policy.evaluate(dynamics, a.episodes, max_steps, a.seed)
     print(policy.describe())
-    print(f'{a.episodes} episodes of {dynamics.env_id} (seed {a.seed}): lengths from {lengths.min()} to '
+    print(f'{counted(a.episodes, "episode")} of {dynamics.env_id} (seed {a.seed}): lengths from {lengths.min()} to '
           f'{lengths.max()}')
     print(f'average length: {lengths.mean():.2f}')
     return 0

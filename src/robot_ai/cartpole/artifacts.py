@@ -199,12 +199,12 @@ def record_video(env_id: str, policy, max_steps: int, seed: int, path: str) -> t
     beside path, named after this process, and renamed into place when complete."""
     os.environ.setdefault('SDL_VIDEODRIVER', 'dummy')
     os.environ.setdefault('SDL_AUDIODRIVER', 'dummy')
-    import gymnasium as gym
     import imageio_ffmpeg
+    from robot_ai.cartpole.dynamics import make_env
     folder = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix=f'{TEMP_PREFIX}{os.getpid()}_', suffix='.mp4', dir=folder)
     os.close(fd)
-    env = gym.make(env_id, render_mode='rgb_array', max_episode_steps=max_steps)
+    env = make_env(env_id, render_mode='rgb_array', max_episode_steps=max_steps)
     writer = None
     try:
         obs, _ = env.reset(seed=int(seed) % (2 ** 32))

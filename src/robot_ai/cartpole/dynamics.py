@@ -44,7 +44,7 @@ class CartPoleDynamics:
             raise RequestError(f'env_id {env_id!r} is {"not a CartPole environment" if known else "unknown"}; '
                                f'allowed: {", ".join(SUPPORTED_ENVS)}')
         spec = gym.spec(env_id)
-        env = gym.make(env_id).unwrapped
+        env = make_env(env_id).unwrapped
         if getattr(env, 'kinematics_integrator', 'euler') != 'euler' or getattr(env, '_sutton_barto_reward', False):
             raise RequestError(f'{env_id} is configured differently from the course (euler, reward 1 a step)')
         self.env_id = env_id
@@ -150,6 +150,16 @@ class CartPoleDynamics:
 
 
 @functools.lru_cache(maxsize=None)
+def make_env(env_id: str, **kwargs):
+    """gymnasium.make(env_id, **kwargs) without gymnasium's DeprecationWarning for CartPole-v0: v0 is the course's
+    env on purpose, and the warning landed in the middle of the demo's summary."""
+    import warnings
+    import gymnasium as gym
+    with warnings.catch_warnings():
+        warnings.filterwarnings('ignore', message='.*out of date', category=DeprecationWarning)
+        return gym.make(env_id, **kwargs)
+
+
 def _dynamics_of(env_id):
     return CartPoleDynamics(env_id)
 

@@ -43,6 +43,7 @@ import numpy as np
 
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError, check_observation, rng_for, start_states
 from robot_ai.child_process import FrameReader, process_stat, spawn, write_frame
+from robot_ai.text import counted
 
 DEFAULTS = dict(env_id='CartPole-v0', episodes=500, gamma=0.99, regressor='tf', components=1000, learners=1)
 REGRESSORS = {'tf': 0.2, 'sgd': 0.1}            # the rate of w += rate (G - x.w) x
@@ -374,7 +375,7 @@ def summary(result: TrainingResult) -> str:
     """One line of what a training gave, ending as the course's script does."""
     t = result.training
     head = (f'{result.env_id}, {t.regressor} regressor, {len(RBF_GAMMAS)} x {t.components} RBF features, '
-            f'gamma {t.gamma:g}, {t.episodes} episodes' + (', bootstrap at the time limit'
+            f'gamma {t.gamma:g}, {counted(t.episodes, "episode")}' + (', bootstrap at the time limit'
                                                             if t.bootstrap_at_time_limit else ''))
     avg = result.last100_averages
     last = f'avg reward for last {min(100, t.episodes)} episodes: {result.mean_last100:.2f}'  # the course's words

@@ -44,6 +44,7 @@ from robot_ai.nodes.agent_common import (CancelledRun, PlotProcess, agent_settin
 from robot_ai.nodes.params import run_node
 from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, LoadPolicy, RandomSearch,
                           RandomSearchResponse)
+from robot_ai.text import counted
 
 
 @dataclass(frozen=True)
@@ -109,9 +110,10 @@ class CartPoleSearchNode:
                                                   result.figures(), f'search {number} of cartpole_search'),
                 log=artifacts.search_log(result), video=video)
             elapsed = time.time() - t0
-        message = (f'best average {result.best_avg_length:.1f} of {iterations} candidates x {search.episodes} '
-                   f'episodes ({env_id}, seed {req.seed}); final {result.final_avg_length:.1f} over '
-                   f'{search.final_episodes} episodes; {kept}; {files.note}')
+        message = (f'best average {result.best_avg_length:.1f} of {counted(iterations, "candidate")} x '
+                   f'{counted(search.episodes, "episode")} ({env_id}, seed {req.seed}); final '
+                   f'{result.final_avg_length:.1f} over {counted(search.final_episodes, "episode")}; {kept}; '
+                   f'{files.note}')
         rospy.loginfo(message)
         return dict(success=True, message=message, best_weights=list(result.best_weights),
                     best_avg_length=result.best_avg_length, avg_lengths=list(result.avg_lengths),
@@ -170,7 +172,7 @@ class CartPoleSearchNode:
             avgs = result.avg_lengths
             best = f'; best so far: candidate {result.best_index + 1}, average {result.best_avg_length:.1f}' \
                 if len(avgs) else ''
-            return (f'cancelled after {len(avgs)} of {result.iterations} candidates{best}{run.note()}',
+            return (f'cancelled after {len(avgs)} of {counted(result.iterations, "candidate")}{best}{run.note()}',
                     dict(avg_lengths=list(avgs), best_avg_length=result.best_avg_length,
                          best_weights=list(result.best_weights) if len(avgs) else [], **run.fields()))
         answer_goal(self.action, lambda: self._search(goal, feedback, self.action.is_preempt_requested),
@@ -187,7 +189,7 @@ class CartPoleSearchNode:
                 weights, whose = linear_search.check_weights(req.weights), 'the given weights'
             search = linear_search.resolve(req.env_id, 1, req.episodes, req.max_steps, 1, self.defaults)
             lengths = linear_search.evaluate(search.dynamics, weights, search.episodes, search.max_steps, req.seed)
-            return EvaluatePolicyResponse(success=True, message=f'{search.episodes} episodes of '
+            return EvaluatePolicyResponse(success=True, message=f'{counted(search.episodes, "episode")} of '
                                           f'{search.dynamics.env_id} with {whose}',
                                           lengths=[int(v) for v in lengths], avg_length=float(lengths.mean()))
         except RequestError as e:

@@ -34,6 +34,7 @@ from robot_ai.msg import CartPoleEpisode
 from robot_ai.nodes.params import bool_param, int_param, number_param, quiet_on_shutdown, str_param
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.srv import LoadPolicy, PushPole, QLearning, RandomSearch
+from robot_ai.text import counted
 
 UPRIGHT = 0.02           # rad: the pole counts as back upright within this of vertical
 STALL = 20.0             # seconds without a cart-pole state after which the closed loop counts as stopped
@@ -146,12 +147,12 @@ def closed_loop(ns: str, policy_path: str, balance_steps: int, push: float) -> t
         lines.append(f'  {loaded.message}')
         lines.append(f'cartpole: the pole stayed up {up:.1f} s of {len(seen) * tau:.1f} s of simulated time '
                      f'(real_time_factor {rtf:g}: {len(seen) / max(1e-9, seconds):.0f} states/s measured'
-                     + (f', {missed} steps without the controller\'s answer' if missed else '') + ')'
+                     + (f', {counted(missed, "step")} without the controller\'s answer' if missed else '') + ')'
                      + (f'; the cart left the rail {drift} time(s) and the sim reset (the policy\'s drift)'
                         if drift else ''))
         failed = []
         if fell:
-            failed.append(f'the pole fell after {fell[0].steps} steps')
+            failed.append(f'the pole fell after {counted(fell[0].steps, "step")}')
         if len(seen) < balance_steps:
             failed.append(f'{len(seen)} of {balance_steps} states arrived (none for {STALL:g} s)')
         rospy.ServiceProxy(f'{ns}/cartpole_sim/push', PushPole)(angular_velocity=push)
