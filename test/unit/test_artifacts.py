@@ -107,7 +107,8 @@ def test_q_learning_plot(tmp_path):
                2: (result.total_rewards[2], result.agents[2], 120.0)}
     failed = q_learning._result(result.training, 0, partial, False, 1.0, {1: 'its process was killed by SIGKILL'})
     assert artifacts.q_learning_plot_job(failed)['title'].endswith(
-        f'2 learners, last-100 average {failed.mean_last100:.1f} $\\pm$ {failed.ci95_last100:.1f}\n'
+        f'2 learners, last-100 average {failed.mean_last100:.1f} $\\pm$ {failed.ci95_last100:.1f}; final greedy '
+        f'agents: {failed.greedy_averages.min():.1f} to {failed.greedy_averages.max():.1f} steps\n'
         'learner 1 failed: the curve stops where the process did')
 
 

@@ -367,8 +367,9 @@ def collapse_note(result: TrainingResult) -> str:
     bad = collapsed_learners(result)
     if not bad:
         return ''
-    return (f'{"learners" if len(bad) > 1 else "learner"} {", ".join(map(str, bad))}: the final greedy agent '
-            'is far below the last-100 average (the exploring agent\'s): collapsed at the end of its training')
+    return (f'collapsed at the end of training: {"learners" if len(bad) > 1 else "learner"} '
+            f'{", ".join(map(str, bad))} (the final greedy agent far below the last-100 average, the exploring '
+            'agent\'s)')
 
 
 def summary(result: TrainingResult) -> str:
