@@ -78,6 +78,12 @@ def test_q_learning_ends_as_the_course_prints(tmp_path):
     assert [r[:3] for r in rows[1:3]] == [['0', '4', '1'], ['0', '4', '2']] and rows[-1][:3] == ['1', '5', '120']
     ev = run(['evaluate', path_of(proc, 'policy'), '--episodes', '30', '--seed', '4'], tmp_path)
     assert ev.returncode == 0 and 'q_learning policy' in ev.stdout and 'average length: ' in ev.stdout
+    # issue 27: see a policy play
+    video = run(['evaluate', path_of(proc, 'policy'), '--episodes', '3', '--video', '--output-dir',
+                 str(tmp_path / 'videos')], tmp_path)
+    assert video.returncode == 0, video.stderr
+    mp4 = path_of(video, 'video')
+    assert mp4.startswith(str(tmp_path / 'videos')) and mp4.endswith('.mp4') and os.path.getsize(mp4) > 1000
     help_text = run(['q-learning', '--help'], tmp_path).stdout.replace('\n', ' ')
     for option in ('--episodes', '--gamma', '--regressor', '--components', '--learners', '--bootstrap-at-time-limit',
                    '--video', '--seed', '--env-id'):

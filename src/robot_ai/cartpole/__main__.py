@@ -223,6 +223,9 @@ def evaluate_parser(sub) -> None:
     p.add_argument('--seed', type=int, default=0, help='seed of the start states')
     p.add_argument('--env-id', default='', choices=('',) + SUPPORTED_ENVS, help='"" = the policy\'s own env')
     p.add_argument('--max-steps', type=int, default=0, help='step limit of an episode; 0 = the environment\'s own')
+    p.add_argument('--video', action='store_true', help='also write an mp4 of one episode (its start state from '
+                   'gymnasium\'s reset(seed)), as the searches do')
+    p.add_argument('--output-dir', default=artifacts.default_output_dir(), help='where the video goes')
     p.set_defaults(run=run_evaluate)
 
 
@@ -235,11 +238,16 @@ def run_evaluate(a, parser) -> int:
             raise RequestError(f'--episodes must be 1 to {q_learning.MAX_EVAL_EPISODES}, got {a.episodes}')
     except (policies.PolicyError, RequestError) as e:
         parser.error(str(e))
+    folder = output_folder(a, parser) if a.video else ''
     lengths = policy.evaluate(dynamics, a.episodes, max_steps, a.seed)
     print(policy.describe())
     print(f'{counted(a.episodes, "episode")} of {dynamics.env_id} (seed {a.seed}): lengths from {lengths.min()} to '
           f'{lengths.max()}')
     print(f'average length: {lengths.mean():.2f}')
+    if a.video:
+        stem = artifacts.artifact_stem(folder, 'evaluate', dynamics.env_id, a.seed)
+        write_or_say('video', lambda: artifacts.record_video(dynamics.env_id, policy.act, max_steps, a.seed,
+                                                             stem + '.mp4')[0])
     return 0
 
 
