@@ -88,10 +88,10 @@ def tracebacks(text):
     return found
 
 
-def start_xvfb():
+def start_xvfb(size='1024x768'):
     """(display name, Xvfb process) of a new virtual screen."""
     display = ':%d' % free_display()
-    xvfb = subprocess.Popen(['Xvfb', display, '-screen', '0', '1024x768x24', '-nolisten', 'tcp'],
+    xvfb = subprocess.Popen(['Xvfb', display, '-screen', '0', f'{size}x24', '-nolisten', 'tcp'],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     time.sleep(1.0)
     return display, xvfb
@@ -402,10 +402,12 @@ class TestLaunch(unittest.TestCase):
             self.assertTrue(local.startswith(('127.0.0.1:', '[::1]:')), line)
         self.assertTrue(any('"cartpole_search"' in l or 'python' in l for l in listening), listening)
 
-    def rviz_screenshot(self, launch_args, name, drawn, launch_file='demo.launch', keep_running=True):
+    def rviz_screenshot(self, launch_args, name, drawn, launch_file='demo.launch', keep_running=True,
+                        size='1024x768', crop=None):
         """Counts of colour_counts in a screenshot of rviz under Xvfb, taken once drawn(counts) says yes or after
-        90 s (rviz takes a while to start under software GL); the screenshot is kept as ARTIFACTS/name."""
-        display, xvfb = start_xvfb()
+        90 s (rviz takes a while to start under software GL); the screenshot is kept as ARTIFACTS/name. crop:
+        {name: (left, top, right, bottom)}: the counts of those parts of the screen instead, by name."""
+        display, xvfb = start_xvfb(size)
         proc = None
         try:
             # rviz writes ~/.rviz and Mesa ~/.cache: keep them in the build folder, ROS's logs where they are
@@ -421,7 +423,13 @@ class TestLaunch(unittest.TestCase):
                 time.sleep(3.0)
                 self.assertIsNone(proc.poll(), f'{launch_file} rviz:=true ended by itself')
                 subprocess.run(['import', '-display', display, '-window', 'root', shot], check=True, timeout=30)
-                counts = colour_counts(shot)
+                if crop:
+                    counts = {}
+                    for part, box in crop.items():
+                        Image.open(shot).crop(box).save(shot + f'.{part}.png')
+                        counts[part] = colour_counts(shot + f'.{part}.png')
+                else:
+                    counts = colour_counts(shot)
                 if drawn(counts):
                     break
                 output += proc.stdout.read() or b''
@@ -484,6 +492,20 @@ class TestLaunch(unittest.TestCase):
         # upright: the pole spans many rows, and its top stands well above the cart
         self.assertGreater(counts['pole_rows'], 60, f'the pole is not upright: {counts}')
         self.assertLess(counts['orange_top'], counts['blue_top'] - 50, f'the pole is not above the cart: {counts}')
+
+    def test_demo_rviz_shows_the_arm_and_the_cart_pole(self):
+        """Issue 27: demo.launch rviz:=true showed the arm only, not the cart-pole the demo also drives: a second
+        rviz window, to the right of the arm's (x 1030 on a screen wide enough), shows the cart-pole."""
+        def drawn(c):
+            return (c['arm']['orange'] > 3000 and c['arm']['blue'] > 500 and c['cartpole']['blue'] > 200
+                    and c['cartpole']['orange'] > 40)
+        counts = self.rviz_screenshot(['rviz:=true', 'record_video:=false',
+                                       'output_dir:=' + os.path.join(ARTIFACTS, 'rviz_both')], 'rviz_demo_both.png',
+                                      drawn, size='1700x768',
+                                      crop={'arm': (0, 0, 1024, 768), 'cartpole': (1030, 0, 1700, 768)})
+        self.assertGreater(counts['arm']['orange'], 3000, f'the arm is not drawn: {counts}')
+        self.assertGreater(counts['cartpole']['blue'], 200, f'the cart is not drawn: {counts}')
+        self.assertGreater(counts['cartpole']['orange'], 40, f'the pole is not drawn: {counts}')
 
 
 if __name__ == '__main__':
