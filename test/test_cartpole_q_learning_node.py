@@ -77,6 +77,29 @@ class TestCartPoleQLearningNode(unittest.TestCase):
             self.assertTrue(a.success, a.message)
             self.assertEqual(a.action, local.agents[0].act(state))
 
+    def test_1b_train_on_from_a_policy_file(self):
+        """Issue 27: ~train takes an initial policy file and continues its agent for more episodes (as
+        stable-baselines3's load() then learn()); the new file names the file it started from."""
+        first = self.train(episodes=60, components=50, seed=2)
+        self.assertTrue(first.success, first.message)
+        on = self.train(episodes=40, seed=3, initial_policy=first.policy_path)
+        self.assertTrue(on.success, on.message)
+        self.assertEqual(len(on.total_rewards), 40)
+        from robot_ai.cartpole import policies
+        start, kept = policies.load(first.policy_path), policies.load(on.policy_path)
+        self.assertEqual(kept.metadata['settings']['started_from'], first.policy_path)
+        self.assertEqual(kept.metadata['settings']['start_episode'], 60)
+        self.assertEqual(kept.metadata['settings']['components'], 50)
+        self.assertEqual(kept.actor.feature_weights.tobytes(), start.actor.feature_weights.tobytes())
+        local = q_learning.train(q_learning.resolve(episodes=40, start=start.actor,
+                                                    start_settings=start.metadata['settings']), 3)
+        self.assertEqual(list(on.total_rewards), list(local.total_rewards[0]))
+        for bad, message in (('/nonexistent.npz', 'initial_policy: no policy file at'),
+                             (first.log_path, 'initial_policy:')):
+            res = self.train(episodes=5, initial_policy=bad)
+            self.assertFalse(res.success)
+            self.assertIn(message, res.message)
+
     def test_2_learners_video_and_v1(self):
         res = self.train(env_id='CartPole-v1', episodes=150, components=200, learners=3, seed=-2, regressor='sgd',
                          gamma=0.95, bootstrap_at_time_limit=True, record_video=True)

@@ -240,3 +240,24 @@ def test_a_collapsed_learner_is_named():
     result.last100_averages = np.array([190.0, result.last100_averages[1]])
     assert ql.collapsed_learners(result) == [0]
     assert ql.collapse_note(result).startswith('collapsed at the end of training: learner 0 (the final greedy agent')
+
+
+def test_train_on_from_an_agent_as_load_then_learn():
+    """Issue 27: ~train and the CLI's q-learning take an initial policy and continue its agent: the same features,
+    its weights as the start, epsilon going on from its episodes; in worker processes as in this one."""
+    first = small(episodes=30)
+    _, agent = ql.train_one(first, 3)
+    on = ql.resolve(episodes=20, components=0, learners=2, start=agent, start_settings=first.settings())
+    assert on.components == first.components and on.start_episode == 30 and on.start is agent
+    eps = []
+    totals, continued = ql.train_one(on, 5, progress=lambda n, total, e: eps.append(e))
+    assert eps[0] == ql.epsilon(30) and eps[-1] == ql.epsilon(49)
+    assert continued.feature_weights.tobytes() == agent.feature_weights.tobytes()
+    assert continued.feature_offsets.tobytes() == agent.feature_offsets.tobytes()
+    assert continued.q_weights.tobytes() != agent.q_weights.tobytes()          # trained on
+    assert agent.q_weights.tobytes() == ql.train_one(first, 3)[1].q_weights.tobytes()   # the start is not modified
+    batch = ql.train(on, 5, workers=2)
+    assert batch.total_rewards[0].tobytes() == totals.tobytes()
+    assert batch.agents[0].q_weights.tobytes() == continued.q_weights.tobytes()
+    with pytest.raises(RequestError, match="components must be the start agent's"):
+        ql.resolve(components=first.components + 1, start=agent, start_settings=first.settings())

@@ -145,24 +145,34 @@ def q_learning_parser(sub) -> None:
     p.add_argument('--episodes', type=whole_number(1, q_learning.MAX_EPISODES), default=d['episodes'],
                    help=f'episodes per learner (1 to {q_learning.MAX_EPISODES})')
     p.add_argument('--gamma', type=discount, default=d['gamma'], help='discount, in (0, 1]')
-    p.add_argument('--regressor', default=d['regressor'], choices=sorted(q_learning.REGRESSORS),
+    p.add_argument('--regressor', default=None, choices=sorted(q_learning.REGRESSORS),
                    help='tf: the warm-up\'s (w ~ N(0, 1), w += 0.2 (G - x.w) x); sgd: q_learning.py\'s '
-                   '(w ~ N(0, 1)/sqrt(D), w += 0.1 (G - x.w) x)')
-    p.add_argument('--components', type=whole_number(1, q_learning.MAX_COMPONENTS), default=d['components'],
-                   help=f'random Fourier features per RBF bank (4 banks; 1 to {q_learning.MAX_COMPONENTS})')
+                   '(w ~ N(0, 1)/sqrt(D), w += 0.1 (G - x.w) x); default ' + d['regressor'] + ', or the initial policy\'s')
+    p.add_argument('--components', type=whole_number(1, q_learning.MAX_COMPONENTS), default=None,
+                   help=f'random Fourier features per RBF bank (4 banks; 1 to {q_learning.MAX_COMPONENTS}); default '
+                   f'{d["components"]}, or the initial policy\'s')
     p.add_argument('--learners', type=whole_number(1, q_learning.MAX_LEARNERS), default=d['learners'],
                    help=f'independent learners, seeds seed, seed+1, ... (1 to {q_learning.MAX_LEARNERS}), spread over '
                    'the cores')
     p.add_argument('--bootstrap-at-time-limit', action='store_true',
                    help='a time-limit truncation is not a failure: no -200, bootstrap from s\' (the course: off)')
+    p.add_argument('--initial-policy', default='', metavar='FILE',
+                   help='train on from a q_learning policy file, as stable-baselines3\'s load() then learn(): its '
+                   'features and weights start every learner, epsilon goes on from its episodes')
     p.set_defaults(run=run_q_learning)
 
 
 def run_q_learning(a, parser) -> int:
+    start = None
     try:
-        training = q_learning.resolve(a.env_id, a.episodes, a.gamma, a.regressor, a.components, a.learners,
-                                      a.bootstrap_at_time_limit)
-    except RequestError as e:
+        if a.initial_policy:
+            start = policies.load(a.initial_policy)
+            if start.kind != 'q_learning':
+                raise RequestError(f'--initial-policy: {start.path} holds a {start.kind} policy, not a q_learning one')
+        training = q_learning.resolve(a.env_id, a.episodes, a.gamma, a.regressor or '', a.components or 0, a.learners,
+                                      a.bootstrap_at_time_limit, start=start.actor if start else None,
+                                      start_settings=start.metadata['settings'] if start else None)
+    except (RequestError, policies.PolicyError) as e:
         parser.error(str(e))
     folder = output_folder(a, parser)
     bar = progress_bar(training.episodes * training.learners, 'episode')
@@ -200,9 +210,10 @@ def run_q_learning(a, parser) -> int:
     stem = artifacts.artifact_stem(folder, 'qlearning', result.env_id, a.seed)
     if best >= 0:
         agent = result.agents[best]
+        settings = dict(training.settings(), **({'started_from': start.path} if start else {}))
         write_or_say('policy', lambda: policies.save(
-            stem + '.npz', agent, result.env_id, a.seed + best, training.settings(), result.figures_of(best),
-            f'q-learning (CLI), learner {best}'))
+            stem + '.npz', agent, result.env_id, a.seed + best, settings, result.figures_of(best),
+            f'q-learning (CLI), learner {best}' + (f', trained on from {start.path}' if start else '')))
     write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *artifacts.q_learning_log(result)))
     write_or_say('plot', lambda: artifacts.write_plot(artifacts.q_learning_plot_job(result), stem + '.png'))
     if a.video and best >= 0:

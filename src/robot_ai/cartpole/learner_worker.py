@@ -1,7 +1,7 @@
 """A learner process of a Q-learning batch: ``python -m robot_ai.cartpole.learner_worker``, started by
 q_learning.train through robot_ai.child_process.spawn (never forked). No rospy.
 
-Frames on stdin (from the parent): ``('training', settings, batch_seed)`` once, then ``('learner', j)`` for each
+Frames on stdin (from the parent): ``('training', settings, batch_seed, start_agent_or_None)`` once, then ``('learner', j)`` for each
 learner to train; the end of stdin ends the process. Frames on stdout (to the parent): ``('alive',)`` every
 HEARTBEAT_SECONDS from a thread of its own, from the process's start (a stopped or hung process falls silent, and
 the parent notices),
@@ -54,9 +54,9 @@ def main() -> int:
     first = read_frame(sys.stdin.buffer)
     if first is None:
         return 0
-    _, settings, seed = first
+    _, settings, seed, start = first
     settings = dict(settings)
-    training = Training(dynamics=CartPoleDynamics.of(settings.pop('env_id')), **settings)
+    training = Training(dynamics=CartPoleDynamics.of(settings.pop('env_id')), start=start, **settings)
     while (message := read_frame(sys.stdin.buffer)) is not None:
         j = message[1]
         _, agent = train_one(training, seed + j, lambda e, r, eps: send(('episode', j, e, r, eps)))

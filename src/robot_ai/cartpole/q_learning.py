@@ -74,19 +74,42 @@ class Training(NamedTuple):
     learners: int
     bootstrap_at_time_limit: bool
     max_steps: int
+    start: 'Agent | None' = None      # an agent to train on (its features and weights), None: a new one
+    start_episode: int = 0            # episodes the start agent has played: epsilon goes on from there
 
     def settings(self) -> dict:
-        """The settings that made a training, as plain values (a policy file's metadata keeps them)."""
+        """The settings that made a training, as plain values (a policy file's metadata keeps them; the start
+        agent itself is not among them)."""
         return dict(env_id=self.dynamics.env_id, episodes=self.episodes, gamma=self.gamma, regressor=self.regressor,
                     components=self.components, learners=self.learners,
-                    bootstrap_at_time_limit=self.bootstrap_at_time_limit, max_steps=self.max_steps)
+                    bootstrap_at_time_limit=self.bootstrap_at_time_limit, max_steps=self.max_steps,
+                    start_episode=self.start_episode)
 
 
 def resolve(env_id: str = '', episodes: int = 0, gamma: float = 0.0, regressor: str = '', components: int = 0,
-            learners: int = 0, bootstrap_at_time_limit: bool = False, defaults: dict | None = None) -> Training:
+            learners: int = 0, bootstrap_at_time_limit: bool = False, defaults: dict | None = None,
+            start: 'Agent | None' = None, start_settings: dict | None = None) -> Training:
     """A Training with zero/empty fields filled from defaults (DEFAULTS, then the given dict) and every value
-    checked; RequestError says what is allowed."""
+    checked; RequestError says what is allowed.
+
+    start: an agent to train on, as stable-baselines3's load() then learn() (its features and weights are the
+    start of every learner; the learners' seeds drive only their exploration); start_settings: the settings it was
+    trained with (a policy file's), whose env, regressor and components are the defaults then, and whose episodes
+    (plus its own start_episode) are where epsilon goes on from."""
     d = dict(DEFAULTS, **(defaults or {}))
+    start_episode = 0
+    if start is not None:
+        s = start_settings or {}
+        start_components = start.q_weights.shape[1] // len(RBF_GAMMAS)
+        if start.q_weights.shape[1] != start_components * len(RBF_GAMMAS):
+            raise RequestError(f'the start agent has {start.q_weights.shape[1]} features: not {len(RBF_GAMMAS)} '
+                               'banks of RBF features')
+        if components and int(components) != start_components:
+            raise RequestError(f'components must be the start agent\'s {start_components} (or 0), got {components}')
+        d.update({k: s[k] for k in ('env_id', 'regressor') if isinstance(s.get(k), str) and s[k]})
+        d['components'] = start_components
+        start_episode = sum(int(s.get(k) or 0) for k in ('episodes', 'start_episode')
+                            if isinstance(s.get(k), int) and not isinstance(s.get(k), bool))
     dynamics = CartPoleDynamics.of(env_id or d['env_id'])
     episodes = int(episodes or d['episodes'])
     gamma = float(gamma or d['gamma'])
@@ -109,7 +132,7 @@ def resolve(env_id: str = '', episodes: int = 0, gamma: float = 0.0, regressor: 
                            f'{worker_count(learners)} cores, more than the limit of {MAX_SECONDS / 60:.0f}: use fewer '
                            'learners, episodes or components')
     return Training(dynamics, episodes, gamma, regressor, components, learners, bool(bootstrap_at_time_limit),
-                    dynamics.max_episode_steps)
+                    dynamics.max_episode_steps, start, max(0, start_episode))
 
 
 def longest_seconds(learners: int, episodes: int, max_steps: int, features: int) -> float:
@@ -156,6 +179,19 @@ class RBFFeatures:
         return rbf_transform(states, self.folded_weights32, self.folded_offsets32, self.amplitude)
 
 
+class StartFeatures:
+    """The features of an agent a training goes on from: its folded RBF banks, as RBFFeatures computes them."""
+
+    def __init__(self, agent: 'Agent'):
+        self.folded_weights32 = agent.feature_weights
+        self.folded_offsets32 = agent.feature_offsets
+        self.amplitude = agent.amplitude
+        self.dimensions = agent.q_weights.shape[1]
+
+    def transform(self, states) -> np.ndarray:
+        return rbf_transform(states, self.folded_weights32, self.folded_offsets32, self.amplitude)
+
+
 class LinearQ:
     """One linear regressor per action, Q(s, a) = x(s).w[a], trained one sample at a time.
 
@@ -169,6 +205,14 @@ class LinearQ:
             w /= math.sqrt(dimensions)
         self.w = w.astype(np.float32)
         self.rate = REGRESSORS[regressor]
+
+    @classmethod
+    def of(cls, regressor: str, weights: np.ndarray) -> 'LinearQ':
+        """Regressors that start from given weights (actions, D) (a copy), to train an agent on."""
+        q = cls.__new__(cls)
+        q.w = np.array(weights, dtype=np.float32)
+        q.rate = REGRESSORS[regressor]
+        return q
 
     def predict(self, x: np.ndarray) -> np.ndarray:
         """Q of every action (actions,) for features x (D,), or (n, actions) for x (n, D)."""
@@ -225,6 +269,8 @@ def new_learner(training: Training, seed: int) -> tuple[np.random.Generator, RBF
     """(rng, features, regressors) of a learner before its first episode: its random parameters, drawn from
     rng_for(seed) in the fixed order every run of that seed draws them."""
     rng = rng_for(seed)
+    if training.start is not None:      # train on: the start agent's features and weights, copied
+        return rng, StartFeatures(training.start), LinearQ.of(training.regressor, training.start.q_weights)
     features = RBFFeatures(rng, training.components)
     return rng, features, LinearQ(training.regressor, features.dimensions, rng)
 
@@ -247,7 +293,7 @@ def train_one(training: Training, seed: int, progress: Callable | None = None,
     for n in range(training.episodes):
         if should_stop is not None and should_stop():
             return totals[:n], Agent.of(features, q)
-        eps = epsilon(n)
+        eps = epsilon(training.start_episode + n)
         state = tuple(float(v) for v in rng.uniform(-0.05, 0.05, 4))  # gymnasium's reset distribution
         x = features.transform(state)
         values = q.predict(x)
@@ -529,7 +575,7 @@ def _train_in_processes(training, seed, workers, progress, should_stop, failed):
 
     try:
         for w in list(pool):
-            if w.send(('training', training.settings(), seed)):
+            if w.send(('training', training.settings(), seed, training.start)):
                 hand_out(w)
             else:
                 lose(w, 'its process could not be reached')

@@ -44,7 +44,7 @@ from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.q_learning import Agent
 from robot_ai.msg import QLearningAction, QLearningFeedback, QLearningProgress, QLearningResult
 from robot_ai.nodes.agent_common import (CancelledRun, PlotProcess, agent_settings, answer, answer_goal, answer_load,
-                                         policy_param, write_files)
+                                         load_of_kind, policy_param, write_files)
 from robot_ai.nodes.params import run_node
 from robot_ai.srv import (Act, ActResponse, EvaluateAgent, EvaluateAgentResponse, LoadPolicy, QLearning,
                           QLearningResponse)
@@ -84,8 +84,18 @@ class CartPoleQLearningNode:
     # ------------------------------------------------------------------------------------- the training
     def _train(self, req, feedback=None, should_stop=None):
         """Train as a QLearning request or goal says; return (the response's fields or None if cancelled, result)."""
+        start = None
+        if req.initial_policy:
+            try:
+                start = load_of_kind(req.initial_policy, Agent.kind)
+            except policies.PolicyError as e:
+                raise RequestError(f'initial_policy: {e}')
         training = q_learning.resolve(req.env_id, req.episodes, req.gamma, req.regressor, req.components,
-                                      req.learners, req.bootstrap_at_time_limit, self.defaults)
+                                      req.learners, req.bootstrap_at_time_limit, self.defaults,
+                                      start=start.actor if start else None,
+                                      start_settings=start.metadata['settings'] if start else None)
+        settings = dict(training.settings(), **({'started_from': start.path} if start else {}))
+        origin = f', trained on from {start.path}' if start else ''
         n, k = training.episodes, training.learners
         recent = [[] for _ in range(k)]     # the last 100 totals of each learner, for the running averages
         done = [0]
@@ -124,8 +134,8 @@ class CartPoleQLearningNode:
                 env_id, agent.act, training.max_steps, req.seed + best, path)[0])
             files = write_files(
                 self.plots, self.output_dir, 'qlearning', env_id, req.seed, artifacts.q_learning_plot_job(result),
-                policy=lambda path: policies.save(path, agent, env_id, req.seed + best, training.settings(), figures,
-                                                  f'training {number} of cartpole_q_learning, learner {best}'),
+                policy=lambda path: policies.save(path, agent, env_id, req.seed + best, settings, figures,
+                                                  f'training {number} of cartpole_q_learning, learner {best}{origin}'),
                 log=artifacts.q_learning_log(result), video=video)
             elapsed = time.time() - t0
         failures = ''.join(f'; learner {j} (seed {req.seed + j}) failed: {why}' for j, why in result.failed.items())
