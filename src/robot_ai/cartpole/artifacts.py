@@ -93,15 +93,17 @@ def q_learning_plot_job(result) -> dict:
         greedy = result.greedy_averages
         spread += (f'; final greedy agents: {greedy.min():.1f} to {greedy.max():.1f} steps' if len(greedy) > 1
                    else f'; final greedy agent: {greedy[0]:.1f} steps')
-        from robot_ai.cartpole.q_learning import collapse_note
-        if collapse_note(result):
-            spread += '\n' + collapse_note(result)
+        from robot_ai.cartpole.q_learning import collapsed_learners
+        bad = collapsed_learners(result)
+        if bad:   # a line of its own, short enough for the plot's width
+            spread += (f'\ncollapsed at the end of training: {"learners" if len(bad) > 1 else "learner"} '
+                       f'{", ".join(map(str, bad))} (greedy far below last-100)')
     if result.failed:   # their curves stop where their processes did
         spread += (f'\n{"learners" if len(result.failed) > 1 else "learner"} {", ".join(map(str, result.failed))} '
                    'failed: the curve stops where the process did')
     return dict(
         title=f'{result.env_id} Q-learning, {t.regressor} regressor, {len(RBF_GAMMAS)} x {t.components} RBF features, '
-              f'seed {result.seed}: {spread}',
+              f'seed {result.seed}\n{spread}',
         xlabel='episode', ylabel='total reward (+1 steps)', series=series,
         hlines=[dict(y=result.baseline_total_reward, label=f'random actions ({result.baseline_total_reward:.1f})',
                      color='tab:gray', ls='--'),
