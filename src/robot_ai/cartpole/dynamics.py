@@ -149,7 +149,6 @@ class CartPoleDynamics:
         return lengths.reshape(c, e)
 
 
-@functools.lru_cache(maxsize=None)
 def make_env(env_id: str, **kwargs):
     """gymnasium.make(env_id, **kwargs) without gymnasium's DeprecationWarning for CartPole-v0: v0 is the course's
     env on purpose, and the warning landed in the middle of the demo's summary."""
@@ -160,6 +159,7 @@ def make_env(env_id: str, **kwargs):
         return gym.make(env_id, **kwargs)
 
 
+@functools.lru_cache(maxsize=None)
 def _dynamics_of(env_id):
     return CartPoleDynamics(env_id)
 
