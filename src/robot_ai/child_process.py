@@ -29,6 +29,7 @@ from typing import BinaryIO, ClassVar
 
 PARENT_PID_ENV = 'ROBOT_AI_PARENT_PID'
 PR_SET_PDEATHSIG = 1
+PR_SET_CHILD_SUBREAPER = 36     # orphans below this process become its children (launch_guard, check_fk)
 _HEADER = struct.Struct('<Q')
 
 
@@ -87,6 +88,32 @@ def process_stat(pid: int) -> ProcessStat | None:
         return ProcessStat(fields[0], int(fields[1]))
     except (OSError, IndexError, ValueError):
         return None
+
+
+def descendants(pid: int) -> list[int]:
+    """Every live process below pid (children first), from /proc."""
+    children: dict[int, list[int]] = {}
+    for entry in filter(str.isdigit, os.listdir('/proc')):
+        stat = process_stat(int(entry))
+        if stat is not None and stat.state != 'Z':
+            children.setdefault(stat.ppid, []).append(int(entry))
+    found, todo = [], list(children.get(pid, []))
+    while todo:
+        p = todo.pop(0)
+        found.append(p)
+        todo.extend(children.get(p, []))
+    return found
+
+
+def reap() -> None:
+    """Collect the exit status of every ended child (a subreaper's orphans become its children)."""
+    while True:
+        try:
+            pid, _ = os.waitpid(-1, os.WNOHANG)
+        except ChildProcessError:
+            return
+        if pid == 0:
+            return
 
 
 def write_frame(stream: BinaryIO, message) -> None:

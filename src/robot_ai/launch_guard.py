@@ -17,36 +17,9 @@ import subprocess
 import sys
 import time
 
-from robot_ai.child_process import prctl, process_stat
+from robot_ai.child_process import PR_SET_CHILD_SUBREAPER, descendants, prctl, reap
 
-PR_SET_CHILD_SUBREAPER = 36
 GRACE_SECONDS = 5.0
-
-
-def descendants(pid: int) -> list[int]:
-    """Every live process below pid (children first), from /proc."""
-    children: dict[int, list[int]] = {}
-    for entry in filter(str.isdigit, os.listdir('/proc')):
-        stat = process_stat(int(entry))
-        if stat is not None and stat.state != 'Z':
-            children.setdefault(stat.ppid, []).append(int(entry))
-    found, todo = [], list(children.get(pid, []))
-    while todo:
-        p = todo.pop(0)
-        found.append(p)
-        todo.extend(children.get(p, []))
-    return found
-
-
-def reap() -> None:
-    """Collect the exit status of every ended child (orphans become the guard's children)."""
-    while True:
-        try:
-            pid, _ = os.waitpid(-1, os.WNOHANG)
-        except ChildProcessError:
-            return
-        if pid == 0:
-            return
 
 
 def end_leftovers(grace: float = GRACE_SECONDS) -> list[int]:

@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from robot_ai.child_process import process_stat
+from robot_ai.child_process import PR_SET_CHILD_SUBREAPER, descendants, prctl, reap
 from robot_ai.fk_grading import Grade, comparison_frame, configurations
 from robot_ai.kinematics import KinematicTree, URDFError, prefix_frame
 
@@ -41,7 +41,6 @@ TAIL_LINES = 20         # lines of the candidate's output quoted in a verdict
 TAIL_CHARS = 300        # characters kept of each of them
 LOG_BYTES = 10 * 1024 * 1024   # the candidate's log file stops growing here (its output is still drained)
 CHUNK = 64 * 1024              # bytes of the candidate's output read at a time
-PR_SET_CHILD_SUBREAPER = 36
 
 
 def free_port() -> int:
@@ -285,7 +284,6 @@ def main(argv=None) -> int:
         raise SystemExit(128 + signum)
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, on_signal)
-    from robot_ai.child_process import prctl
     prctl(PR_SET_CHILD_SUBREAPER, 1)
     core = proc = None
     own_global = False
@@ -333,16 +331,11 @@ def main(argv=None) -> int:
 
 
 def end_descendants(keep=None) -> None:
-    """SIGKILL every process left below this one (but keep, a Popen), and reap them: check_fk is a child subreaper,
-    so whatever the candidate started and left behind has become its child."""
-    me = os.getpid()
+    """SIGKILL every process left below this one but keep (a Popen) and its own, and reap them: check_fk is a child
+    subreaper, so whatever the candidate started and left behind has become its descendant."""
     for _ in range(100):
-        left = []
-        for entry in os.listdir('/proc'):
-            if entry.isdigit() and (keep is None or int(entry) != keep.pid):
-                stat = process_stat(int(entry))
-                if stat is not None and stat.ppid == me:
-                    left.append(int(entry))
+        spared = set() if keep is None else {keep.pid, *descendants(keep.pid)}
+        left = [pid for pid in descendants(os.getpid()) if pid not in spared]
         if not left:
             return
         for pid in left:
@@ -350,11 +343,8 @@ def end_descendants(keep=None) -> None:
                 os.kill(pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
-        for pid in left:
-            try:
-                os.waitpid(pid, 0)
-            except ChildProcessError:
-                pass
+        time.sleep(0.01)
+        reap()
 
 
 def write_junit(path: str, candidate: str, lines: list, seconds: float) -> None:
