@@ -147,7 +147,8 @@ def q_learning_parser(sub) -> None:
     p.add_argument('--gamma', type=discount, default=d['gamma'], help='discount, in (0, 1]')
     p.add_argument('--regressor', default=None, choices=sorted(q_learning.REGRESSORS),
                    help='tf: the warm-up\'s (w ~ N(0, 1), w += 0.2 (G - x.w) x); sgd: q_learning.py\'s '
-                   '(w ~ N(0, 1)/sqrt(D), w += 0.1 (G - x.w) x); default ' + d['regressor'] + ', or the initial policy\'s')
+                   f'(w ~ N(0, 1)/sqrt(D), w += 0.1 (G - x.w) x); default {d["regressor"]}, or the initial '
+                   'policy\'s')
     p.add_argument('--components', type=whole_number(1, q_learning.MAX_COMPONENTS), default=None,
                    help=f'random Fourier features per RBF bank (4 banks; 1 to {q_learning.MAX_COMPONENTS}); default '
                    f'{d["components"]}, or the initial policy\'s')
@@ -171,7 +172,8 @@ def run_q_learning(a, parser) -> int:
                 raise RequestError(f'--initial-policy: {start.path} holds a {start.kind} policy, not a q_learning one')
         training = q_learning.resolve(a.env_id, a.episodes, a.gamma, a.regressor or '', a.components or 0, a.learners,
                                       a.bootstrap_at_time_limit, start=start.actor if start else None,
-                                      start_settings=start.metadata['settings'] if start else None)
+                                      start_settings=start.metadata['settings'] if start else None,
+                                      started_from=start.path if start else '')
     except (RequestError, policies.PolicyError) as e:
         parser.error(str(e))
     folder = output_folder(a, parser)
@@ -200,8 +202,9 @@ def run_q_learning(a, parser) -> int:
     for i, j in enumerate(result.finished):
         print(f'learner {j:2d} (seed {a.seed + j})  last-100 average {result.last100_averages[i]:.2f}, greedy '
               f'average {result.greedy_averages[i]:.2f}{"  <- best" if j == best else ""}')
-    if q_learning.collapse_note(result):
-        print(q_learning.collapse_note(result))
+    collapsed = q_learning.collapse_note(result)
+    if collapsed:
+        print(collapsed)
     if len(result.last100_averages) > 1:
         print(f'mean of {len(result.last100_averages)} learners    {result.mean_last100:.2f} +/- '
               f'{result.ci95_last100:.2f} (95% interval of the mean)')
@@ -210,10 +213,9 @@ def run_q_learning(a, parser) -> int:
     stem = artifacts.artifact_stem(folder, 'qlearning', result.env_id, a.seed)
     if best >= 0:
         agent = result.agents[best]
-        settings = dict(training.settings(), **({'started_from': start.path} if start else {}))
         write_or_say('policy', lambda: policies.save(
-            stem + '.npz', agent, result.env_id, a.seed + best, settings, result.figures_of(best),
-            f'q-learning (CLI), learner {best}' + (f', trained on from {start.path}' if start else '')))
+            stem + '.npz', agent, result.env_id, a.seed + best, training.settings(), result.figures_of(best),
+            f'q-learning (CLI), learner {best}' + training.origin()))
     write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *artifacts.q_learning_log(result)))
     write_or_say('plot', lambda: artifacts.write_plot(artifacts.q_learning_plot_job(result), stem + '.png'))
     if a.video and best >= 0:
@@ -245,8 +247,6 @@ def run_evaluate(a, parser) -> int:
         policy = policies.load(a.policy)
         dynamics = CartPoleDynamics.of(a.env_id or policy.env_id)
         max_steps = dynamics.resolve_max_steps(a.max_steps)
-        if not 1 <= a.episodes <= q_learning.MAX_EVAL_EPISODES:
-            raise RequestError(f'--episodes must be 1 to {q_learning.MAX_EVAL_EPISODES}, got {a.episodes}')
     except (policies.PolicyError, RequestError) as e:
         parser.error(str(e))
     folder = output_folder(a, parser) if a.video else ''

@@ -1,10 +1,10 @@
 """A learner process of a Q-learning batch: ``python -m robot_ai.cartpole.learner_worker``, started by
 q_learning.train through robot_ai.child_process.spawn (never forked). No rospy.
 
-Frames on stdin (from the parent): ``('training', settings, batch_seed, start_agent_or_None)`` once, then ``('learner', j)`` for each
-learner to train; the end of stdin ends the process. Frames on stdout (to the parent): ``('alive',)`` every
-HEARTBEAT_SECONDS from a thread of its own, from the process's start (a stopped or hung process falls silent, and
-the parent notices),
+Frames on stdin (from the parent): ``('training', settings, batch_seed, start_agent_or_None)`` once, then
+``('learner', j)`` for each learner to train; the end of stdin ends the process. Frames on stdout (to the
+parent): ``('alive',)`` every HEARTBEAT_SECONDS from a thread of its own, from the process's start (a stopped or
+hung process falls silent, and the parent notices),
 ``('episode', j, episode, total_reward, epsilon)`` after every episode, ``('done', j, agent, greedy_average)``
 when learner j has played every episode. The process ends with its parent (SIGKILL: it has nothing to save; the
 parent has every episode's total already), and its BLAS runs on one thread: each worker has a core of its own.

@@ -76,6 +76,7 @@ class Training(NamedTuple):
     max_steps: int
     start: 'Agent | None' = None      # an agent to train on (its features and weights), None: a new one
     start_episode: int = 0            # episodes the start agent has played: epsilon goes on from there
+    started_from: str = ''            # the policy file the start agent came from
 
     def settings(self) -> dict:
         """The settings that made a training, as plain values (a policy file's metadata keeps them; the start
@@ -83,19 +84,24 @@ class Training(NamedTuple):
         return dict(env_id=self.dynamics.env_id, episodes=self.episodes, gamma=self.gamma, regressor=self.regressor,
                     components=self.components, learners=self.learners,
                     bootstrap_at_time_limit=self.bootstrap_at_time_limit, max_steps=self.max_steps,
-                    start_episode=self.start_episode)
+                    start_episode=self.start_episode, **({'started_from': self.started_from} if self.started_from
+                                                          else {}))
+
+    def origin(self) -> str:
+        """'' or the words a policy file's source adds for a training that went on from another file."""
+        return f', trained on from {self.started_from}' if self.started_from else ''
 
 
 def resolve(env_id: str = '', episodes: int = 0, gamma: float = 0.0, regressor: str = '', components: int = 0,
             learners: int = 0, bootstrap_at_time_limit: bool = False, defaults: dict | None = None,
-            start: 'Agent | None' = None, start_settings: dict | None = None) -> Training:
+            start: 'Agent | None' = None, start_settings: dict | None = None, started_from: str = '') -> Training:
     """A Training with zero/empty fields filled from defaults (DEFAULTS, then the given dict) and every value
     checked; RequestError says what is allowed.
 
     start: an agent to train on, as stable-baselines3's load() then learn() (its features and weights are the
     start of every learner; the learners' seeds drive only their exploration); start_settings: the settings it was
     trained with (a policy file's), whose env, regressor and components are the defaults then, and whose episodes
-    (plus its own start_episode) are where epsilon goes on from."""
+    (plus its own start_episode) are where epsilon goes on from; started_from: the file it came from."""
     d = dict(DEFAULTS, **(defaults or {}))
     start_episode = 0
     if start is not None:
@@ -132,7 +138,7 @@ def resolve(env_id: str = '', episodes: int = 0, gamma: float = 0.0, regressor: 
                            f'{worker_count(learners)} cores, more than the limit of {MAX_SECONDS / 60:.0f}: use fewer '
                            'learners, episodes or components')
     return Training(dynamics, episodes, gamma, regressor, components, learners, bool(bootstrap_at_time_limit),
-                    dynamics.max_episode_steps, start, max(0, start_episode))
+                    dynamics.max_episode_steps, start, max(0, start_episode), started_from if start is not None else '')
 
 
 def longest_seconds(learners: int, episodes: int, max_steps: int, features: int) -> float:
@@ -150,7 +156,19 @@ def rbf_transform(states, weights32: np.ndarray, offsets32: np.ndarray, amplitud
     return z
 
 
-class RBFFeatures:
+class FoldedFeatures:
+    """RBF features with the scaler folded in: amplitude cos(s . folded_weights32 + folded_offsets32)."""
+    folded_weights32: np.ndarray
+    folded_offsets32: np.ndarray
+    amplitude: float
+
+    def transform(self, states) -> np.ndarray:
+        """Features (n, D) float32 of states (n, 4), or (D,) of one state (4,): the agent sees gymnasium's
+        float32 observation."""
+        return rbf_transform(states, self.folded_weights32, self.folded_offsets32, self.amplitude)
+
+
+class RBFFeatures(FoldedFeatures):
     """The course's FeatureTransformer: StandardScaler, then a union of RBFSamplers, as one affine map and a cosine.
 
     mean, scale: the scaler's; weights (4, D), offsets (D,): the RBF banks side by side (scikit-learn's
@@ -173,13 +191,8 @@ class RBFFeatures:
         self.folded_weights32 = folded_weights.astype(np.float32)
         self.folded_offsets32 = folded_offsets.astype(np.float32)
 
-    def transform(self, states) -> np.ndarray:
-        """Features (n, D) float32 of states (n, 4), or (D,) of one state (4,): the agent sees gymnasium's
-        float32 observation."""
-        return rbf_transform(states, self.folded_weights32, self.folded_offsets32, self.amplitude)
 
-
-class StartFeatures:
+class StartFeatures(FoldedFeatures):
     """The features of an agent a training goes on from: its folded RBF banks, as RBFFeatures computes them."""
 
     def __init__(self, agent: 'Agent'):
@@ -187,9 +200,6 @@ class StartFeatures:
         self.folded_offsets32 = agent.feature_offsets
         self.amplitude = agent.amplitude
         self.dimensions = agent.q_weights.shape[1]
-
-    def transform(self, states) -> np.ndarray:
-        return rbf_transform(states, self.folded_weights32, self.folded_offsets32, self.amplitude)
 
 
 class LinearQ:

@@ -93,9 +93,8 @@ class CartPoleQLearningNode:
         training = q_learning.resolve(req.env_id, req.episodes, req.gamma, req.regressor, req.components,
                                       req.learners, req.bootstrap_at_time_limit, self.defaults,
                                       start=start.actor if start else None,
-                                      start_settings=start.metadata['settings'] if start else None)
-        settings = dict(training.settings(), **({'started_from': start.path} if start else {}))
-        origin = f', trained on from {start.path}' if start else ''
+                                      start_settings=start.metadata['settings'] if start else None,
+                                      started_from=start.path if start else '')
         n, k = training.episodes, training.learners
         recent = [[] for _ in range(k)]     # the last 100 totals of each learner, for the running averages
         done = [0]
@@ -134,12 +133,14 @@ class CartPoleQLearningNode:
                 env_id, agent.act, training.max_steps, req.seed + best, path)[0])
             files = write_files(
                 self.plots, self.output_dir, 'qlearning', env_id, req.seed, artifacts.q_learning_plot_job(result),
-                policy=lambda path: policies.save(path, agent, env_id, req.seed + best, settings, figures,
-                                                  f'training {number} of cartpole_q_learning, learner {best}{origin}'),
+                policy=lambda path: policies.save(path, agent, env_id, req.seed + best, training.settings(), figures,
+                                                  f'training {number} of cartpole_q_learning, learner {best}'
+                                                  + training.origin()),
                 log=artifacts.q_learning_log(result), video=video)
             elapsed = time.time() - t0
         failures = ''.join(f'; learner {j} (seed {req.seed + j}) failed: {why}' for j, why in result.failed.items())
-        collapsed = f'; {q_learning.collapse_note(result)}' if q_learning.collapse_note(result) else ''
+        collapsed = q_learning.collapse_note(result)
+        collapsed = f'; {collapsed}' if collapsed else ''
         message = (f'{q_learning.summary(result)}{failures}; best learner {best} (seed {req.seed + best}): greedy '
                    f'average {figures["greedy_average"]:.1f} over {q_learning.GREEDY_EPISODES} episodes{collapsed}; '
                    f'{kept}; '
