@@ -39,6 +39,9 @@ ROS Services
     ~reset (std_srvs/Trigger): end the episode (reason "reset") and start a new one at once (a reset pause too).
     ~push (robot_ai/PushPole): add angular_velocity (rad/s) to theta_dot before the next step's integration; refused
         when theta_dot would leave +-MAX_ANGULAR_VELOCITY.
+    ~set_state (robot_ai/SetCartPoleState): end the episode (reason "reset") and start a new one at the given state
+        (x, x_dot, theta, theta_dot), published at once on joint_states; refused unless 4 finite numbers within
+        +-MAX_STATE_VALUE. robot_ai.envs resets the sim through it, with start states it draws as gymnasium does.
 
 Bounds: with forces within +-MAX_FORCE and theta_dot within +-MAX_ANGULAR_VELOCITY after a push, every state stays
 finite (an episode ends within a step or two of any such input), so a command can never make the state NaN or inf.
@@ -56,12 +59,13 @@ from std_srvs.srv import Trigger, TriggerResponse
 from robot_ai.cartpole.dynamics import CartPoleDynamics, rng_for, start_states
 from robot_ai.msg import CartPoleEpisode
 from robot_ai.nodes.params import bool_param, int_param, number_param, publish, quiet_on_shutdown
-from robot_ai.srv import PushPole, PushPoleResponse
+from robot_ai.srv import PushPole, PushPoleResponse, SetCartPoleState, SetCartPoleStateResponse
 
 JOINTS = ('cart_slider', 'pole_hinge')
 ENV_ID = 'CartPole-v1'       # the physics of both CartPole versions is the same; only their step limits differ
 MAX_FORCE = 1e4              # N: 1,000 x force_mag; beyond it a cart_force is ignored
 MAX_ANGULAR_VELOCITY = 1e3   # rad/s: a push that would take theta_dot beyond it is refused
+MAX_STATE_VALUE = 1e3        # ~set_state's bound on each of x, x_dot, theta, theta_dot (theta_dot's is the push's)
 DRIVER_SILENCE = 1.0         # wall seconds without a force from the controller before another node may take over
 
 
@@ -94,7 +98,8 @@ class CartPoleSim:
         self.episode_pub = rospy.Publisher('~episodes', CartPoleEpisode, queue_size=100, latch=True)
         self.force_sub = rospy.Subscriber('cart_force', Float64, self._on_force, queue_size=100, tcp_nodelay=True)
         self.services = [rospy.Service('~reset', Trigger, self._on_reset),
-                         rospy.Service('~push', PushPole, self._on_push)]
+                         rospy.Service('~push', PushPole, self._on_push),
+                         rospy.Service('~set_state', SetCartPoleState, self._on_set_state)]
         mode = (' (lockstep: one step per state, on the controller\'s cart_force)' if self.lockstep else
                 f', each waiting up to {self.answer_timeout:g} s for the controller\'s answer'
                 if self.wait_for_controller else ' (on the clock, whatever the controller does)')
@@ -132,12 +137,16 @@ class CartPoleSim:
         publish(self.episode_pub, CartPoleEpisode(steps=self.steps, reason=reason,
                                                  sim_seconds=self.steps * self.dynamics.tau,
                                                  missed_steps=self.missed_steps))
-        rospy.loginfo(f'episode ended: {reason} after {self.steps} step{"s" if self.steps != 1 else ""} '
-                      f'({self.steps * self.dynamics.tau:.2f} s)'
-                      + (f', {self.missed_steps} taken without the controller\'s answer' if self.missed_steps else ''))
+        line = (f'episode ended: {reason} after {self.steps} step{"s" if self.steps != 1 else ""} '
+                f'({self.steps * self.dynamics.tau:.2f} s)'
+                + (f', {self.missed_steps} taken without the controller\'s answer' if self.missed_steps else ''))
+        if self.lockstep:   # an agent trains at thousands of steps a second: ~episodes has every one
+            rospy.loginfo_throttle(1.0, line)
+        else:
+            rospy.loginfo(line)
 
-    def _new_episode(self) -> None:
-        self.state = self._start_state()
+    def _new_episode(self, state: tuple | None = None) -> None:
+        self.state = self._start_state() if state is None else state
         self.steps = self.missed_steps = 0
         self.push = 0.0
         self.episode += 1
@@ -269,6 +278,20 @@ class CartPoleSim:
             state = self.state
         return TriggerResponse(success=True, message=f'reset after {steps} step{"s" if steps != 1 else ""}; new '
                                                      f'start state {[round(v, 4) for v in state]}')
+
+    def _on_set_state(self, req) -> SetCartPoleStateResponse:
+        state = tuple(float(v) for v in req.state)
+        if len(state) != 4 or not all(math.isfinite(v) and abs(v) <= MAX_STATE_VALUE for v in state):
+            return SetCartPoleStateResponse(success=False, message=f'a state is 4 finite numbers (x, x_dot, theta, '
+                                                                   f'theta_dot) within +-{MAX_STATE_VALUE:g}, got '
+                                                                   f'{list(state)[:8]}')
+        with self.lock:
+            steps = self.steps
+            if not self.awaiting_reset:
+                self._end_episode('reset')
+            self._new_episode(state)
+        return SetCartPoleStateResponse(success=True, message=f'new episode at {list(state)} after '
+                                                              f'{steps} step{"s" if steps != 1 else ""}')
 
     def _on_push(self, req) -> PushPoleResponse:
         v = req.angular_velocity
