@@ -239,6 +239,10 @@ def evaluate_parser(sub) -> None:
     p.add_argument('--video', action='store_true', help='also write an mp4 of one episode (its start state from '
                    'gymnasium\'s reset(seed)), as the searches do')
     p.add_argument('--output-dir', default=artifacts.default_output_dir(), help='where the video goes')
+    p.add_argument('--ros-env', metavar='NAMESPACE', default=None,
+                   help='play the episodes on the ROS cart-pole in NAMESPACE (a lockstep cartpole_sim, e.g. '
+                   '/cartpole_0 of cartpole_gym.launch) through robot_ai.envs, instead of in this process')
+    p.add_argument('--timeout', type=float, default=5.0, help='with --ros-env: seconds any wait for the sim lasts')
     p.set_defaults(run=run_evaluate)
 
 
@@ -250,10 +254,22 @@ def run_evaluate(a, parser) -> int:
     except (policies.PolicyError, RequestError) as e:
         parser.error(str(e))
     folder = output_folder(a, parser) if a.video else ''
-    lengths = policy.evaluate(dynamics, a.episodes, max_steps, a.seed)
+    if a.ros_env is None:
+        lengths = policy.evaluate(dynamics, a.episodes, max_steps, a.seed)
+    else:
+        from robot_ai.envs.ros_cartpole import RosCartPoleError, episode_lengths   # rospy: only when asked
+        if not 0 < a.timeout <= 3600:
+            parser.error(f'--timeout must be in (0, 3600] seconds, got {a.timeout:g}')
+        try:
+            lengths = episode_lengths(policy.push_right, a.ros_env, dynamics.env_id, a.episodes, max_steps, a.seed,
+                                      a.timeout)
+        except RosCartPoleError as e:
+            print(f'evaluate: {e}', file=sys.stderr)
+            return 1
     print(policy.describe())
-    print(f'{counted(a.episodes, "episode")} of {dynamics.env_id} (seed {a.seed}): lengths from {lengths.min()} to '
-          f'{lengths.max()}')
+    where = f' on the ROS cart-pole {a.ros_env}' if a.ros_env is not None else ''
+    print(f'{counted(a.episodes, "episode")} of {dynamics.env_id}{where} (seed {a.seed}): lengths from '
+          f'{lengths.min()} to {lengths.max()}')
     print(f'average length: {lengths.mean():.2f}')
     if a.video:
         stem = artifacts.artifact_stem(folder, 'evaluate', dynamics.env_id, a.seed)

@@ -1,0 +1,21 @@
+"""gymnasium environments over ROS: the cart-pole robot of the ROS graph as gymnasium's CartPole.
+
+``import robot_ai.envs`` registers ``robot_ai/RosCartPole-v0`` (200 steps) and ``robot_ai/RosCartPole-v1`` (500),
+each with a vector entry point::
+
+    import gymnasium, robot_ai.envs
+    env = gymnasium.make('robot_ai/RosCartPole-v1', robot_ns='/cartpole_0')
+    envs = gymnasium.make_vec('robot_ai/RosCartPole-v1', num_envs=4)   # sims /cartpole_0 ... /cartpole_3
+
+with the sims of ``roslaunch robot_ai cartpole_gym.launch sims:=4`` (lockstep) running.
+"""
+from gymnasium.envs.registration import register, registry
+
+from robot_ai.envs.ros_cartpole import (RosCartPoleEnv, RosCartPoleError, RosCartPoleVectorEnv,  # noqa: F401
+                                        default_namespaces)
+
+for _version, _steps, _threshold in (('v0', 200, 195.0), ('v1', 500, 475.0)):
+    if f'robot_ai/RosCartPole-{_version}' not in registry:
+        register(id=f'robot_ai/RosCartPole-{_version}', entry_point='robot_ai.envs.ros_cartpole:RosCartPoleEnv',
+                 vector_entry_point='robot_ai.envs.ros_cartpole:RosCartPoleVectorEnv',
+                 max_episode_steps=_steps, reward_threshold=_threshold, kwargs={'env_id': f'CartPole-{_version}'})

@@ -1,0 +1,421 @@
+"""gymnasium's CartPole, stepped by a cartpole_sim of the ROS graph: RosCartPoleEnv and RosCartPoleVectorEnv.
+
+The env talks to the robot as its controller does: it publishes ``<ns>/cart_force`` (+-force_mag, the action),
+reads ``<ns>/joint_states`` (the state the sim published after that step) and resets through
+``<ns>/cartpole_sim/set_state`` with a start state it draws as gymnasium's ``CartPoleEnv.reset`` does. The sim
+steps float64 states with gymnasium's equations and the observation is their float32, so every observation,
+reward, terminated and truncated equals ``gymnasium.make('CartPole-v1')``'s from the same seed under the same
+actions, bit for bit.
+
+The sim must be in lockstep (one step per cart_force: ``roslaunch robot_ai cartpole_gym.launch``). Every wait
+(the sim's service, its first connection, each state) lasts at most ``timeout`` seconds and then raises
+RosCartPoleError naming the namespace: an env never hangs. The env connects at its first reset(), not when it is
+made, so gymnasium's AsyncVectorEnv can make one in its parent process before it starts its workers.
+
+This is rospy client code, not a node: the first env of a process without a node starts one
+(``robot_ai_env_<pid>_<time>``, anonymous, rospy's signal handlers left out).
+"""
+from __future__ import annotations
+
+import multiprocessing
+import os
+import sys
+import threading
+import time
+import warnings
+from typing import Any
+
+import gymnasium
+import numpy as np
+import rospy
+from gymnasium.envs.classic_control import utils
+from gymnasium.envs.classic_control.cartpole import CartPoleEnv
+from gymnasium.spaces import Discrete
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+
+from robot_ai.srv import SetCartPoleState
+
+DEFAULT_TIMEOUT = 5.0        # seconds a wait lasts before it raises
+POLL = 0.05                  # s: how often a wait looks at what no message announces (connections)
+SIM_NODE = 'cartpole_sim'    # the sim's node name in a robot namespace (cartpole_gym.launch, cartpole.launch)
+
+
+class RosCartPoleError(RuntimeError):
+    """The ROS side failed: no sim in the namespace, a sim not in lockstep, a sim that stopped answering."""
+
+
+_inherited_node = False      # this process was forked from one where rospy already ran
+
+
+def _after_fork_in_child() -> None:
+    global _inherited_node
+    _inherited_node = rospy.core.is_initialized()
+
+
+os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
+def ensure_node() -> None:
+    """A rospy node in this process: the caller's own, or an anonymous one started here."""
+    if _inherited_node:
+        raise RosCartPoleError('this process was forked from one where rospy already ran, and rospy\'s threads do '
+                               'not survive a fork: make the envs in the worker processes only, or start them with '
+                               'AsyncVectorEnv(..., context="spawn")')
+    if not rospy.core.is_initialized():
+        argv = sys.argv
+        if multiprocessing.parent_process() is not None:
+            # a spawned worker's argv is its parent's: a __name:= there (roslaunch's, rostest's) would register this
+            # process under the parent node's name, and the master would shut the parent down
+            argv = [a for a in argv if not a.startswith(('__name:=', '__log:='))]
+        rospy.init_node('robot_ai_env', argv=argv, anonymous=True, disable_signals=True)
+
+
+def _name(ns: str, name: str) -> str:
+    return rospy.resolve_name(f'{ns.rstrip("/")}/{name}' if ns else name)
+
+
+class SimLink:
+    """One cartpole_sim as an env holds it: its cart_force publisher, joint_states subscriber and set_state
+    service, connected once; a step is one message out and one back."""
+
+    def __init__(self, robot_ns: str, timeout: float):
+        ensure_node()
+        self.timeout = float(timeout)
+        self.force_topic = _name(robot_ns, 'cart_force')
+        self.state_topic = _name(robot_ns, 'joint_states')
+        self.service = _name(robot_ns, f'{SIM_NODE}/set_state')
+        self.ns = self.service.rsplit('/', 2)[0] or '/'
+        self.changed = threading.Condition()
+        self.received = 0            # joint_states messages received
+        self.latest: tuple | None = None
+        self.force_pub = self.state_sub = self.set_state = None
+        try:
+            self._connect()
+        except BaseException:
+            self.close()
+            raise
+
+    def _fail(self, what: str) -> RosCartPoleError:
+        return RosCartPoleError(f'{self.ns}: {what}')
+
+    def _connect(self) -> None:
+        try:
+            rospy.wait_for_service(self.service, self.timeout)
+        except rospy.ROSException:
+            raise self._fail(f'no cartpole_sim: its service {self.service} did not appear within {self.timeout:g} s '
+                             f'(start the sims first: roslaunch robot_ai cartpole_gym.launch sims:=N)') from None
+        param = f'{self.service.rsplit("/", 1)[0]}/lockstep'
+        if rospy.get_param(param, False) is not True:
+            raise self._fail(f'the cartpole_sim is not in lockstep ({param} is not true): it steps on its own clock '
+                             f'and an env needs one step per action; start it with lockstep true '
+                             f'(roslaunch robot_ai cartpole_gym.launch, or cartpole.launch lockstep:=true '
+                             f'controller:=false)')
+        drivers = self._other_publishers()
+        if drivers:
+            raise self._fail(f'{", ".join(drivers)} publishes {self.force_topic} and drives the sim already: an env '
+                             f'needs a sim of its own (cartpole_gym.launch starts no controller)')
+        with warnings.catch_warnings():   # queue_size None: published in the caller's thread, the shortest way
+            warnings.simplefilter('ignore')
+            self.force_pub = rospy.Publisher(self.force_topic, Float64, queue_size=None, tcp_nodelay=True)
+        self.state_sub = rospy.Subscriber(self.state_topic, JointState, self._on_state, tcp_nodelay=True)
+        self.set_state = rospy.ServiceProxy(self.service, SetCartPoleState, persistent=True)
+        self._wait(lambda: self.force_pub.get_num_connections() > 0 and self.state_sub.get_num_connections() > 0,
+                   f'the cartpole_sim did not connect to {self.force_topic} and {self.state_topic} within '
+                   f'{self.timeout:g} s')
+
+    def _other_publishers(self) -> list[str]:
+        try:
+            state = rospy.get_master().getSystemState()[2][0]
+        except Exception:   # the master's answer is only a courtesy check here
+            return []
+        me = rospy.get_name()
+        return [node for topic, nodes in state for node in nodes if topic == self.force_topic and node != me]
+
+    def _on_state(self, msg: JointState) -> None:
+        state = (msg.position[0], msg.velocity[0], msg.position[1], msg.velocity[1])
+        with self.changed:
+            self.latest = state
+            self.received += 1
+            self.changed.notify_all()
+
+    def _wait(self, done, failure: str) -> None:
+        """Wait until done() (checked under the lock, at every message and every POLL s), at most timeout seconds."""
+        deadline = time.monotonic() + self.timeout
+        with self.changed:
+            while not done():
+                left = deadline - time.monotonic()
+                if left <= 0 or rospy.is_shutdown():
+                    raise self._fail(failure if left <= 0 else 'rospy is shutting down')
+                self.changed.wait(min(left, POLL))
+
+    # ------------------------------------------------------------------------------------- the two operations
+    def begin_start(self, state: np.ndarray) -> int:
+        """Ask the sim to start a new episode at state; returns the count to wait past (finish_start)."""
+        with self.changed:
+            seen = self.received
+        try:
+            answer = self.set_state(list(map(float, state)))
+        except (rospy.ServiceException, OSError) as e:
+            raise self._fail(f'cartpole_sim\'s set_state failed ({e}): the sim stopped or died') from None
+        if not answer.success:
+            raise self._fail(f'cartpole_sim refused the start state: {answer.message}')
+        return seen
+
+    def finish_start(self, seen: int, state: np.ndarray) -> None:
+        target = tuple(map(float, state))
+        self._wait(lambda: self.received > seen and self.latest == target,
+                   f'the cartpole_sim did not publish the start state on {self.state_topic} within {self.timeout:g} s')
+
+    def begin_step(self, force: float) -> int:
+        with self.changed:
+            seen = self.received
+        try:
+            self.force_pub.publish(Float64(force))
+        except rospy.ROSException as e:
+            raise self._fail(f'cannot publish {self.force_topic}: {e}') from None
+        return seen
+
+    def finish_step(self, seen: int) -> tuple:
+        self._wait(lambda: self.received > seen,
+                   f'no joint_states on {self.state_topic} within {self.timeout:g} s of the cart_force: the '
+                   f'cartpole_sim stopped answering (killed, or no longer in lockstep)')
+        return self.latest
+
+    def close(self) -> None:
+        for part in (self.force_pub, self.state_sub):
+            if part is not None:
+                part.unregister()
+        if self.set_state is not None:
+            self.set_state.close()
+        self.force_pub = self.state_sub = self.set_state = None
+
+
+class RosCartPoleEnv(CartPoleEnv):
+    """gymnasium's CartPoleEnv whose every step and reset is made by the cartpole_sim in robot_ns.
+
+    Spaces, reward, termination, rendering and reset distribution are CartPoleEnv's own; the physics runs in the
+    sim. Registered as robot_ai/RosCartPole-v0 (200 steps) and -v1 (500): gymnasium.make adds the TimeLimit."""
+
+    def __init__(self, robot_ns: str = '', env_id: str = 'CartPole-v1', timeout: float = DEFAULT_TIMEOUT,
+                 render_mode: str | None = None, sutton_barto_reward: bool = False):
+        super().__init__(sutton_barto_reward=sutton_barto_reward, render_mode=render_mode)
+        if env_id not in ('CartPole-v0', 'CartPole-v1'):
+            raise ValueError(f'env_id must be CartPole-v0 or CartPole-v1, got {env_id!r}')
+        if not (isinstance(timeout, (int, float)) and 0 < timeout <= 3600):
+            raise ValueError(f'timeout must be a number of seconds in (0, 3600], got {timeout!r}')
+        self.robot_ns = robot_ns
+        self.env_id = env_id
+        self.timeout = float(timeout)
+        self.link: SimLink | None = None
+        self._pending = None          # what begin_step / begin_reset left for their finish
+
+    # ------------------------------------------------------------------------------------- gymnasium's API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self.begin_reset(seed=seed, options=options)
+        return self.finish_reset()
+
+    def step(self, action):
+        self.begin_step(action)
+        return self.finish_step()
+
+    def close(self):
+        if self.link is not None:
+            self.link.close()
+            self.link = None
+        super().close()
+
+    # ------------------------------------------------------------------------------------- halves, for the vector env
+    def _linked(self) -> SimLink:
+        if self.link is None:
+            self.link = SimLink(self.robot_ns, self.timeout)
+        return self.link
+
+    def _broken(self) -> None:
+        """After a failure the next reset connects anew (the sim may have been restarted)."""
+        if self.link is not None:
+            self.link.close()
+            self.link = None
+        self._pending = None
+
+    def begin_reset(self, *, seed: int | None = None, options: dict | None = None) -> None:
+        gymnasium.Env.reset(self, seed=seed)
+        low, high = utils.maybe_parse_reset_bounds(options, -0.05, 0.05)
+        state = self.np_random.uniform(low=low, high=high, size=(4,))
+        try:
+            seen = self._linked().begin_start(state)
+        except RosCartPoleError:
+            self._broken()
+            raise
+        self.state = None             # no step until the sim has the new start state
+        self._pending = ('reset', seen, state)
+
+    def finish_reset(self):
+        _, seen, state = self._pending
+        self._pending = None
+        try:
+            self.link.finish_start(seen, state)
+        except RosCartPoleError:
+            self._broken()
+            raise
+        self.state = state
+        self.steps_beyond_terminated = None
+        if self.render_mode == 'human':
+            self.render()
+        return np.array(self.state, dtype=np.float32), {}
+
+    def begin_step(self, action) -> None:
+        assert self.action_space.contains(action), f'{action!r} ({type(action)}) invalid'
+        assert self.state is not None, 'Call reset before using step method.'
+        force = self.force_mag if action == 1 else -self.force_mag
+        try:
+            if self.steps_beyond_terminated is not None:
+                # gymnasium integrates on after a terminal state; the sim waits for a new episode then: give it the
+                # state it ended in
+                self.link.finish_start(self.link.begin_start(self.state), self.state)
+            self._pending = ('step', self.link.begin_step(force))
+        except RosCartPoleError:
+            self._broken()
+            self.state = None
+            raise
+
+    def finish_step(self):
+        _, seen = self._pending
+        self._pending = None
+        try:
+            state = self.link.finish_step(seen)
+        except RosCartPoleError:
+            self._broken()
+            self.state = None
+            raise
+        self.state = np.array(state, dtype=np.float64)
+        x, _, theta, _ = state
+        terminated = bool(x < -self.x_threshold or x > self.x_threshold
+                          or theta < -self.theta_threshold_radians or theta > self.theta_threshold_radians)
+        if not terminated:
+            reward = 0.0 if self._sutton_barto_reward else 1.0
+        elif self.steps_beyond_terminated is None:
+            self.steps_beyond_terminated = 0
+            reward = -1.0 if self._sutton_barto_reward else 1.0
+        else:
+            if self.steps_beyond_terminated == 0:
+                gymnasium.logger.warn(
+                    "You are calling 'step()' even though this environment has already returned terminated = True. "
+                    "You should always call 'reset()' once you receive 'terminated = True' -- any further steps are "
+                    "undefined behavior.")
+            self.steps_beyond_terminated += 1
+            reward = -1.0 if self._sutton_barto_reward else 0.0
+        if self.render_mode == 'human':
+            self.render()
+        return np.array(self.state, dtype=np.float32), reward, terminated, False, {}
+
+
+def default_namespaces(num_envs: int) -> list[str]:
+    """cartpole_gym.launch's namespaces: /cartpole_0 ... /cartpole_<n-1>."""
+    return [f'/cartpole_{i}' for i in range(num_envs)]
+
+
+class RosCartPoleVectorEnv(VectorEnv):
+    """num_envs RosCartPoleEnvs, one sim each, stepped together (all actions out, then all states in), as
+    gymnasium's SyncVectorEnv steps them: autoreset next-step, reset(seed=s) seeds env i with s + i."""
+
+    def __init__(self, num_envs: int = 1, robot_namespaces: list[str] | None = None, env_id: str = 'CartPole-v1',
+                 max_episode_steps: int | None = None, timeout: float = DEFAULT_TIMEOUT,
+                 render_mode: str | None = None, sutton_barto_reward: bool = False):
+        if robot_namespaces is None:
+            robot_namespaces = default_namespaces(num_envs)
+        if len(robot_namespaces) != num_envs:
+            raise ValueError(f'{num_envs} envs need {num_envs} robot namespaces, got {len(robot_namespaces)}')
+        if len(set(robot_namespaces)) != num_envs:
+            raise ValueError(f'each env needs a sim of its own: {robot_namespaces} repeats a namespace')
+        self.envs = [RosCartPoleEnv(ns, env_id, timeout, render_mode if render_mode != 'human' else None,
+                                    sutton_barto_reward) for ns in robot_namespaces]
+        if max_episode_steps is None:
+            max_episode_steps = gymnasium.spec(env_id).max_episode_steps
+        self.max_episode_steps = int(max_episode_steps)
+        self.robot_namespaces = list(robot_namespaces)
+        self.num_envs = num_envs
+        self.render_mode = render_mode
+        self.metadata = dict(CartPoleEnv.metadata, autoreset_mode=AutoresetMode.NEXT_STEP)
+        self.single_observation_space = self.envs[0].observation_space
+        self.single_action_space: Discrete = self.envs[0].action_space
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self._elapsed = np.zeros(num_envs, dtype=np.int64)
+        self._autoreset = np.zeros(num_envs, dtype=np.bool_)
+        self._observations = np.zeros((num_envs, 4), dtype=np.float32)
+
+    def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
+        if seed is None:
+            seeds = [None] * self.num_envs
+        elif isinstance(seed, int):
+            seeds = [seed + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f'If seeds are passed as a list the length must match num_envs={self.num_envs} '
+                                 f'but got length={len(seeds)}.')
+        for env, s in zip(self.envs, seeds):
+            env.begin_reset(seed=s, options=options)
+        for i, env in enumerate(self.envs):
+            self._observations[i], _ = env.finish_reset()
+        self._elapsed[:] = 0
+        self._autoreset[:] = False
+        return self._observations.copy(), {}
+
+    def step(self, actions):
+        actions = np.asarray(actions)
+        if actions.shape != (self.num_envs,):
+            raise AssertionError(f'{actions!r} invalid: {self.num_envs} actions expected')
+        for a in actions:   # every action checked before any is sent: a bad one leaves every env as it was
+            assert self.single_action_space.contains(a), f'{a!r} ({type(a)}) invalid'
+        rewards = np.zeros(self.num_envs, dtype=np.float64)
+        terminations = np.zeros(self.num_envs, dtype=np.bool_)
+        truncations = np.zeros(self.num_envs, dtype=np.bool_)
+        for i, env in enumerate(self.envs):
+            if self._autoreset[i]:
+                env.begin_reset()
+            else:
+                env.begin_step(actions[i])
+        for i, env in enumerate(self.envs):
+            if self._autoreset[i]:
+                self._observations[i], _ = env.finish_reset()
+                self._elapsed[i] = 0
+            else:
+                self._observations[i], rewards[i], terminations[i], _, _ = env.finish_step()
+                self._elapsed[i] += 1
+                truncations[i] = self._elapsed[i] >= self.max_episode_steps
+        self._autoreset = terminations | truncations
+        return self._observations.copy(), rewards, terminations, truncations, {}
+
+    def render(self):
+        if self.render_mode != 'rgb_array':
+            return None
+        return tuple(env.render() for env in self.envs)
+
+    def close_extras(self, **kwargs):
+        for env in self.envs:
+            env.close()
+
+
+def episode_lengths(push_right, robot_ns: str, env_id: str, episodes: int, max_steps: int, seed: int,
+                    timeout: float = DEFAULT_TIMEOUT) -> np.ndarray:
+    """Lengths (episodes,) of episodes played on the sim in robot_ns through RosCartPoleEnv: the first reset seeded
+    with seed (as rng_for seeds the package's own evaluation, so the start states are the same), the others not.
+
+    push_right: the policy as CartPoleDynamics.episode_lengths calls it, observations (4, n) float32 -> (n,) bool."""
+    env = RosCartPoleEnv(robot_ns, env_id, timeout)
+    try:
+        lengths = np.zeros(episodes, dtype=np.int64)
+        for e in range(episodes):
+            obs, _ = env.reset(seed=int(seed) % 2 ** 64 if e == 0 else None)
+            for t in range(1, max_steps + 1):
+                obs, _, terminated, _, _ = env.step(int(push_right(obs.reshape(4, 1))[0]))
+                if terminated:
+                    break
+            lengths[e] = t
+        return lengths
+    finally:
+        env.close()

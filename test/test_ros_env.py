@@ -1,0 +1,290 @@
+#!/usr/bin/env python3
+"""robot_ai.envs: the ROS cart-pole as gymnasium's CartPole, checked against gymnasium's own env and vector env
+(bit for bit), gymnasium's env checker, the faults a user meets, worker processes and the CLI."""
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import unittest
+import warnings
+
+import gymnasium
+import numpy as np
+import rospy
+import rostest
+from gymnasium.utils.env_checker import check_env
+
+import robot_ai.envs
+from robot_ai.envs import RosCartPoleError, RosCartPoleVectorEnv
+
+GOOD = np.array([0.1, 0.5, 10.0, 2.0])      # a linear policy that balances the pole: episodes end by truncation
+
+
+def good(obs) -> int:
+    return int(np.dot(GOOD, obs) > 0)
+
+
+def same(a, b) -> bool:
+    """Equal values of equal types: arrays element for element (and dtype), the rest with ==."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.dtype == b.dtype and \
+            a.shape == b.shape and bool((a == b).all())
+    return type(a) is type(b) and a == b
+
+
+def make_ros(ns):
+    return gymnasium.make('robot_ai/RosCartPole-v1', robot_ns=ns)
+
+
+def async_run(context, seed=7, steps=300):
+    """(observations, rewards, terminations, truncations) of an AsyncVectorEnv over two RosCartPoleEnvs made in
+    its workers, and of gymnasium's SyncVectorEnv over CartPole-v1, under the same random actions."""
+    fns = [lambda i=i: make_ros(f'/cartpole_{i}') for i in (2, 3)]
+    ros = gymnasium.vector.AsyncVectorEnv(fns, context=context)
+    ref = gymnasium.make_vec('CartPole-v1', num_envs=2, vectorization_mode='sync')
+    try:
+        rng = np.random.default_rng(seed)
+        out = [[ros.reset(seed=seed)[0]], [ref.reset(seed=seed)[0]]]
+        for _ in range(steps):
+            a = rng.integers(2, size=2)
+            out[0].append(ros.step(a)[:4])
+            out[1].append(ref.step(a)[:4])
+        return out
+    finally:
+        ros.close()
+        ref.close()
+
+
+class TestRosEnv(unittest.TestCase):
+
+    @classmethod
+    def setUpClass(cls):
+        # the launch's sims start beside this test: an env's own timeout (5 s) is for sims that are up
+        for ns in ('/cartpole_0', '/cartpole_1', '/cartpole_2', '/cartpole_3', '/free', '/driven'):
+            rospy.wait_for_service(f'{ns}/cartpole_sim/set_state', 120)
+        deadline = time.monotonic() + 120   # the driven sim's controller, publishing its cart_force
+        while not any(t == '/driven/cart_force' for t, _ in rospy.get_published_topics()):
+            assert time.monotonic() < deadline, 'the driven sim\'s controller never published'
+            time.sleep(0.5)
+
+    def assert_same_run(self, ros, ref, seeds, policy, max_steps=600):
+        """Episodes of both envs from the same seeds under the same actions: every result equal."""
+        for seed in seeds:
+            o1, i1 = ros.reset(seed=seed)
+            o2, i2 = ref.reset(seed=seed)
+            self.assertTrue(same(o1, o2), (seed, o1, o2))
+            self.assertEqual(i1, i2)
+            for t in range(max_steps):
+                a = policy(o1, t)
+                r1, r2 = ros.step(a), ref.step(a)
+                for x, y in zip(r1, r2):
+                    self.assertTrue(same(x, y), (seed, t, r1, r2))
+                o1 = r1[0]
+                if r1[2] or r1[3]:
+                    break
+
+    def test_steps_equal_gymnasiums_bit_for_bit(self):
+        ros, ref = make_ros('/cartpole_0'), gymnasium.make('CartPole-v1')
+        rng = np.random.default_rng(0)
+        self.assert_same_run(ros, ref, range(6), lambda o, t: int(rng.integers(2)))
+        self.assert_same_run(ros, ref, [11, 12], lambda o, t: good(o))   # truncated at 500
+        self.assertEqual(ros.unwrapped.state.tolist(), ref.unwrapped.state.tolist())
+        ros.close()
+
+    def test_v0_truncates_at_200(self):
+        ros, ref = gymnasium.make('robot_ai/RosCartPole-v0', robot_ns='/cartpole_1'), gymnasium.make('CartPole-v0')
+        self.assertEqual(ros.spec.max_episode_steps, 200)
+        ros.reset(seed=3)
+        n = 0
+        truncated = False
+        obs, _ = ros.reset(seed=3)
+        while not truncated:
+            obs, _, terminated, truncated, _ = ros.step(good(obs))
+            n += 1
+            self.assertFalse(terminated)
+        self.assertEqual(n, 200)
+        self.assert_same_run(ros, ref, [3], lambda o, t: good(o))
+        ros.close()
+
+    def test_check_env_warns_as_gymnasiums_own_cartpole(self):
+        """gymnasium's env checker passes; its only warnings are those it gives gymnasium's own CartPole (the Box
+        observation space's infinite velocity bounds, which the ROS env must share to be the same env)."""
+        def warned(env):
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter('always')
+                check_env(env)
+            return sorted({str(w.message) for w in caught if issubclass(w.category, UserWarning)})
+        ours = warned(make_ros('/cartpole_1').unwrapped)
+        theirs = warned(gymnasium.make('CartPole-v1').unwrapped)
+        self.assertEqual(ours, theirs)
+        self.assertTrue(all('infinity' in w for w in theirs), theirs)
+
+    def test_step_after_terminated_as_gymnasium(self):
+        """step() after terminated, before reset(): gymnasium's warning, reward 0.0, the state integrated on."""
+        ros = gymnasium.make('robot_ai/RosCartPole-v1', robot_ns='/cartpole_0', disable_env_checker=True)
+        ref = gymnasium.make('CartPole-v1', disable_env_checker=True)
+        for env in (ros, ref):
+            env.reset(seed=4)
+        results = []
+        for env in (ros, ref):
+            out = []
+            while not (out and out[-1][2]):
+                out.append(env.step(1))
+            for _ in range(3):
+                out.append(env.step(0))
+            results.append(out)
+        self.assertEqual(len(results[0]), len(results[1]))
+        for r1, r2 in zip(*results):
+            for x, y in zip(r1, r2):
+                self.assertTrue(same(x, y), (r1, r2))
+        self.assertEqual([r[1] for r in results[0][-3:]], [0.0, 0.0, 0.0])
+        ros.close()
+
+    def test_a_bad_action_raises_and_the_env_goes_on(self):
+        ros, ref = make_ros('/cartpole_2').unwrapped, gymnasium.make('CartPole-v1').unwrapped
+        ros.reset(seed=9)
+        ref.reset(seed=9)
+        for bad in (2, -1, 0.5, 'left', None):
+            with self.assertRaises(AssertionError):
+                ref.step(bad)
+            with self.assertRaises(AssertionError):
+                ros.step(bad)
+        for a in (1, 0, 0, 1, np.int64(1)):
+            for x, y in zip(ros.step(a), ref.step(a)):
+                self.assertTrue(same(x, y))
+        ros.close()
+
+    def test_vector_env_equals_gymnasiums_sync_vector_env(self):
+        for env_id, n, seed in (('CartPole-v1', 4, 5), ('CartPole-v0', 3, 0)):
+            ros = gymnasium.make_vec(f'robot_ai/{env_id.replace("CartPole", "RosCartPole")}', num_envs=n)
+            ref = gymnasium.make_vec(env_id, num_envs=n, vectorization_mode='sync')
+            self.assertIsInstance(ros, RosCartPoleVectorEnv)
+            self.assertEqual((ros.observation_space, ros.action_space), (ref.observation_space, ref.action_space))
+            self.assertEqual(ros.metadata['autoreset_mode'], ref.metadata['autoreset_mode'])
+            rng = np.random.default_rng(seed)
+            o1, i1 = ros.reset(seed=seed)
+            o2, i2 = ref.reset(seed=seed)
+            self.assertTrue(same(o1, o2))
+            self.assertEqual(i1, i2)
+            truncated = 0
+            for t in range(1200):
+                # mostly the balancing policy (episodes reach the step limit), random actions now and then
+                a = np.array([good(o) if rng.random() > 0.02 else int(rng.integers(2)) for o in o1])
+                r1, r2 = ros.step(a), ref.step(a)
+                for x, y in zip(r1[:4], r2[:4]):
+                    self.assertTrue(same(x, y), (env_id, t, r1, r2))
+                self.assertEqual(r1[4], r2[4])
+                o1 = r1[0]
+                truncated += int(r1[3].sum())
+            self.assertGreater(truncated, 0, env_id)
+            with self.assertRaises(AssertionError):
+                ros.step(np.array([0, 3] + [0] * (n - 2)))
+            r1, r2 = ros.step(np.zeros(n, dtype=np.int64)), ref.step(np.zeros(n, dtype=np.int64))
+            for x, y in zip(r1[:4], r2[:4]):
+                self.assertTrue(same(x, y))
+            ros.close()
+
+    def test_async_vector_env_workers(self):
+        """Envs made in gymnasium's AsyncVectorEnv workers (spawned) equal gymnasium's; forked from this process,
+        where rospy runs, they refuse with a message that says what to do."""
+        ours, theirs = async_run('spawn')
+        for a, b in zip(ours, theirs):
+            for x, y in zip(a if isinstance(a, tuple) else (a,), b if isinstance(b, tuple) else (b,)):
+                self.assertTrue(same(x, y))
+        with self.assertRaises(Exception) as caught:
+            async_run('fork', steps=1)
+        self.assertIn('forked', str(caught.exception))
+        self.assertIn('spawn', str(caught.exception))
+
+    def test_no_sim_raises_within_the_timeout_naming_the_namespace(self):
+        t = time.monotonic()
+        env = gymnasium.make('robot_ai/RosCartPole-v1', robot_ns='/nobody_here', timeout=1.5)
+        with self.assertRaises(RosCartPoleError) as caught:
+            env.reset(seed=0)
+        self.assertLess(time.monotonic() - t, 1.5 + 3.0)
+        self.assertIn('/nobody_here', str(caught.exception))
+        self.assertIn('cartpole_gym.launch', str(caught.exception))
+
+    def test_a_sim_not_in_lockstep_is_refused(self):
+        with self.assertRaises(RosCartPoleError) as caught:
+            make_ros('/free').reset(seed=0)
+        self.assertIn('/free', str(caught.exception))
+        self.assertIn('lockstep', str(caught.exception))
+
+    def test_a_sim_with_a_controller_is_refused(self):
+        with self.assertRaises(RosCartPoleError) as caught:
+            make_ros('/driven').reset(seed=0)
+        self.assertIn('/driven', str(caught.exception))
+        self.assertIn('cartpole_controller', str(caught.exception))
+
+    def test_a_sim_killed_mid_episode_raises_then_a_new_sim_serves(self):
+        def start_sim():
+            return subprocess.Popen(['rosrun', 'robot_ai', 'cartpole_sim', '__ns:=/victim', '_lockstep:=true'],
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid)
+        sim = start_sim()
+        try:
+            env = gymnasium.make('robot_ai/RosCartPole-v1', robot_ns='/victim', timeout=2.0)
+            ref = gymnasium.make('CartPole-v1')
+            deadline = time.monotonic() + 60
+            while True:   # the sim's start under a loaded machine: a reset that fails says so, in time
+                try:
+                    env.reset(seed=1)
+                    break
+                except RosCartPoleError:
+                    self.assertLess(time.monotonic(), deadline)
+            for _ in range(5):
+                env.step(1)
+            os.killpg(sim.pid, signal.SIGKILL)
+            sim.wait()
+            t = time.monotonic()
+            with self.assertRaises(RosCartPoleError) as caught:
+                for _ in range(1000):
+                    env.step(0)
+            self.assertLess(time.monotonic() - t, 2.0 + 3.0)
+            self.assertIn('/victim', str(caught.exception))
+            with self.assertRaises(RosCartPoleError):   # gone: the reset says so too
+                env.reset(seed=1)
+            sim = start_sim()
+            deadline = time.monotonic() + 60
+            while True:
+                try:
+                    o1, _ = env.reset(seed=1)
+                    break
+                except RosCartPoleError:
+                    self.assertLess(time.monotonic(), deadline)
+            self.assert_same_run(env, ref, [1, 2], lambda o, t: good(o))
+            env.close()
+        finally:
+            os.killpg(sim.pid, signal.SIGKILL)
+            sim.wait()
+
+    def test_cli_evaluate_on_the_ros_env_prints_the_same_average(self):
+        with tempfile.TemporaryDirectory() as folder:
+            cli = [sys.executable, '-m', 'robot_ai.cartpole']
+            for run in (['random-search', '--iterations', '30', '--episodes', '20'],
+                        ['q-learning', '--episodes', '150']):
+                subprocess.run(cli + run + ['--seed', '0', '--output-dir', folder], check=True, capture_output=True)
+            files = sorted(os.path.join(folder, f) for f in os.listdir(folder) if f.endswith('.npz'))
+            self.assertEqual(len(files), 2)
+            for path in files:
+                for seed in (0, 3):
+                    args = cli + ['evaluate', path, '--episodes', '12', '--seed', str(seed)]
+                    here = subprocess.run(args, capture_output=True, text=True, check=True).stdout
+                    ros = subprocess.run(args + ['--ros-env', '/cartpole_3'], capture_output=True, text=True)
+                    self.assertEqual(ros.returncode, 0, ros.stderr)
+                    self.assertIn('on the ROS cart-pole /cartpole_3', ros.stdout)
+                    average = [line for line in here.splitlines() if line.startswith('average length')]
+                    self.assertEqual(len(average), 1, here)
+                    self.assertIn(average[0], ros.stdout.splitlines(), (path, seed))
+            gone = subprocess.run(cli + ['evaluate', files[0], '--ros-env', '/nobody_here', '--timeout', '1'],
+                                  capture_output=True, text=True)
+            self.assertEqual(gone.returncode, 1)
+            self.assertIn('/nobody_here', gone.stderr)
+            self.assertNotIn('Traceback', gone.stderr)
+
+
+if __name__ == '__main__':
+    rospy.init_node('test_ros_env')
+    rostest.rosrun('robot_ai', 'ros_env', TestRosEnv, sys.argv)
