@@ -16,8 +16,7 @@ import rospy
 import rostest
 from gymnasium.utils.env_checker import check_env
 
-import robot_ai.envs
-from robot_ai.envs import RosCartPoleError, RosCartPoleVectorEnv
+from robot_ai.envs import RosCartPoleError, RosCartPoleVectorEnv  # registers robot_ai/RosCartPole-v0, -v1
 
 GOOD = np.array([0.1, 0.5, 10.0, 2.0])      # a linear policy that balances the pole: episodes end by truncation
 

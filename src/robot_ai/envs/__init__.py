@@ -11,8 +11,9 @@ with the sims of ``roslaunch robot_ai cartpole_gym.launch sims:=4`` (lockstep) r
 """
 from gymnasium.envs.registration import register, registry
 
-from robot_ai.envs.ros_cartpole import (RosCartPoleEnv, RosCartPoleError, RosCartPoleVectorEnv,  # noqa: F401
-                                        default_namespaces)
+from robot_ai.envs.ros_cartpole import RosCartPoleEnv, RosCartPoleError, RosCartPoleVectorEnv, default_namespaces
+
+__all__ = ['RosCartPoleEnv', 'RosCartPoleError', 'RosCartPoleVectorEnv', 'default_namespaces']
 
 for _version, _steps, _threshold in (('v0', 200, 195.0), ('v1', 500, 475.0)):
     if f'robot_ai/RosCartPole-{_version}' not in registry:
