@@ -183,6 +183,17 @@ class TestRosEnv(unittest.TestCase):
             r1, r2 = ros.step(np.zeros(n, dtype=np.int64)), ref.step(np.zeros(n, dtype=np.int64))
             for x, y in zip(r1[:4], r2[:4]):
                 self.assertTrue(same(x, y))
+            mask = np.arange(n) % 2 == 0     # gymnasium 1.1's partial reset, as stable-baselines3 adapters use it
+            o1, o2 = ros.reset(options={'reset_mask': mask})[0], ref.reset(options={'reset_mask': mask})[0]
+            self.assertTrue(same(o1, o2))
+            for _ in range(50):
+                a = np.array([good(o) for o in o1])
+                r1, r2 = ros.step(a), ref.step(a)
+                for x, y in zip(r1[:4], r2[:4]):
+                    self.assertTrue(same(x, y))
+                o1 = r1[0]
+            with self.assertRaises(ValueError):
+                ros.reset(options={'reset_mask': np.zeros(n, dtype=np.bool_)})
             ros.close()
 
     def test_async_vector_env_workers(self):

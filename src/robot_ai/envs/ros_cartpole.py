@@ -357,12 +357,26 @@ class RosCartPoleVectorEnv(VectorEnv):
             if len(seeds) != self.num_envs:
                 raise ValueError(f'If seeds are passed as a list the length must match num_envs={self.num_envs} '
                                  f'but got length={len(seeds)}.')
-        for env, s in zip(self.envs, seeds):
-            env.begin_reset(seed=s, options=options)
-        for i, env in enumerate(self.envs):
-            self._observations[i], _ = env.finish_reset()
-        self._elapsed[:] = 0
-        self._autoreset[:] = False
+        mask = np.ones(self.num_envs, dtype=np.bool_)
+        if options is not None and 'reset_mask' in options:   # as SyncVectorEnv: reset only these envs
+            options = dict(options)
+            mask = options.pop('reset_mask')
+            if not isinstance(mask, np.ndarray):
+                raise TypeError(f"`options['reset_mask']` must be a numpy array, got {type(mask)}")
+            if mask.shape != (self.num_envs,):
+                raise ValueError(f"`options['reset_mask']` must have shape `({self.num_envs},)`, got {mask.shape}")
+            if mask.dtype != np.bool_:
+                raise TypeError(f"`options['reset_mask']` must have `dtype=np.bool_`, got {mask.dtype}")
+            if not mask.any():
+                raise ValueError(f"`options['reset_mask']` must contain a boolean array with at least one True "
+                                 f"value, got reset_mask={mask}")
+        chosen = np.flatnonzero(mask)
+        for i in chosen:
+            self.envs[i].begin_reset(seed=seeds[i], options=options)
+        for i in chosen:
+            self._observations[i], _ = self.envs[i].finish_reset()
+        self._elapsed[mask] = 0
+        self._autoreset[mask] = False
         return self._observations.copy(), {}
 
     def step(self, actions):

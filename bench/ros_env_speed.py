@@ -1,0 +1,165 @@
+#!/usr/bin/env python3
+"""How fast an agent steps the ROS cart-pole through robot_ai.envs, beside what bounds it, all in one run:
+
+- gymnasium's CartPole-v1 in this process (one env, and SyncVectorEnv over N): what an agent gets without ROS;
+- a plain rospy ping-pong (a Float64 out, a JointState back from a bare echo node): one ROS round trip, the
+  least a lockstep step can cost;
+- RosCartPoleEnv on one sim, and RosCartPoleVectorEnv over N sims (steps of all envs per second).
+
+It starts its own master on a free port and cartpole_gym.launch sims:=N. Random actions; steps per second of wall
+time over --steps steps (after a warm-up).
+
+    python bench/ros_env_speed.py [--sims 8] [--steps 20000]
+"""
+import argparse
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def echo_node() -> None:
+    """The reference peer: answers every Float64 on /ping with a JointState on /pong, as a lockstep sim does."""
+    import rospy
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+    rospy.init_node('ping_pong_echo')
+    pub = rospy.Publisher('/pong', JointState, queue_size=10, tcp_nodelay=True)
+
+    def answer(msg):
+        pub.publish(JointState(name=['cart_slider', 'pole_hinge'], position=[msg.data, 0.0], velocity=[0.0, 0.0]))
+    rospy.Subscriber('/ping', Float64, answer, queue_size=10, tcp_nodelay=True)
+    rospy.spin()
+
+
+def rate(step, n: int) -> float:
+    for _ in range(min(200, n // 10)):
+        step()
+    t = time.perf_counter()
+    for _ in range(n):
+        step()
+    return n / (time.perf_counter() - t)
+
+
+def gymnasium_rates(sims: int, steps: int) -> tuple[float, float]:
+    import gymnasium
+    rng = np.random.default_rng(0)
+    env = gymnasium.make('CartPole-v1')
+    env.reset(seed=0)
+
+    def one():
+        if any(env.step(int(rng.integers(2)))[2:4]):
+            env.reset()
+    vec = gymnasium.make_vec('CartPole-v1', num_envs=sims, vectorization_mode='sync')
+    vec.reset(seed=0)
+    return rate(one, steps), sims * rate(lambda: vec.step(rng.integers(2, size=sims)), steps // sims)
+
+
+def ping_pong_rate(steps: int) -> float:
+    import threading
+    import warnings
+    import rospy
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+    got = threading.Condition()
+    count = [0]
+
+    def on_pong(msg):
+        with got:
+            count[0] += 1
+            got.notify()
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        pub = rospy.Publisher('/ping', Float64, queue_size=None, tcp_nodelay=True)
+    rospy.Subscriber('/pong', JointState, on_pong, tcp_nodelay=True)
+    deadline = time.time() + 60
+    while pub.get_num_connections() == 0 and time.time() < deadline:
+        time.sleep(0.05)
+    time.sleep(1.0)
+
+    def one():
+        with got:
+            seen = count[0]
+        pub.publish(Float64(1.0))
+        with got:
+            if not got.wait_for(lambda: count[0] > seen, 5.0):
+                raise RuntimeError('the echo node stopped answering')
+    return rate(one, steps)
+
+
+def ros_env_rates(sims: int, steps: int) -> tuple[float, float]:
+    import gymnasium
+    import robot_ai.envs  # noqa: F401  (registers robot_ai/RosCartPole-v1)
+    rng = np.random.default_rng(0)
+    env = gymnasium.make('robot_ai/RosCartPole-v1', robot_ns='/cartpole_0', timeout=30.0)
+    env.reset(seed=0)
+
+    def one():
+        if any(env.step(int(rng.integers(2)))[2:4]):
+            env.reset()
+    single = rate(one, steps)
+    env.close()
+    vec = gymnasium.make_vec('robot_ai/RosCartPole-v1', num_envs=sims, timeout=30.0)
+    vec.reset(seed=0)
+    vector = sims * rate(lambda: vec.step(rng.integers(2, size=sims)), steps // sims)
+    vec.close()
+    return single, vector
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--sims', type=int, default=8, help='sims of the vector env (cartpole_gym.launch sims:=N)')
+    parser.add_argument('--steps', type=int, default=20000, help='steps measured in each case')
+    parser.add_argument('--echo', action='store_true', help=argparse.SUPPRESS)
+    a = parser.parse_args()
+    if a.echo:
+        echo_node()
+        return 0
+    port = free_port()
+    env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{port}')
+    os.environ['ROS_MASTER_URI'] = env['ROS_MASTER_URI']
+    procs = [subprocess.Popen(['roslaunch', '-p', str(port), 'robot_ai', 'cartpole_gym.launch', f'sims:={a.sims}'],
+                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid)]
+    try:
+        procs.append(subprocess.Popen([sys.executable, os.path.realpath(__file__), '--echo'], env=env,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid))
+        import rospy
+        rospy.init_node('ros_env_speed', disable_signals=True)
+        for i in range(a.sims):
+            rospy.wait_for_service(f'/cartpole_{i}/cartpole_sim/set_state', 120)
+        print(f'ROS cart-pole env speed, {a.steps} steps a case, {os.cpu_count()} cores '
+              f'(load average {os.getloadavg()[0]:.2f})')
+        g1, gn = gymnasium_rates(a.sims, a.steps)
+        print(f'  gymnasium CartPole-v1 in-process, one env:          {g1:10,.0f} steps/s')
+        print(f'  gymnasium SyncVectorEnv, {a.sims} envs:                   {gn:10,.0f} steps/s')
+        pp = ping_pong_rate(a.steps)
+        print(f'  rospy ping-pong (Float64 out, JointState back):     {pp:10,.0f} round trips/s  (reference)')
+        r1, rn = ros_env_rates(a.sims, a.steps)
+        print(f'  RosCartPoleEnv, one sim:                            {r1:10,.0f} steps/s  '
+              f'({r1 / pp:.0%} of the ping-pong)')
+        print(f'  RosCartPoleVectorEnv, {a.sims} sims:                      {rn:10,.0f} steps/s  '
+              f'({rn / r1:.1f} x one env)')
+        return 0
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGINT)
+        for p in procs:
+            try:
+                p.wait(20)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+
+
+if __name__ == '__main__':
+    sys.exit(main())
