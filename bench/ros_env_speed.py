@@ -99,9 +99,8 @@ def ping_pong_rate(steps: int) -> float:
 
 def ros_env_rates(sims: int, steps: int) -> tuple[float, float]:
     import gymnasium
-    import robot_ai.envs  # noqa: F401  (registers robot_ai/RosCartPole-v1)
     rng = np.random.default_rng(0)
-    env = gymnasium.make('robot_ai/RosCartPole-v1', robot_ns='/cartpole_0', timeout=30.0)
+    env = gymnasium.make('robot_ai.envs:robot_ai/RosCartPole-v1', robot_ns='/cartpole_0', timeout=30.0)
     env.reset(seed=0)
 
     def one():
@@ -109,7 +108,7 @@ def ros_env_rates(sims: int, steps: int) -> tuple[float, float]:
             env.reset()
     single = rate(one, steps)
     env.close()
-    vec = gymnasium.make_vec('robot_ai/RosCartPole-v1', num_envs=sims, timeout=30.0)
+    vec = gymnasium.make_vec('robot_ai.envs:robot_ai/RosCartPole-v1', num_envs=sims, timeout=30.0)
     vec.reset(seed=0)
     vector = sims * rate(lambda: vec.step(rng.integers(2, size=sims)), steps // sims)
     vec.close()

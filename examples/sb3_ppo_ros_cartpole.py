@@ -23,7 +23,8 @@ import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import VecEnv
 
-import robot_ai.envs  # noqa: F401  (registers robot_ai/RosCartPole-v0 and -v1)
+# 'robot_ai.envs:robot_ai/RosCartPole-v1': gymnasium imports robot_ai.envs, which registers the env
+ROS_ENV = 'robot_ai.envs:robot_ai/RosCartPole-v1'
 
 
 class GymnasiumVecEnv(VecEnv):
@@ -86,7 +87,7 @@ def linear(start: float):
 
 def evaluate(model, env_id: str, episodes: int, seed: int, robot_ns: str) -> float:
     env = (gymnasium.make(env_id) if robot_ns is None else
-           gymnasium.make('robot_ai/RosCartPole-v1', robot_ns=robot_ns))
+           gymnasium.make(ROS_ENV, robot_ns=robot_ns))
     total = []
     for e in range(episodes):
         obs, _ = env.reset(seed=seed + 1000 + e)
@@ -115,7 +116,7 @@ def main() -> int:
         venv = gymnasium.make_vec('CartPole-v1', num_envs=a.envs, vectorization_mode='sync')
         where = 'gymnasium CartPole-v1 in-process'
     else:
-        venv = gymnasium.make_vec('robot_ai/RosCartPole-v1', num_envs=a.envs)
+        venv = gymnasium.make_vec(ROS_ENV, num_envs=a.envs)
         where = f'the ROS cart-pole ({", ".join(venv.robot_namespaces)})'
     env = GymnasiumVecEnv(venv)
     env.seed(a.seed)
