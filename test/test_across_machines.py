@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
 """ROS across machines, and closing ROS to an untrusted network: three hosts made of network namespaces.
 
+The gym env across machines (test 3): cartpole_gym.launch's sims on A, robot_ai.envs' vector env on B.
+
 Host A runs `cartpole.launch` (master, rosout, the sim, forward_kinematics, the controller); host B is a
 trusted machine, host C an untrusted one; A is joined to each by a veth pair. Every packet stays inside the
 namespaces this test makes. Needs root (ip netns), as CI has.
@@ -17,6 +19,7 @@ import ast
 import os
 import shutil
 import subprocess
+import sys
 import textwrap
 import time
 import unittest
@@ -33,6 +36,7 @@ def system_tool(name):
     return found
 
 
+HERE = os.path.dirname(os.path.realpath(__file__))
 PACKAGES = {'ip': 'iproute2', 'nft': 'nftables'}
 IP, NFT = system_tool('ip'), system_tool('nft')
 
@@ -211,6 +215,39 @@ class TestAcrossMachines(unittest.TestCase):
             self.assertRegex(xmlrpc(A, rosout, 'getPid'), r'^\[1, .*, \d+\]$')
         finally:
             launch.close()
+
+    def test_3_the_gym_vector_env_on_one_host_with_its_sims_on_another(self):
+        """robot_ai.envs across machines: the sims of cartpole_gym.launch on A, the vector env on B (and then on A
+        itself); the same numbers on both hosts, and gymnasium's."""
+        master = f'http://{A_TO_B}:11311'
+        a_env = {'ROS_IP': A_TO_B, 'ROS_MASTER_URI': master}
+        proc = subprocess.Popen([IP, 'netns', 'exec', A] + host_env(a_env) +
+                                ['roslaunch', 'robot_ai', 'cartpole_gym.launch', 'sims:=3'], stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, start_new_session=True)
+        try:
+            deadline = time.time() + 90
+            out = ''
+            while time.time() < deadline and '/cartpole_2/cartpole_sim/set_state' not in out:
+                time.sleep(1.0)
+                _, out = in_ns(A, a_env, 'rosservice', 'list')
+            self.assertIn('/cartpole_2/cartpole_sim/set_state', out)
+            digest = [sys.executable, os.path.join(HERE, 'ros_env_digest.py'), '3', '600', '11']
+            status_b, out_b = in_ns(B, {'ROS_IP': B_ADDR, 'ROS_MASTER_URI': master}, *digest, timeout=240)
+            self.assertEqual(status_b, 0, out_b)
+            status_a, out_a = in_ns(A, a_env, *digest, timeout=240)
+            self.assertEqual(status_a, 0, out_a)
+            self.assertIn('same as gymnasium: True', out_b)
+            lines = lambda text: [line for line in text.splitlines() if line.startswith(('same', 'digest'))]  # noqa
+            self.assertEqual(lines(out_b), lines(out_a))
+            self.assertEqual(len(lines(out_b)), 2, out_b)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, 2)
+                try:
+                    proc.wait(20)
+                except subprocess.TimeoutExpired:
+                    os.killpg(proc.pid, 9)
+                    proc.wait()
 
 
 if __name__ == '__main__':
