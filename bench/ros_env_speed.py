@@ -132,7 +132,11 @@ def main() -> int:
     try:
         procs.append(subprocess.Popen([sys.executable, os.path.realpath(__file__), '--echo'], env=env,
                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid))
+        import rosgraph
         import rospy
+        deadline = time.time() + 60
+        while not rosgraph.Master('/ros_env_speed').is_online() and time.time() < deadline:
+            time.sleep(0.2)     # init_node before the master is up prints a warning into the table
         rospy.init_node('ros_env_speed', disable_signals=True)
         for i in range(a.sims):
             rospy.wait_for_service(f'/cartpole_{i}/cartpole_sim/set_state', 120)
