@@ -49,8 +49,10 @@ $(VENV)/.requirements.stamp: requirements.txt | apt
 
 # robot_ai's pure modules importable from the venv with nothing sourced (`.venv/bin/python -m robot_ai.cartpole`);
 # a sourced workspace's PYTHONPATH comes first, and its robot_ai adds the generated messages to the same package.
-$(VENV)/.pth.stamp: $(VENV)/.requirements.stamp
+# and urdf_parser_py's URDF.from_parameter_server() with ROS 1's meaning, for course nodes (robot_ai.urdf_compat).
+$(VENV)/.pth.stamp: $(VENV)/.requirements.stamp src/robot_ai/urdf_compat.py
 	echo "$(ROOT)/src" > "$$($(VENV)/bin/python -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/robot_ai_src.pth"
+	$(VENV)/bin/python -m robot_ai.urdf_compat --install
 	touch $@
 
 venv: apt $(VENV)/.requirements.stamp $(VENV)/.pth.stamp

@@ -1,5 +1,6 @@
-#!/usr/bin/env python3
+#!/usr/bin/env python
 """A forward-kinematics node shaped like the course's skeleton (CSMM.103x), for check_fk's tests (never installed).
+Like the skeleton it starts `#!/usr/bin/env python` and reads the robot with `URDF.from_parameter_server()`.
 
 It reads the URDF, walks from the root while each link has exactly one child (at a fork it logs an error and stops),
 and on every joint_states publishes one tfMessage with PARENT -> link for every link it found, stamped
@@ -57,7 +58,7 @@ def main():
     rospy.init_node('course_fk')
     parent = os.environ.get('COURSE_FK_PARENT', 'world')
     mistake = os.environ.get('COURSE_FK_MISTAKE', 'none')
-    robot = URDF.from_xml_string(rospy.get_param('robot_description'))
+    robot = URDF.from_parameter_server()      # the course's skeleton, as it is
     joints = chain(robot)
     if mistake == 'die':
         [j.name for j in joints].index('tool_mount')

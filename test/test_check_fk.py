@@ -98,6 +98,129 @@ class TestCheckFk(unittest.TestCase):
         self.assertIn('PACKAGE/TYPE', err)
 
 
+    # ------------------------------------------------------------------- students' files as they wrote them (issue 26)
+    def test_a_python_2_file_is_a_verdict_that_names_the_line(self):
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        code, lines, err = check_fk(kuka, 'robot_ai/course_fk_py2.py')
+        self.assertEqual(code, 1, lines)
+        self.assertEqual(lines[-1], 'FAIL: course_fk_py2.py line 59 is Python 2 (print statement): ROS Noetic runs '
+                                    'Python 3; write print(...) (line: print "forward kinematics node started")')
+        self.assertNotIn('Traceback', err + '\n'.join(lines))
+        with tempfile.TemporaryDirectory() as folder:
+            for source, verdict in (
+                    ('import rospy\ntry:\n    pass\nexcept ValueError, e:\n    pass\n',
+                     'FAIL: solution.py line 5 is Python 2 (except X, e): ROS Noetic runs Python 3; write except X as e'),
+                    ('import rospy\n\ndef callback(msg:\n    pass\n',
+                     'FAIL: solution.py line 4: SyntaxError: ')):
+                path = os.path.join(folder, 'solution.py')
+                with open(path, 'w') as f:
+                    f.write('#!/usr/bin/env python\n' + source)
+                code, lines, err = check_fk(kuka, path)
+                self.assertEqual(code, 1, lines)
+                self.assertTrue(lines[-1].startswith(verdict), lines)
+                self.assertNotIn('Traceback', err)
+
+    def test_a_course_node_runs_unchanged_whatever_python_its_first_line_names(self):
+        """The course's file as a student hands it in (a path, not a package's node), its #! line naming a Python
+        this machine does not have: it runs with the package's Python, URDF.from_parameter_server() included."""
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        with tempfile.TemporaryDirectory() as folder:
+            path = os.path.join(folder, 'solution.py')
+            with open(os.path.join(HERE, 'course_fk.py')) as f:
+                text = f.read()
+            with open(path, 'w') as f:
+                f.write(text.replace('#!/usr/bin/env python\n', '#!/usr/bin/env python2\n', 1))
+            self.assert_verdict(kuka, path, 0, 'PASS', '--configurations', '5', mistake='none')
+
+    def test_from_parameter_server_under_plain_rosrun_searches_up_the_namespaces(self):
+        """rosrun robot_ai course_fk.py in /grader/deeper: the skeleton's URDF.from_parameter_server() finds
+        /grader/robot_description (ROS 1's search_param), and the node publishes the KUKA's frames."""
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        with open(kuka) as f:
+            xml = f.read()
+        setter = subprocess.run([sys.executable, '-c', 'import rospy, sys; rospy.set_param("/grader/robot_description", '
+                                 'sys.stdin.read())'], input=xml, text=True, capture_output=True, timeout=60)
+        self.assertEqual(setter.returncode, 0, setter.stderr)
+        node = subprocess.Popen(['rosrun', 'robot_ai', 'course_fk.py', '__ns:=/grader/deeper', '/tf:=/grader/tf'],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=os.setsid,
+                                env=dict(os.environ, COURSE_FK_MISTAKE='none'))
+        pub = subprocess.Popen(['rostopic', 'pub', '-r', '5', '/grader/deeper/joint_states', 'sensor_msgs/JointState',
+                                '{name: [lwr_arm_0_joint], position: [0.3]}'], stdout=subprocess.DEVNULL,
+                               stderr=subprocess.DEVNULL, preexec_fn=os.setsid)
+        try:
+            echo = subprocess.run(['rostopic', 'echo', '-n', '1', '/grader/tf'], capture_output=True, text=True,
+                                  timeout=90)
+            self.assertIn('lwr_arm_1_link', echo.stdout, echo.stderr)
+        finally:
+            for proc in (pub, node):
+                os.killpg(proc.pid, signal.SIGINT)
+                proc.wait(20)
+            subprocess.run(['rosparam', 'delete', '/grader'], capture_output=True, timeout=30)
+        self.assertNotIn('AttributeError', node.stdout.read().decode(errors='replace'))
+
+    def test_a_missed_mimic_joint_is_named_and_the_score_counts(self):
+        gripper = os.path.join(HERE, 'urdf', 'mimic_gripper.urdf')
+        lines = self.assert_verdict(gripper, 'robot_ai/course_fk.py', 1, 'FAIL: finger2, position off',
+                                    '--configurations', '10', mistake='none')
+        self.assertIn('check joint finger_joint2 (mimic of finger_joint1, multiplier -1, prismatic', lines[-1])
+        score = [l for l in lines if l.startswith('score: ')]
+        self.assertEqual(len(score), 1, lines)
+        self.assertRegex(score[0], r'^score: 2/3 links, \d/10 configurations$')
+        lines = self.assert_verdict(gripper, 'robot_ai/forward_kinematics', 0, 'PASS', '--configurations', '10')
+        self.assertIn('score: 3/3 links, 10/10 configurations', lines)
+
+    def test_expect_fail_for_a_course_test_that_a_wrong_node_is_caught(self):
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        self.assert_verdict(kuka, 'robot_ai/course_fk.py', 0, 'FAIL: lwr_arm_1_link', '--configurations', '5',
+                            '--expect', 'fail', mistake='first')
+        self.assert_verdict(kuka, 'robot_ai/forward_kinematics', 1, 'PASS', '--configurations', '5',
+                            '--expect', 'fail')
+
+    def test_a_class_at_once(self):
+        """--candidates DIR: one folder per student (a right node, a wrong one, Python 2, one that dies, a silent
+        one, none at all): a line each, a CSV, and one student's failure stops nobody."""
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        with open(os.path.join(HERE, 'course_fk.py')) as f:
+            course = f.read()
+        default = "os.environ.get('COURSE_FK_MISTAKE', 'none')"
+        self.assertIn(default, course)
+        students = {'alice': course, 'bob': open(os.path.join(HERE, 'course_fk_py2.py')).read(),
+                    'carol': course.replace(default, "'first'"), 'dave': course.replace(default, "'die'"),
+                    'erin': open(os.path.join(HERE, 'silent_fk.py')).read(), 'frank': None}
+        with tempfile.TemporaryDirectory() as folder:
+            for name, text in students.items():
+                os.makedirs(os.path.join(folder, 'class', name, 'src'))
+                with open(os.path.join(folder, 'class', name, 'README.md'), 'w') as f:
+                    f.write('my solution\n')
+                if text is not None:
+                    with open(os.path.join(folder, 'class', name, 'src', 'solution.py'), 'w') as f:
+                        f.write(text)
+            csv_path = os.path.join(folder, 'grades.csv')
+            env = dict(os.environ)
+            env.pop('COURSE_FK_MISTAKE', None)
+            proc = subprocess.run(['rosrun', 'robot_ai', 'check_fk', '--model', kuka, '--candidates',
+                                   os.path.join(folder, 'class'), '--configurations', '5', '--timeout', '3',
+                                   '--csv', csv_path], capture_output=True, text=True, timeout=600, env=env)
+            self.assertEqual(proc.returncode, 0, proc.stdout + proc.stderr)
+            lines = proc.stdout.splitlines()
+            for name in students:
+                self.assertEqual(len([l for l in lines if l.startswith(name + ': ')]), 1, (name, lines))
+            import csv
+            with open(csv_path) as f:
+                rows = {r['student']: r for r in csv.DictReader(f)}
+        self.assertEqual(sorted(rows), sorted(students))
+        self.assertEqual(rows['alice']['verdict'], 'PASS')
+        self.assertEqual(rows['alice']['score'], '8/8 links, 5/5 configurations')
+        self.assertTrue(rows['bob']['verdict'].startswith('FAIL: solution.py line 59 is Python 2'), rows['bob'])
+        self.assertTrue(rows['carol']['verdict'].startswith('FAIL: lwr_arm_1_link'), rows['carol'])
+        self.assertEqual(rows['carol']['first_wrong_link'], 'lwr_arm_1_link')
+        self.assertTrue(rows['dave']['verdict'].startswith('FAIL: the candidate node exited'), rows['dave'])
+        self.assertTrue(rows['erin']['verdict'].startswith('FAIL: the candidate published nothing'), rows['erin'])
+        self.assertTrue(rows['frank']['verdict'].startswith('FAIL: no node found'), rows['frank'])
+        for r in rows.values():
+            float(r['seconds'])
+        self.assertIn('1 of 6 PASS', proc.stdout)
+
     # ------------------------------------------------------------------- course-style nodes (test/course_fk.py)
     def test_correct_course_style_nodes_pass_fast_or_slow(self):
         """Links under a parentless 'world' (or 'world' with the root unpublished), correct maths: PASS on the KUKA

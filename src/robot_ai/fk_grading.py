@@ -84,6 +84,8 @@ class Grade:
         self.worst = {link: [0.0, 0.0, None, None] for link in self.links}  # position, rotation, at configuration
         self.missing, self.extra, self.problems = {}, set(), []   # missing: {link: configurations without it}
         self.configurations = 0
+        self.configurations_right = 0   # every graded link published and within the tolerance
+        self.non_finite = set()         # links published with NaN or inf
         self.seen = {}          # configuration index -> (joint values, {link: (reference, candidate)} of wrong links)
 
     def reference_in_frame(self, reference: dict) -> dict:
@@ -100,14 +102,17 @@ class Grade:
         candidate's {link: 4x4 in self.frame}."""
         self.configurations += 1
         reference = self.reference_in_frame(reference)
-        wrong = {}
+        wrong, complete = {}, True
         for link in self.links:
             if link not in candidate:
                 self.missing[link] = self.missing.get(link, 0) + 1
+                complete = False
                 continue
             want, got = reference[link], candidate[link]
             if not np.isfinite(got).all():
                 self.problems.append(f'configuration {index}: {link} is not finite (NaN or inf)')
+                self.non_finite.add(link)
+                complete = False
                 continue
             position = float(np.linalg.norm(got[:3, 3] - want[:3, 3]))
             rotation = rotation_error(got, want)
@@ -120,6 +125,8 @@ class Grade:
                 w[1], w[3] = rotation, index
         if wrong:
             self.seen[index] = (dict(positions), wrong)
+        elif complete:
+            self.configurations_right += 1
 
     def failing(self) -> list[str]:
         """Links whose worst error is over the tolerance, in the URDF's order (parents first)."""
@@ -144,7 +151,11 @@ class Grade:
             return 'PASS'
         link = bad[0]
         joint = self._joint_of(link)
-        check = (f'; check joint {joint.name} ({joint.type}{", axis " + _vec(joint.axis) if joint.moving else ""}, '
+        mimic = (f'mimic of {joint.mimic[0]}, multiplier {joint.mimic[1]:g}'
+                 + (f', offset {joint.mimic[2]:g}' if joint.mimic[2] else '') + ', '
+                 if joint is not None and joint.mimic is not None else '')
+        check = (f'; check joint {joint.name} ({mimic}{joint.type}'
+                 f'{", axis " + _vec(joint.axis) if joint.moving else ""}, '
                  f'origin xyz {_vec(joint.xyz)} rpy {_vec(joint.rpy)})' if joint is not None else '')
         if link in self.missing:
             never = [m for m in self.links if self.missing.get(m) == self.configurations]
@@ -204,8 +215,17 @@ class Grade:
                          + (f' and {len(self.extra) - 10} more' if len(self.extra) > 10 else ''))
         lines.extend(self.worst_configuration_lines())
         lines.extend(self.problems[1:6])
+        lines.append(self.score())
         lines.append(self.verdict())
         return lines
+
+    def score(self) -> str:
+        """One line for course staff: links right out of links graded, configurations right out of those compared
+        (a configuration is right when every graded link was published and within the tolerance)."""
+        right = [link for link in self.links if link not in self.missing and link not in self.non_finite
+                 and max(self.worst[link][:2]) <= self.tolerance]
+        return (f'score: {len(right)}/{len(self.links)} links, '
+                f'{self.configurations_right}/{self.configurations} configurations')
 
 
 def _rpy(m: np.ndarray) -> tuple[float, float, float]:

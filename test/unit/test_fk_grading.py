@@ -138,3 +138,26 @@ def test_a_frame_below_a_floating_joint_grades_nothing():
     q = configurations(tree, 1)[0]
     grade.add(0, q, tree.link_poses(q), {'arm': np.identity(4)})
     assert grade.verdict().startswith('FAIL: no link can be graded')
+
+
+MIMIC = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', 'urdf', 'mimic_gripper.urdf')
+
+
+def test_a_missed_mimic_joint_is_named_and_the_score_counts_links_and_configurations():
+    """Issue 26: a node that reads the mimic joint from joint_states (it is not there) misplaces finger2 whenever
+    finger_joint1 moves; the verdict says the joint is a mimic, the score line counts what was right."""
+    tree = KinematicTree.from_file(MIMIC)
+    grade = Grade(tree, 'base', 1e-6)
+    configs = configurations(tree, 6, seed=0)
+    for k, q in enumerate(configs):
+        got = tree.link_poses(dict(q, finger_joint2=0.0))      # the mimic left at 0
+        grade.add(k, q, tree.link_poses(q), got)
+    assert grade.verdict().startswith('FAIL: finger2, position off')
+    assert 'check joint finger_joint2 (mimic of finger_joint1, multiplier -1, prismatic' in grade.verdict()
+    right = sum(1 for q in configs if q['finger_joint1'] == 0.0)      # the zero pose
+    assert grade.score() == f'score: 2/3 links, {right}/6 configurations'
+    assert grade.report()[-2] == grade.score() and grade.report()[-1] == grade.verdict()
+    ok = Grade(tree, 'base', 1e-6)
+    for k, q in enumerate(configs):
+        ok.add(k, q, tree.link_poses(q), tree.link_poses(q))
+    assert ok.score() == 'score: 3/3 links, 6/6 configurations' and ok.verdict() == 'PASS'

@@ -26,6 +26,7 @@ import time
 
 import numpy as np
 
+from robot_ai import candidates
 from robot_ai.child_process import PR_SET_CHILD_SUBREAPER, descendants, prctl, reap
 from robot_ai.fk_grading import Grade, comparison_frame, configurations
 from robot_ai.kinematics import KinematicTree, URDFError, prefix_frame
@@ -217,15 +218,30 @@ def parse_args(argv):
                                 description='Grade a forward-kinematics node against robot_ai\'s kinematics '
                                 '(equal to robot_state_publisher): exit status 0 on PASS, 1 on FAIL.')
     p.add_argument('--model', required=True, help='the URDF file')
-    p.add_argument('--candidate', required=True, help='the node to grade, as PACKAGE/TYPE (what rosrun takes)')
+    p.add_argument('--candidate', help='the node to grade: PACKAGE/TYPE (what rosrun takes) or a file (a student\'s '
+                   'solution.py); a Python file runs with this Python whatever its #! line says')
+    p.add_argument('--candidates', metavar='DIR', help='grade a class: the node in each folder of DIR (one folder per '
+                   'student), each in a roscore of its own, one line per student and a CSV')
+    p.add_argument('--csv', default='', help='with --candidates: where the CSV goes (default: check_fk_<DIR>.csv '
+                   'in the current folder)')
+    p.add_argument('--jobs', type=int, default=0, help='with --candidates: students graded at once (0: one per core)')
+    p.add_argument('--expect', choices=('pass', 'fail'), default='pass',
+                   help='the verdict that makes the exit status 0 (fail: a course\'s test that a wrong node is caught)')
     p.add_argument('--configurations', type=int, default=50, help='joint configurations: the zero pose, then random')
     p.add_argument('--seed', type=int, default=0, help='seed of the random configurations')
     p.add_argument('--tolerance', type=float, default=1e-6, help='largest error allowed, in m and rad')
     p.add_argument('--timeout', type=float, default=5.0, help='seconds a configuration may take to appear on tf')
     p.add_argument('--gtest_output', default='', help=argparse.SUPPRESS)  # rostest's: xml:<results file>
     a = p.parse_args(argv)
-    if a.candidate.count('/') != 1 or not all(a.candidate.split('/')):
-        p.error(f'--candidate must be PACKAGE/TYPE, as rosrun takes it, got {a.candidate!r}')
+    if (a.candidate is None) == (a.candidates is None):
+        p.error('give one of --candidate (a node) and --candidates (a folder of student folders)')
+    if a.candidates is not None and not os.path.isdir(a.candidates):
+        p.error(f'--candidates must be a folder of student folders, got {a.candidates!r}')
+    if a.candidate is not None and not os.path.isfile(a.candidate) and (
+            a.candidate.count('/') != 1 or not all(a.candidate.split('/'))):
+        p.error(f'--candidate must be PACKAGE/TYPE, as rosrun takes it, or a file, got {a.candidate!r}')
+    if not 0 <= a.jobs <= 64:
+        p.error(f'--jobs must be 0 to 64, got {a.jobs}')
     if not 1 <= a.configurations <= MAX_CONFIGURATIONS:
         p.error(f'--configurations must be 1 to {MAX_CONFIGURATIONS}, got {a.configurations}')
     if not (0 < a.tolerance < math.inf and 0 < a.timeout <= MAX_TIMEOUT):   # NaN fails too
@@ -264,6 +280,30 @@ def log_path(candidate: str) -> str:
     return os.path.join(folder, f'check_fk_{candidate.replace("/", "_")}_{os.getpid()}.log')
 
 
+def candidate_command(candidate: str) -> tuple[list[str], str | None]:
+    """(the command that starts the candidate, its file or None): a file as it is, PACKAGE/TYPE found as rosrun
+    finds it; a Python file runs with this Python (a course node's `#!/usr/bin/env python` names no command on
+    Debian 12, or pyenv's Python without ROS's modules). Not found: rosrun, which says what is missing."""
+    if os.path.isfile(candidate):
+        path = os.path.abspath(candidate)
+    else:
+        pkg, node_type = candidate.split('/')
+        try:
+            import roslib.packages
+            found = roslib.packages.find_resource(pkg, node_type)
+        except Exception:     # an unknown package: rosrun's own words
+            found = []
+        if len(found) != 1:   # none, or several (rosrun asks which): rosrun's own words
+            return ['rosrun', pkg, node_type], None
+        path = found[0]
+    return candidates.command(path, sys.executable), path
+
+
+def exit_status(verdict: str, expect: str) -> int:
+    """0 when the verdict is the one expected (--expect pass: PASS; --expect fail: a FAIL), else 1."""
+    return 0 if verdict.startswith('PASS') == (expect == 'pass') else 1
+
+
 def main(argv=None) -> int:
     import rospy
     a = parse_args(rospy.myargv(sys.argv)[1:] if argv is None else argv)
@@ -272,6 +312,15 @@ def main(argv=None) -> int:
     except ValueError as e:
         print(f'check_fk: {e}', file=sys.stderr)
         return 2
+    command, source = candidate_command(a.candidate) if a.candidate is not None else ([], None)
+    if source is not None and candidates.is_python(source):
+        verdict = candidates.syntax_verdict(source)
+        if verdict is not None:       # a Python 2 file: a verdict, not the node's traceback
+            print(f'check_fk: {a.candidate} on {a.model}')
+            print(verdict)
+            if a.gtest_output.startswith('xml:'):
+                write_junit(a.gtest_output[4:], a.candidate, [verdict], 0.0, a.expect)
+            return exit_status(verdict, a.expect)
     # Ctrl-C, SIGTERM (what `timeout` sends) and SIGHUP (the terminal closed) end the grade and clean up; a second
     # signal while it cleans up is ignored, so that the clean-up always finishes. As a child subreaper, check_fk
     # inherits every process the candidate leaves behind (a double fork into a session of its own included).
@@ -284,6 +333,11 @@ def main(argv=None) -> int:
         raise SystemExit(128 + signum)
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, on_signal)
+    if a.candidates is not None:
+        try:
+            return grade_class(a, tree)
+        finally:
+            stopping.append('clean-up')
     prctl(PR_SET_CHILD_SUBREAPER, 1)
     core = proc = None
     own_global = False
@@ -298,21 +352,20 @@ def main(argv=None) -> int:
             rospy.set_param('/robot_description', xml)
             own_global = True
         candidate = TfTree(ns)
-        pkg, node_type = a.candidate.split('/')
-        proc = subprocess.Popen(['rosrun', pkg, node_type, '__name:=candidate', f'__ns:={ns}',
-                                 f'/joint_states:={ns}/joint_states', f'/tf:={ns}/candidate/tf',
-                                 f'/tf_static:={ns}/candidate/tf_static'],
+        proc = subprocess.Popen(command + ['__name:=candidate', f'__ns:={ns}',
+                                           f'/joint_states:={ns}/joint_states', f'/tf:={ns}/candidate/tf',
+                                           f'/tf_static:={ns}/candidate/tf_static'],
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=os.setsid)
-        output = Output(proc.stdout, log_path(a.candidate))
+        output = Output(proc.stdout, log_path(a.candidate.strip('/').replace(os.sep, '_')))
         pub = rospy.Publisher(ns + '/joint_states', JointState, queue_size=10)
         t0 = time.time()
         print(f'check_fk: {a.candidate} on {a.model} ({len(tree.links)} links, {len(tree.active_joints)} driven '
               f'joints), {a.configurations} configurations')
-        lines, status = grade(tree, a, candidate, proc, output, pub, JointState)
+        lines, _ = grade(tree, a, candidate, proc, output, pub, JointState)
         print('\n'.join(lines[:-1] + [f'(graded in {time.time() - t0:.1f} s)', lines[-1]]))
         if a.gtest_output.startswith('xml:'):
-            write_junit(a.gtest_output[4:], a.candidate, lines, time.time() - t0)
-        return status
+            write_junit(a.gtest_output[4:], a.candidate, lines, time.time() - t0, a.expect)
+        return exit_status(lines[-1], a.expect)
     finally:
         stopping.append('clean-up')
         stop(proc)
@@ -328,6 +381,82 @@ def main(argv=None) -> int:
             rospy.signal_shutdown('check_fk done')
         stop(core)
         end_descendants()
+
+
+def grade_class(a, tree) -> int:
+    """--candidates DIR: the node in each student folder of DIR graded by a check_fk of its own (its own roscore,
+    its own process group), --jobs at a time; one line per student as each ends, then the CSV. A student's crash
+    or hang is that student's verdict: the others go on. 0 once every student has a line."""
+    import concurrent.futures
+    import csv
+    folder = os.path.abspath(a.candidates)
+    students = sorted(d for d in os.listdir(folder) if os.path.isdir(os.path.join(folder, d)) and d[0] != '.')
+    if not students:
+        print(f'check_fk: {folder} has no student folders', file=sys.stderr)
+        return 2
+    jobs = a.jobs or os.cpu_count() or 1
+    limit = 120.0 + a.configurations * (a.timeout + 2.0) * 2   # a hang is cut here; each wait has its own timeout
+    running, lock = {}, threading.Lock()
+    print(f'check_fk: {len(students)} students in {folder} on {a.model}, {a.configurations} configurations, '
+          f'{jobs} at a time')
+
+    def one(student: str) -> candidates.Result:
+        node = candidates.find_node(os.path.join(folder, student))
+        if node is None:
+            return candidates.Result(student, 'FAIL: no node found (no Python file that calls rospy.init_node)',
+                                     '', '', 0.0)
+        cmd = [sys.executable, '-c', 'import sys; from robot_ai.nodes.check_fk import main; '
+               'sys.exit(main(sys.argv[1:]))', '--model', a.model, '--candidate', node,
+               '--configurations', str(a.configurations), '--seed', str(a.seed), '--tolerance', repr(a.tolerance),
+               '--timeout', repr(a.timeout)]
+        env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{free_port()}')   # none runs there: its own
+        t = time.time()
+        with lock:
+            if stopping_class:
+                return candidates.Result(student, 'not graded (check_fk was stopped)', '', '', 0.0)
+            proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                    stdin=subprocess.DEVNULL, start_new_session=True)
+            running[student] = proc
+        try:
+            out, _ = proc.communicate(timeout=limit)
+            text = out.decode(errors='replace')
+        except subprocess.TimeoutExpired:
+            stop(proc, timeout=15)
+            text = f'FAIL: grading did not end within {limit:.0f} s'
+        finally:
+            with lock:
+                running.pop(student, None)
+        if not any(line.startswith(('PASS', 'FAIL')) for line in text.splitlines()):
+            tail = ' | '.join(text.strip().splitlines()[-3:])[:300]
+            text += f'\nFAIL: check_fk ended with status {proc.returncode} and no verdict: {tail}'
+        return candidates.Result.of(student, text, time.time() - t, tree.links)
+
+    stopping_class = []
+    results = {}
+    pool = concurrent.futures.ThreadPoolExecutor(max_workers=jobs)
+    try:
+        futures = {pool.submit(one, student): student for student in students}
+        for future in concurrent.futures.as_completed(futures):
+            result = future.result()
+            results[result.student] = result
+            print(result.line(), flush=True)
+    finally:   # also on a signal: the students being graded are stopped (their check_fk cleans up), none starts
+        with lock:
+            stopping_class.append(True)
+            left = list(running.values())
+        for proc in left:
+            stop(proc, timeout=15)
+        pool.shutdown(wait=True, cancel_futures=True)
+    path = a.csv or f'check_fk_{os.path.basename(folder)}.csv'
+    with open(path, 'w', newline='') as f:
+        w = csv.writer(f)
+        w.writerow(['student', 'verdict', 'score', 'first_wrong_link', 'seconds'])
+        for student in students:
+            r = results[student]
+            w.writerow([r.student, r.verdict, r.score, r.first_wrong_link, f'{r.seconds:.1f}'])
+    passed = sum(results[s].verdict.startswith('PASS') for s in students)
+    print(f'{passed} of {len(students)} PASS; CSV: {os.path.abspath(path)}')
+    return 0
 
 
 def end_descendants(keep=None) -> None:
@@ -347,12 +476,14 @@ def end_descendants(keep=None) -> None:
         reap()
 
 
-def write_junit(path: str, candidate: str, lines: list, seconds: float) -> None:
-    """The results file rostest asks a <test> node for: one test case, failed unless the verdict is PASS."""
+def write_junit(path: str, candidate: str, lines: list, seconds: float, expect: str = 'pass') -> None:
+    """The results file rostest asks a <test> node for: one test case, failed unless the verdict is the one
+    expected (--expect: PASS, or with fail a FAIL)."""
     from xml.sax.saxutils import escape, quoteattr
-    failed = lines[-1] != 'PASS'
+    failed = exit_status(lines[-1], expect) != 0
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    failure = (f'    <failure message={quoteattr(lines[-1])}>{escape(chr(10).join(lines))}</failure>\n'
+    message = lines[-1] if expect == 'pass' else f'expected a FAIL, got {lines[-1]}'
+    failure = (f'    <failure message={quoteattr(message)}>{escape(chr(10).join(lines))}</failure>\n'
                if failed else '')
     with open(path, 'w') as f:
         f.write(f'<?xml version="1.0" encoding="utf-8"?>\n<testsuite name="check_fk" tests="1" errors="0" '
