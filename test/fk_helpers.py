@@ -167,3 +167,30 @@ def mimic_chain(n, offset=0.0):
                       'offset="%r"/></joint>' % (i, i, i + 1, i - 1, offset))
     return '<robot name="chain">%s%s</robot>' % (''.join('<link name="l%d"/>' % i for i in range(n + 1)),
                                                   ''.join(joints))
+
+
+def write_xacro_package(folder):
+    """A description package as users bring one: my_arm_description/urdf/arm.urdf.xacro includes a macro file
+    through $(find my_arm_description) and adds a hand with the argument hand:=true."""
+    urdf = os.path.join(folder, 'my_arm_description', 'urdf')
+    os.makedirs(urdf, exist_ok=True)
+    with open(os.path.join(folder, 'my_arm_description', 'package.xml'), 'w') as f:
+        f.write('<?xml version="1.0"?><package format="2"><name>my_arm_description</name><version>0.1.0</version>'
+                '<description>an arm</description><maintainer email="a@b.c">a</maintainer><license>BSD</license>'
+                '<buildtool_depend>catkin</buildtool_depend></package>')
+    with open(os.path.join(urdf, 'segment.xacro'), 'w') as f:
+        f.write('<?xml version="1.0"?><robot xmlns:xacro="http://www.ros.org/wiki/xacro">'
+                '<xacro:macro name="segment" params="name parent z">'
+                '<link name="${name}"/><joint name="${name}_joint" type="revolute"><parent link="${parent}"/>'
+                '<child link="${name}"/><origin xyz="0 0 ${z}" rpy="0 ${pi/6} 0"/><axis xyz="0 0 1"/>'
+                '<limit lower="-2" upper="2" effort="1" velocity="1"/></joint></xacro:macro></robot>')
+    with open(os.path.join(urdf, 'arm.urdf.xacro'), 'w') as f:
+        f.write('<?xml version="1.0"?><robot name="my_arm" xmlns:xacro="http://www.ros.org/wiki/xacro">'
+                '<xacro:arg name="hand" default="false"/>'
+                '<xacro:include filename="$(find my_arm_description)/urdf/segment.xacro"/>'
+                '<xacro:property name="upper" value="0.4"/><link name="base"/>'
+                '<xacro:segment name="shoulder" parent="base" z="0.1"/>'
+                '<xacro:segment name="elbow" parent="shoulder" z="${upper}"/>'
+                '<xacro:if value="$(arg hand)"><xacro:segment name="hand" parent="elbow" z="0.2"/></xacro:if>'
+                '</robot>')
+    return os.path.join(urdf, 'arm.urdf.xacro')

@@ -16,7 +16,7 @@ import unittest
 import rostest
 
 sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
-from fk_helpers import ROBOTS_DIR  # noqa: E402
+from fk_helpers import ROBOTS_DIR, write_xacro_package  # noqa: E402
 
 HERE = os.path.dirname(os.path.realpath(__file__))
 TILTED = os.path.join(HERE, 'urdf', 'tilted_axis_arm.urdf')
@@ -298,13 +298,12 @@ class TestCheckFk(unittest.TestCase):
         folder = tempfile.mkdtemp()
         xacro = os.path.join(folder, 'arm.urdf.xacro')
         with open(xacro, 'w') as f:
-            f.write('<robot name="r" xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:property name="half_pi" '
-                    'value="1.5708"/><link name="a"/><link name="b"/><joint name="j" type="revolute"><parent link="a"/>'
-                    '<child link="b"/><origin rpy="0 ${half_pi} 0"/><axis xyz="0 0 1"/></joint></robot>')
+            f.write('<robot name="r" xmlns:xacro="http://www.ros.org/wiki/xacro"><link name="a"/>'
+                    '<xacro:no_such_macro name="b"/></robot>')
         nested = os.path.join(folder, 'nested.urdf')
         with open(nested, 'w') as f:
             f.write('<robot name="n"><link name="root"/>' + '<link>' * 5000 + '</link>' * 5000 + '</robot>')
-        for model, args, message in ((xacro, [], 'looks like unexpanded xacro'),
+        for model, args, message in ((xacro, [], 'arm.urdf.xacro: xacro: unknown macro name: xacro:no_such_macro'),
                                      (nested, [], 'cannot read the model'),
                                      (kuka, ['--timeout', 'inf'], '--timeout one of at most 600 s'),
                                      (kuka, ['--configurations', '200000'], '--configurations must be 1 to 10000')):
@@ -314,6 +313,28 @@ class TestCheckFk(unittest.TestCase):
             self.assertIn(message, err)
             self.assertNotIn('Traceback', err)
             self.assertLess(time.time() - t, 15)
+
+    def test_a_xacro_model_with_find_and_arguments(self):
+        """Issue 25: --model FILE.xacro --xacro-args: $(find pkg) through ROS_PACKAGE_PATH, the arguments passed."""
+        folder = tempfile.mkdtemp()
+        write_xacro_package(folder)
+        arm = os.path.join(folder, 'my_arm_description', 'urdf', 'arm.urdf.xacro')
+        saved = os.environ.get('ROS_PACKAGE_PATH', '')
+        os.environ['ROS_PACKAGE_PATH'] = folder + os.pathsep + saved
+        try:
+            for args, links in (([], 3), (['--xacro-args', 'hand:=true'], 4)):
+                lines = self.assert_verdict(arm, 'robot_ai/forward_kinematics', 0, 'PASS', '--configurations', '5',
+                                            *args)
+                self.assertIn(f'({links} links,', lines[0])
+            code, lines, err = check_fk(arm, 'robot_ai/forward_kinematics', '--xacro-args', 'hand')
+            self.assertEqual(code, 2)
+            self.assertIn('name:=value', err)
+        finally:
+            os.environ['ROS_PACKAGE_PATH'] = saved
+        code, lines, err = check_fk(arm, 'robot_ai/forward_kinematics')      # the package is gone from the path
+        self.assertEqual(code, 2, lines)
+        self.assertIn('package my_arm_description not found: put it on ROS_PACKAGE_PATH', err)
+        self.assertEqual(len(err.strip().splitlines()), 1, err)
 
     def test_never_a_pass_on_links_nobody_compared(self):
         """Below a floating joint (which joint_states cannot drive) nothing can be graded: named, never a PASS."""

@@ -382,6 +382,34 @@ class TestLaunch(unittest.TestCase):
             if tried:
                 self.assertIn('a relative model:= is taken inside the robot_ai package', said[0])
 
+    def test_a_xacro_model_with_find_and_its_arguments(self):
+        """Issue 25: model:= a xacro file with $(find pkg) and xacro_args (name=value on roslaunch's command line,
+        which refuses a second :=): robot_description is the expanded URDF and the frames reach /tf; a xacro error
+        is our one line, naming the file and the cause, before roslaunch's."""
+        import tempfile
+        from fk_helpers import write_xacro_package
+        folder = tempfile.mkdtemp()
+        arm = write_xacro_package(folder)
+        env = dict(os.environ, ROS_PACKAGE_PATH=folder + os.pathsep + os.environ.get('ROS_PACKAGE_PATH', ''))
+        proc = launch([f'model:={arm}', 'xacro_args:=hand=true'], env=env, launch_file='forward_kinematics.launch')
+        try:
+            deadline, echo = time.time() + 90, ''
+            while time.time() < deadline and 'child_frame_id: "hand"' not in echo:
+                echo = subprocess.run(['rostopic', 'echo', '-n', '1', '/tf'], env=proc.env, capture_output=True,
+                                      text=True, timeout=60).stdout
+            self.assertIn('child_frame_id: "hand"', echo)
+            xml = subprocess.run(['rosparam', 'get', '/robot_description'], env=proc.env, capture_output=True,
+                                 text=True, timeout=30).stdout
+            self.assertIn('my_arm', xml)
+            self.assertNotIn('xacro:', xml)
+        finally:
+            stop(proc)
+        status, text = run_to_end([f'model:={arm}'], launch_file='forward_kinematics.launch', timeout=60)
+        self.assertNotEqual(status, 0)      # the package is not on this ROS_PACKAGE_PATH
+        ours = [l for l in text.splitlines() if l.startswith('xacro: ')]
+        self.assertEqual(ours, [f'xacro: {arm}: xacro: package my_arm_description not found: put it on '
+                                f'ROS_PACKAGE_PATH'], text)
+
     def test_sliders_under_xvfb(self):
         """gui:=true: the sliders' window opens (Debian 12's joint_state_publisher_gui crashed) and joint_states
         flows from it."""

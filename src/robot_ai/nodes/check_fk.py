@@ -217,7 +217,8 @@ def parse_args(argv):
     p = argparse.ArgumentParser(prog='rosrun robot_ai check_fk', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                                 description='Grade a forward-kinematics node against robot_ai\'s kinematics '
                                 '(equal to robot_state_publisher): exit status 0 on PASS, 1 on FAIL.')
-    p.add_argument('--model', required=True, help='the URDF file')
+    p.add_argument('--model', required=True, help='the URDF or xacro file')
+    p.add_argument('--xacro-args', default='', help='the xacro file\'s arguments: "name:=value name2:=value2"')
     p.add_argument('--candidate', help='the node to grade: PACKAGE/TYPE (what rosrun takes) or a file (a student\'s '
                    'solution.py); a Python file runs with this Python whatever its #! line says')
     p.add_argument('--candidates', metavar='DIR', help='grade a class: the node in each folder of DIR (one folder per '
@@ -250,14 +251,18 @@ def parse_args(argv):
     return a
 
 
-def read_model(path: str) -> tuple[str, KinematicTree]:
-    """(the URDF text, its tree); ValueError with one line for anything that is not a URDF this can grade."""
+def read_model(path: str, xacro_args: str = '') -> tuple[str, KinematicTree]:
+    """(the URDF text, its tree); a xacro file expanded first (robot_ai.urdf_source, with xacro_args); ValueError
+    with one line for anything that is not a URDF this can grade."""
+    from robot_ai.urdf_source import XacroError, expand, parse_mappings
     try:
-        with open(path, errors='replace') as f:
-            xml = f.read()
-    except OSError as e:
-        raise ValueError(f'cannot read the model {path}: {e.strerror or e}')
-    xacro = (f'{path} looks like unexpanded xacro: expand it first (xacro {path} > robot.urdf) and grade the URDF')
+        xml = expand(path, parse_mappings(xacro_args.split()))
+    except XacroError as e:
+        message = str(e)
+        raise ValueError('cannot read the model ' + message[len('cannot read '):] if message.startswith('cannot read ')
+                         else message)
+    xacro = (f'{path} looks like unexpanded xacro without the xacro namespace: expand it first (rosrun robot_ai '
+             f'xacro {path} > robot.urdf) and grade the URDF')
     try:
         tree = KinematicTree.from_xml_string(xml)
     except URDFError as e:
@@ -306,9 +311,11 @@ def exit_status(verdict: str, expect: str) -> int:
 
 def main(argv=None) -> int:
     import rospy
-    a = parse_args(rospy.myargv(sys.argv)[1:] if argv is None else argv)
+    # ROS's special arguments (rostest's __name:=, __log:=) are not check_fk's; rospy.myargv would also drop every
+    # word with := in it, xacro's name:=value arguments included
+    a = parse_args([w for w in sys.argv[1:] if not w.startswith('__')] if argv is None else argv)
     try:
-        xml, tree = read_model(a.model)
+        xml, tree = read_model(a.model, a.xacro_args)
     except ValueError as e:
         print(f'check_fk: {e}', file=sys.stderr)
         return 2
