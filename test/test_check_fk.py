@@ -336,13 +336,20 @@ class TestCheckFk(unittest.TestCase):
         self.assertIn('package my_arm_description not found: put it on ROS_PACKAGE_PATH', err)
         self.assertEqual(len(err.strip().splitlines()), 1, err)
 
-    def test_never_a_pass_on_links_nobody_compared(self):
-        """Below a floating joint (which joint_states cannot drive) nothing can be graded: named, never a PASS."""
+    def test_a_floating_base_is_graded_relative_to_its_body(self):
+        """Issue 25: below a floating joint (a humanoid's pelvis, a mobile base) every link is graded relative to the
+        joint's child: robot_state_publisher (which publishes body -> arm only), forward_kinematics and a course node
+        (which publishes world -> odom -> body -> arm) pass in the time of any robot; a wrong one fails naming arm."""
         floating = os.path.join(HERE, 'urdf', 'floating_base_arm.urdf')
-        for candidate in ('robot_ai/forward_kinematics', 'robot_ai/course_fk.py'):
-            code, lines, _ = check_fk(floating, candidate, '--configurations', '3', '--timeout', '3', mistake='none')
-            self.assertEqual(code, 1, lines)
-            self.assertTrue(lines[-1].startswith('FAIL: '), lines)
+        for candidate in ('robot_state_publisher/robot_state_publisher', 'robot_ai/forward_kinematics',
+                          'robot_ai/course_fk.py'):
+            t = time.time()
+            lines = self.assert_verdict(floating, candidate, 0, 'PASS', '--configurations', '10', mistake='none')
+            self.assertLess(time.time() - t, 40.0, candidate)
+            self.assertIn('score: 1/1 links, 10/10 configurations', lines)
+            self.assertTrue(any('graded relative to body' in l for l in lines), lines)
+        self.assert_verdict(floating, 'robot_ai/course_fk.py', 1, 'FAIL: arm, position off', '--configurations', '5',
+                            mistake='order')
 
     def test_nothing_is_left_behind(self):
         """SIGTERM (what `timeout` sends) while check_fk runs a roscore of its own, and a candidate's child that

@@ -8,7 +8,7 @@ reads.
     configs = configurations(tree, 50, seed=0)                         # the zero pose, then random ones
     frame, note = comparison_frame(tree, candidate_frames, parentless)  # the root, or the frame standing for it
     grade = Grade(tree, frame, tolerance=1e-6, note=note)
-    grade.add(k, configs[k], tree.link_poses(configs[k]), candidate_poses)   # {link: 4x4 pose}
+    grade.add(k, configs[k], grade.reference_poses(configs[k]), candidate_poses)   # {link: 4x4 pose}
     print('\\n'.join(grade.report())); grade.verdict()
 """
 import math
@@ -47,6 +47,15 @@ def comparison_frame(tree, candidate_frames, parentless=()) -> tuple[str | None,
     have (the course's skeleton hangs every link under 'world' or 'world_link' and never publishes the root):
     it stands for the root. Else the first link below the root, in the URDF's order, that the candidate
     publishes."""
+    base = tree.floating_base()
+    if base is not None:      # a humanoid's pelvis, a mobile base: every link graded relative to it
+        joint = next(n for n in tree.floating_joints if tree._floating_child[n] == base)
+        if base not in candidate_frames:
+            return None, (f'the candidate publishes no frame {base}: {base} is the child of the floating joint '
+                          f'{joint}, which joint_states cannot drive, and every link below it is graded relative '
+                          f'to it; publish the transforms below {base}')
+        return base, (f'{joint} is a floating joint (joint_states cannot drive it): every link below it is graded '
+                      f'relative to {base}, whether the candidate publishes {joint}\'s transform or not')
     if tree.root in candidate_frames:
         return tree.root, ''
     stand_ins = sorted(f for f in parentless if f not in tree.links)
@@ -76,8 +85,11 @@ class Grade:
 
     def __init__(self, tree, frame: str | None, tolerance: float = 1e-6, note: str = ''):
         self.tree, self.frame, self.tolerance, self.note = tree, frame, tolerance, note
-        reachable = set(tree.link_poses())                     # links below a floating joint are not published
-        self.ungradable = [link for link in tree.links if link not in reachable]
+        self.base = frame if frame is not None and frame == tree.floating_base() else None
+        reachable = set(self.reference_poses({}))               # links below a floating joint are not published
+        # (unless they are graded relative to the floating joint's child, self.base)
+        self.ungradable = [link for link in tree.links if link not in reachable
+                           and not (self.base is not None and link == tree.root)]
         self.links = [link for link in tree.links if link in reachable and link not in (tree.root, frame)]
         if frame in tree.links and frame not in reachable:   # compared in a frame the reference cannot place
             self.links = []
@@ -88,8 +100,15 @@ class Grade:
         self.non_finite = set()         # links published with NaN or inf
         self.seen = {}          # configuration index -> (joint values, {link: (reference, candidate)} of wrong links)
 
+    def reference_poses(self, positions: dict) -> dict:
+        """The reference's {link: 4x4} for a configuration: from the root, or from the floating base."""
+        return self.tree.link_poses(positions, base=self.base)
+
     def reference_in_frame(self, reference: dict) -> dict:
-        """The reference poses (in the root frame) relative to the frame the candidate is compared in."""
+        """The reference poses (in the root frame, or the floating base's) relative to the frame the candidate is
+        compared in."""
+        if self.base is not None:
+            return reference
         if self.frame in self.tree.links and self.frame != self.tree.root:
             if self.frame not in reference:
                 return {}
@@ -207,8 +226,9 @@ class Grade:
             lines.append(f'{link:<{width}}  {pos:14.3g}  {rot:14.3g}  '
                          + (f'configuration {at}  <- wrong' if wrong else '-'))
         if self.ungradable:
-            lines.append(f'not graded (below a floating joint, which joint_states cannot drive): '
-                         f'{", ".join(self.ungradable[:10])}')
+            where = (f'not below {self.base}, the floating joint\'s child' if self.base is not None else
+                     'below a floating joint, which joint_states cannot drive')
+            lines.append(f'not graded ({where}): {", ".join(self.ungradable[:10])}')
         if self.extra:
             shown = sorted(self.extra)[:10]
             lines.append(f'frames the URDF does not have (not graded): {", ".join(shown)}'

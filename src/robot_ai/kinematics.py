@@ -128,6 +128,7 @@ class KinematicTree(object):
         self.links = links                      # every link, parents before children
         self.joints = joints                    # {name: Joint} but floating ones, insertion order = topological
         self.floating_joints = list(floating_joints)
+        self._floating_child = {}               # floating joint -> its child link (from_urdf fills it)
         self.warnings = []
         self.joint_order = list(joints)
         self.moving_joints = [n for n, j in joints.items() if j.moving]
@@ -203,6 +204,7 @@ class KinematicTree(object):
                               ('mimic multiplier and offset', mimic[1:] if mimic else ()))
                 joints[j.name] = Joint(j.name, j.type, j.parent, j.child, xyz, rpy, axis, lower, upper, mimic)
         tree = cls(robot.name, root, links, joints, floating)
+        tree._floating_child = {j.name: j.child for j in robot.joints if j.name in floating}
         tree._check_mimics()
         return tree
 
@@ -293,11 +295,26 @@ class KinematicTree(object):
         """{joint: 4x4} for the fixed (and planar) joints."""
         return {n: self.joints[n].transform(0.0) for n in self.static_joints}
 
-    def link_poses(self, positions=None):
-        """{link: 4x4 pose in the root frame} of every link connected to the root (links below a floating
-        joint are not); moving joints without a position are taken at 0."""
+    def floating_base(self):
+        """The child of the floating joint that carries the most links (a humanoid's pelvis, a mobile base's
+        body): joint_states cannot place it, but everything below it moves with the joints. None without one."""
+        if not self.floating_joints:
+            return None
+        below = {}
+        for name in self.joint_order:
+            j = self.joints[name]
+            below.setdefault(j.parent, []).append(j.child)
+
+        def size(link):
+            return 1 + sum(size(c) for c in below.get(link, []))
+        children = [self._floating_child[n] for n in self.floating_joints]
+        return max(children, key=size)
+
+    def link_poses(self, positions=None, base=None):
+        """{link: 4x4 pose in the frame of base (the root by default)} of every link connected to base through
+        joints other than floating ones; moving joints without a position are taken at 0."""
         resolved = self.resolve_positions(positions or {})
-        poses = {self.root: np.identity(4)}
+        poses = {self.root if base is None else base: np.identity(4)}
         for name in self.joint_order:
             j = self.joints[name]
             if j.parent in poses:

@@ -130,14 +130,26 @@ def test_links_below_a_floating_joint_are_named_and_never_passed():
     assert any(l.startswith('not graded (below a floating joint') for l in grade.report())
 
 
-def test_a_frame_below_a_floating_joint_grades_nothing():
-    """forward_kinematics on a floating base publishes body -> arm only: compared relative to body, which the
-    reference cannot place, nothing is comparable, and that is a FAIL, not a traceback."""
+def test_a_floating_base_is_graded_relative_to_the_floating_joints_child():
+    """Issue 25: below a floating joint (a humanoid's pelvis, a mobile base) every link is graded relative to the
+    joint's child, whether the candidate publishes the floating joint's transform or not; robot_state_publisher
+    (body -> arm only) passes, a wrong arm fails, and a candidate without the base is told to publish it."""
     tree = KinematicTree.from_file(os.path.join(os.path.dirname(TILTED), 'floating_base_arm.urdf'))
-    grade = Grade(tree, 'body', 1e-6)
-    q = configurations(tree, 1)[0]
-    grade.add(0, q, tree.link_poses(q), {'arm': np.identity(4)})
-    assert grade.verdict().startswith('FAIL: no link can be graded')
+    assert tree.floating_base() == 'body'
+    frame, note = comparison_frame(tree, {'body', 'arm'})
+    assert frame == 'body' and 'odom_to_body is a floating joint' in note
+    assert comparison_frame(tree, {'odom', 'arm'})[0] is None
+    assert 'publishes no frame body' in comparison_frame(tree, {'odom', 'arm'})[1]
+    for offset, verdict in ((0.0, 'PASS'), (0.01, 'FAIL: arm, rotation off')):
+        grade = Grade(tree, frame, 1e-6, note)
+        assert grade.links == ['arm']
+        for k, q in enumerate(configurations(tree, 4, seed=1)):
+            want = grade.reference_poses(q)
+            assert set(want) == {'body', 'arm'}
+            got = {'arm': tree.link_poses({'shoulder': q['shoulder'] + offset}, base='body')['arm']}
+            grade.add(k, q, want, got)
+        assert grade.verdict().startswith(verdict), grade.verdict()
+    assert 'not graded' not in '\n'.join(Grade(tree, frame, 1e-6, note).report())   # odom is the root
 
 
 MIMIC = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', 'urdf', 'mimic_gripper.urdf')

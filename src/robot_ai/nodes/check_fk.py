@@ -564,7 +564,7 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
     configs = configurations(tree, a.configurations, a.seed)
     result, graded, previous, reference = None, None, None, None
     for k, q in enumerate(configs):
-        before, reference = reference, tree.link_poses(q)    # one configuration's poses at a time
+        before = reference                                   # one configuration's poses at a time
         candidate.next_configuration()
         if result is None:       # the first configuration: wait for the candidate's frames, then choose the frame
             limit = time.time() + a.timeout
@@ -592,6 +592,7 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
                 return result.report(), 1
             frame_name = names.get(frame, frame)
             graded = {link: names[link] for link in result.links}
+        reference = result.reference_poses(q)       # from the root, or from a floating joint's child
         changes = before is None or not same(reference, before)
         got = settle(candidate, frame_name, graded, q, previous, changes, pub, JointState, a.timeout, dead,
                      moving=bool(tree.active_joints))
