@@ -362,6 +362,11 @@ class TestLaunch(unittest.TestCase):
             self.assertIn('verdict: OK', text, text[-3000:])
             self.assertIn('forward_kinematics: %s from /tf' % frames, text)
             self.assertIn('the end effector moves', text)
+            # issue 25: the Panda's meshes come from a package Debian does not ship: one line says so
+            meshes = [l for l in text.splitlines() if 'is not found: rviz draws those links in red' in l]
+            self.assertEqual(len(meshes), 1 if 'panda' in args[0] else 0, meshes)
+            if meshes:
+                self.assertIn('put moveit_resources_panda_description on ROS_PACKAGE_PATH', meshes[0])
         # a package-relative model, as the README's table suggested, loads; a robot that does not exist says so
         bad = subprocess.run(['roslaunch', '--args', 'forward_kinematics', 'robot_ai', 'forward_kinematics.launch',
                               'model:=urdf/kuka_lwr_arm.urdf'], capture_output=True, text=True, timeout=60)
@@ -434,6 +439,43 @@ class TestLaunch(unittest.TestCase):
                 stop(proc)
                 text = proc.stdout.read().decode(errors='replace')
                 self.assertNotIn('TypeError', text)
+            xvfb.terminate()
+            xvfb.wait(10)
+
+    def test_sliders_stay_visible_beside_rviz(self):
+        """Issue 25: gui:=true rviz:=true under Xvfb (no window manager: the window mapped last, rviz's, is on
+        top): the sliders' window sits at the screen's right edge and rviz's window is narrower, so a screenshot
+        shows the sliders (Qt's light grey) beside rviz."""
+        display, xvfb = start_xvfb()
+        proc = None
+        try:
+            proc = launch(['gui:=true', 'rviz:=true'], dict(os.environ, DISPLAY=display),
+                          launch_file='forward_kinematics.launch')
+            deadline, windows = time.time() + 120, ''
+            while not ('Joint State Publisher' in windows and 'RViz' in windows) and time.time() < deadline:
+                time.sleep(1.0)
+                windows = subprocess.run(['xwininfo', '-display', display, '-root', '-tree'], capture_output=True,
+                                         text=True, timeout=30).stdout
+            self.assertIn('RViz', windows)
+            time.sleep(3.0)
+            windows = subprocess.run(['xwininfo', '-display', display, '-root', '-tree'], capture_output=True,
+                                     text=True, timeout=30).stdout
+            # the sliders' top-level window (Qt also maps a 1x1 leader window of the application's name)
+            found = re.findall(r'"Node: [^"]*Joint State Publisher": \("sliders" "sliders"\)\s+(\d+)x(\d+)\+(-?\d+)'
+                               r'\+(-?\d+)', windows)
+            self.assertEqual(len(found), 1, windows)
+            w, h, x, y = (int(v) for v in found[0])
+            shot = os.path.join(ARTIFACTS, 'sliders_beside_rviz.png')
+            subprocess.run(['import', '-display', display, '-window', 'root', shot], check=True, timeout=30)
+            img = np.asarray(Image.open(shot).convert('RGB')).astype(int)
+            region = img[y:y + h, x:x + w]
+            geometry = f'{w}x{h}+{x}+{y}'
+            self.assertGreater(x + w, img.shape[1] - 5, f'the sliders are at the right edge: {geometry}')
+            light = (region > 200).all(axis=2).mean()
+            self.assertGreater(light, 0.3, f'the sliders window is hidden: {light:.0%} light pixels in {geometry}')
+        finally:
+            if proc is not None:
+                stop(proc)
             xvfb.terminate()
             xvfb.wait(10)
 

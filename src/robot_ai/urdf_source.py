@@ -11,6 +11,7 @@ missing package, a missing argument), raised as XacroError.
 from __future__ import annotations
 
 import os
+import re
 import sys
 
 MARKERS = ('xmlns:xacro', '<xacro:')
@@ -88,6 +89,28 @@ def expand(path: str, mappings: dict[str, str] | None = None) -> str:
         shown = where if where == path or not where else f'{path} (in {where})'
         raise XacroError(f'{shown}: xacro: {cause}') from None
     return doc.toprettyxml(indent='  ')
+
+
+def mesh_packages(xml: str) -> list[str]:
+    """The packages the URDF's package:// resources (meshes, textures) name, in order of first use."""
+    seen = []
+    for name in re.findall(r'package://([^/"\'\s<>]+)', xml):
+        if name not in seen:
+            seen.append(name)
+    return seen
+
+
+def missing_packages(names) -> list[str]:
+    """Those of names that ROS_PACKAGE_PATH (rospkg, as rviz resolves package://) does not hold."""
+    import rospkg
+    pack = rospkg.RosPack()
+    missing = []
+    for name in names:
+        try:
+            pack.get_path(name)
+        except rospkg.ResourceNotFound:
+            missing.append(name)
+    return missing
 
 
 def main(argv: list[str] | None = None) -> int:

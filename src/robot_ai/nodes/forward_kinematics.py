@@ -122,7 +122,7 @@ class ForwardKinematicsNode:
 
     def _load(self):
         """Robot from robot_description, or raise URDFError/MissingDescription with a message."""
-        tree, key = load_tree()
+        tree, key = load_tree(warn_meshes=True)
         return self._robot(tree), key
 
     def _robot(self, tree):
@@ -131,7 +131,7 @@ class ForwardKinematicsNode:
         return Robot(tree, self.tf_prefix)
 
     def _wait_for_robot(self):
-        tree, key = wait_for_tree()
+        tree, key = wait_for_tree(warn_meshes=True)
         if tree is None:
             return None
         robot = self._robot(tree)

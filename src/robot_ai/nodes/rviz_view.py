@@ -8,7 +8,9 @@ replaces itself with rviz on that config.
     rosrun robot_ai rviz_view $(rospack find robot_ai)/rviz/robot_ai.rviz _fixed_frame:=world_link
 
 ROS Parameters
-    ~fixed_frame (str, ""): rviz's fixed frame; empty: the URDF's root link.
+    ~fixed_frame (str, ""): rviz's fixed frame; empty: the URDF's root link, or on a floating base the floating
+        joint's child (nothing publishes the root then). The TF display's axes are scaled to the robot's size.
+    ~beside_sliders (bool, false): a narrower window (WIDTH_BESIDE_SLIDERS), the sliders' window beside it.
 """
 import math
 import os
@@ -20,17 +22,34 @@ import numpy as np
 import rospy
 
 from robot_ai.kinematics import KinematicTree
-from robot_ai.nodes.params import quiet_on_shutdown, str_param
+from robot_ai.nodes.params import bool_param, quiet_on_shutdown, str_param
 from robot_ai.nodes.robot_description import wait_for_tree
 
 VIEW_ANGLE = 0.785        # rviz's vertical field of view (rad)
 MIN_REACH = 0.3           # m: a tiny robot is still shown at a sensible distance
+TF_SCALE = 0.6            # the TF display's marker scale in rviz/robot_ai.rviz, for robots of FULL_SIZE or more
+FULL_SIZE = 0.8           # m: reach from the view frame at which the axes keep the config's scale
+WIDTH_BESIDE_SLIDERS = 720   # px: rviz's window with ~beside_sliders, leaving room for the sliders (about 300 px)
+NARROW_VIEW_FACTOR = 1.7      # its 3D view's height over its width: the camera steps back by as much
+
+
+def view_frame(tree: KinematicTree) -> str:
+    """The frame rviz shows the robot in: the root, or on a floating base (a humanoid's pelvis, a mobile base's
+    body) the floating joint's child, the frame everything else is published in (nothing publishes the root)."""
+    return tree.floating_base() or tree.root
+
+
+def marker_scale(tree: KinematicTree) -> float:
+    """The TF display's axes, sized to the robot: the config's 0.6 for a robot of FULL_SIZE and more, smaller for
+    a small one (on a 0.15 m gripper full-size axes hide it)."""
+    size = max(float(np.linalg.norm(p[:3, 3])) for p in tree.link_poses(base=tree.floating_base()).values())
+    return round(TF_SCALE * min(1.0, max(size, 0.01) / FULL_SIZE), 3)
 
 
 def camera(tree: KinematicTree) -> tuple[tuple[float, float, float], float]:
     """(focal point, distance) that frame every link the robot can reach: the middle of its links' heights above
-    the root, and a distance at which a sphere of its reach fills rviz's view."""
-    points = np.array([pose[:3, 3] for pose in tree.link_poses().values()])
+    the view frame, and a distance at which a sphere of its reach fills rviz's view."""
+    points = np.array([pose[:3, 3] for pose in tree.link_poses(base=tree.floating_base()).values()])
     reach = max(MIN_REACH, float(np.linalg.norm(points, axis=1).max()))
     low, high = float(points[:, 2].min()), float(points[:, 2].max())
     focal = (0.0, 0.0, round((low + high) / 2.0, 3))
@@ -38,9 +57,17 @@ def camera(tree: KinematicTree) -> tuple[tuple[float, float, float], float]:
     return focal, round(radius / math.sin(VIEW_ANGLE / 2.0), 2)
 
 
-def configure(template: str, fixed_frame: str, focal: tuple, distance: float) -> str:
-    """The rviz config text of template with the fixed frame, the focal point and the distance replaced."""
+def configure(template: str, fixed_frame: str, focal: tuple, distance: float, scale: float | None = None,
+              width: int | None = None) -> str:
+    """The rviz config text of template with the fixed frame, the focal point, the distance, the TF display's
+    marker scale and the window's width replaced."""
     text = re.sub(r'(\n\s*Fixed Frame: ).*', lambda m: m.group(1) + fixed_frame, template, count=1)
+    if scale is not None:
+        text = re.sub(r'(\n\s*Marker Scale: ).*', lambda m: m.group(1) + f'{scale}', text, count=1)
+    if width is not None:   # Window Geometry's own Width, the last one in the file (displays have widths too)
+        at = text.rfind('\nWindow Geometry:')
+        if at >= 0:
+            text = text[:at] + re.sub(r'(\n\s*Width: ).*', lambda m: m.group(1) + f'{width}', text[at:], count=1)
     text = re.sub(r'(\n\s*Focal Point: ).*', lambda m: m.group(1) + f'{{X: {focal[0]}, Y: {focal[1]}, Z: {focal[2]}}}',
                   text, count=1)
     return re.sub(r'(\n\s*Distance: ).*', lambda m: m.group(1) + f'{distance}', text, count=1)
@@ -54,13 +81,17 @@ def main():
         rospy.logfatal('rviz_view: give the rviz config to start from, e.g. $(find robot_ai)/rviz/robot_ai.rviz')
         raise SystemExit(2)
     fixed_frame = str_param('~fixed_frame', '')
+    beside_sliders = bool_param('~beside_sliders', False)
     tree, _ = wait_for_tree()
     if tree is None:
         return
     focal, distance = camera(tree)
-    fixed_frame = fixed_frame or tree.root
+    if beside_sliders:    # the narrower 3D view (about 370 x 630 px) is the narrow side: step back to frame it
+        distance = round(distance * NARROW_VIEW_FACTOR, 2)
+    fixed_frame = fixed_frame or view_frame(tree)
     with open(argv[1]) as f:
-        text = configure(f.read(), fixed_frame, focal, distance)
+        text = configure(f.read(), fixed_frame, focal, distance, marker_scale(tree),
+                         WIDTH_BESIDE_SLIDERS if beside_sliders else None)
     # one config per robot and config in $ROS_HOME/robot_ai_rviz, replaced whole: rviz may be reading an older one
     folder = os.path.join(os.environ.get('ROS_HOME') or os.path.expanduser('~/.ros'), 'robot_ai_rviz')
     os.makedirs(folder, exist_ok=True)

@@ -27,6 +27,14 @@ def patched_gui_module():
     return joint_state_publisher_gui
 
 
+def beside_rviz(app, gui) -> None:
+    """The sliders at the screen's right edge: rviz_view makes rviz's window narrower when sliders run
+    (rviz_view.WIDTH_BESIDE_SLIDERS), so that on a 1024-pixel screen (Xvfb's) the two stand side by side; without a
+    window manager the window mapped last, rviz's, would otherwise hide them."""
+    screen = app.primaryScreen().availableGeometry()
+    gui.move(max(screen.left(), screen.right() + 1 - gui.frameGeometry().width()), screen.top())
+
+
 @quiet_on_shutdown
 def main():
     import joint_state_publisher
@@ -41,6 +49,7 @@ def main():
         gui = gui_module.JointStatePublisherGui('Node: ' + rospy.get_name(), joint_state_publisher.JointStatePublisher(),
                                                 num_rows)
         gui.show()
+        beside_rviz(app, gui)
         gui.sliderUpdateTrigger.emit()
         threading.Thread(target=gui.jsp.loop, daemon=True).start()
         # Ctrl-C (roslaunch's SIGINT) and SIGTERM close the window and shut rospy down, which unregisters the node
