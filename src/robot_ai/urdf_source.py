@@ -69,6 +69,26 @@ def expand(path: str, mappings: dict[str, str] | None = None) -> str:
     if not is_xacro(path, text):
         return text
     try:
+        return _expand(path, text, mappings)
+    except XacroError:
+        # an expanded URDF may keep xacro calls in blocks nobody reads (the PR2's gazebo and transmission
+        # macros): a file that is not named .xacro and reads as a robot as it is, is that robot
+        if path.endswith('.xacro') or mappings or not _reads_as_urdf(text):
+            raise
+        return text
+
+
+def _reads_as_urdf(text: str) -> bool:
+    from robot_ai.kinematics import KinematicTree
+    try:
+        KinematicTree.from_xml_string(text)
+        return True
+    except Exception:
+        return False
+
+
+def _expand(path: str, text: str, mappings: dict[str, str] | None) -> str:
+    try:
         import xacro
         from xacro import substitution_args
     except ImportError:

@@ -31,9 +31,13 @@ from robot_ai.child_process import PR_SET_CHILD_SUBREAPER, descendants, prctl, r
 from robot_ai.fk_grading import Grade, comparison_frame, configurations
 from robot_ai.kinematics import KinematicTree, URDFError, prefix_frame
 
-RESEND = 0.2            # seconds between two sends of the same configuration
-SETTLE = 0.25           # seconds a candidate's poses must stay the same, with fresh messages, to count
-SAME_AS_BEFORE = 1.5    # seconds after which poses equal to the previous configuration's are taken as the answer
+RESEND = 0.2            # seconds without a tf message after which the configuration is sent again
+STABLE = 3              # fresh tf messages in a row with the same poses: the candidate's answer
+QUIET = 0.03            # seconds without a tf message after an answer before the next send: a node that publishes
+                        # a message per link answers one send with a burst, which must not bring a send per message
+SAME_AS_BEFORE = 15     # fresh messages with the previous configuration's poses after which they are the answer
+MAX_MESSAGES = 400      # fresh messages for one configuration whose poses never settle: the last ones count
+STARTUP = 120.0         # seconds a candidate may take to subscribe to joint_states (a loaded machine is slow)
 MAX_CONFIGURATIONS = 10000
 MAX_TIMEOUT = 600.0     # seconds
 MAX_FRAMES = 10000      # frame names a candidate's tree may introduce before the rest are only counted
@@ -519,27 +523,44 @@ def settle(candidate: TfTree, frame: str, links: dict, q: dict, previous: dict |
            JointState, timeout: float, dead, moving: bool = True) -> dict:
     """The candidate's poses of links in frame, in answer to configuration q.
 
-    q is sent every RESEND seconds; the poses count once they have stayed the same for SETTLE seconds while fresh
-    messages arrived (a robot with no moving joint has only its static ones), and differ from the previous
-    configuration's (a slow node answers the messages queued
-    before q first) unless the reference's do not change (`changes` false) or SAME_AS_BEFORE seconds passed
-    (a node that ignores the joints). Whatever it has then, or at the timeout."""
-    start = time.time()
-    sent, stable_since, last, received = 0.0, None, {}, candidate.received
-    while time.time() < start + timeout and not dead():
-        if time.time() >= sent + RESEND:
+    Paced by the candidate's own messages, not the clock, so that a loaded machine gives the verdict a quiet one
+    does: q is sent, and sent again only once a tf message has come since and QUIET seconds passed after it (one
+    send in flight: a slow node never queues a backlog of old configurations) or RESEND seconds passed without one. The poses count once STABLE
+    fresh messages in a row left them the same, and they differ from the previous configuration's (a slow node may
+    still answer a copy of it first) unless the reference's do not change (`changes` false) or SAME_AS_BEFORE
+    messages gave them (a node that ignores the joints). Only `timeout` seconds without any tf message, or
+    MAX_MESSAGES without settling, end the wait: then the poses it has."""
+    sent = -math.inf
+    answered = True                   # a tf message came after the last send
+    last, stable, same_as_before, messages = {}, 0, 0, 0
+    received = candidate.received
+    heard = time.monotonic()
+    while not dead():
+        now_t = time.monotonic()
+        if (answered and now_t - heard >= QUIET and now_t - sent >= QUIET) or now_t - sent >= RESEND:
             send(pub, JointState, q)
-            sent = time.time()
-        time.sleep(0.05)
-        now = candidate.poses(frame, links)
+            sent, answered = now_t, False
+        time.sleep(0.01)
         fresh = candidate.received > received or not moving
+        if not fresh:
+            if time.monotonic() - heard > timeout:
+                return last           # the candidate stopped answering: what it gave
+            continue
+        received, heard, answered = candidate.received, time.monotonic(), True
+        messages += 1
+        now = candidate.poses(frame, links)
         if not now or not same(now, last):
-            stable_since, last, received = time.time(), now, candidate.received
+            last, stable = now, 1
+        else:
+            stable += 1
+        if messages >= MAX_MESSAGES:
+            return last
+        if stable < STABLE:
             continue
-        if not fresh or time.time() - stable_since < SETTLE:
-            continue
-        if previous is not None and changes and same(now, previous) and time.time() - start < SAME_AS_BEFORE:
-            continue
+        if previous is not None and changes and same(now, previous):
+            same_as_before += 1
+            if same_as_before < SAME_AS_BEFORE:
+                continue
         return now
     return last
 
@@ -558,8 +579,8 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
     if len(tree.links) == 1:
         return [f'{tree.root} is a single link with no joint: there is no transform to publish or to grade',
                 'PASS'], 0
-    deadline = time.time() + a.timeout
-    while pub.get_num_connections() < 1 and time.time() < deadline and not dead():
+    deadline = time.monotonic() + STARTUP + a.timeout   # a node's start on a loaded machine: waited for
+    while pub.get_num_connections() < 1 and time.monotonic() < deadline and not dead():
         time.sleep(0.05)
     configs = configurations(tree, a.configurations, a.seed)
     result, graded, previous, reference = None, None, None, None
@@ -567,11 +588,24 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
         before = reference                                   # one configuration's poses at a time
         candidate.next_configuration()
         if result is None:       # the first configuration: wait for the candidate's frames, then choose the frame
-            limit = time.time() + a.timeout
-            while time.time() < limit and not dead():
+            # until its set of frames stays the same over STABLE fresh messages (a node that publishes a message
+            # per link sends them over a while), at least 1 s; nothing at all within the timeout is a verdict
+            start = time.monotonic()
+            known, unchanged, received = set(), 0, candidate.received
+            while time.monotonic() < start + a.timeout or candidate.frames:
+                if dead():
+                    break
                 send(pub, JointState, q)
                 time.sleep(0.1)
-                if candidate.frames and time.time() > limit - a.timeout + 1.0:
+                fresh = candidate.received > received or not tree.active_joints
+                received = candidate.received
+                if candidate.frames and time.monotonic() > start + 3 * a.timeout:
+                    break                # statics only, a node gone quiet, frames that never settle: what it has
+                if not candidate.frames or not fresh:
+                    continue
+                unchanged = unchanged + 1 if candidate.frames == known else 0
+                known = set(candidate.frames)
+                if unchanged >= STABLE and time.monotonic() > start + 1.0:
                     break
             if dead():
                 return [died()], 1
