@@ -148,13 +148,19 @@ class TestCheckFk(unittest.TestCase):
                                 '{name: [lwr_arm_0_joint], position: [0.3]}'], stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL, preexec_fn=os.setsid)
         try:
-            echo = subprocess.run(['rostopic', 'echo', '-n', '1', '/grader/tf'], capture_output=True, text=True,
-                                  timeout=90)
+            try:
+                echo = subprocess.run(['rostopic', 'echo', '-n', '1', '/grader/tf'], capture_output=True, text=True,
+                                      timeout=90)
+            except subprocess.TimeoutExpired:
+                os.killpg(node.pid, signal.SIGINT)
+                raise AssertionError('no /grader/tf in 90 s; the node said:\n' +
+                                     node.communicate(timeout=20)[0].decode(errors='replace')[-3000:])
             self.assertIn('lwr_arm_1_link', echo.stdout, echo.stderr)
         finally:
             for proc in (pub, node):
-                os.killpg(proc.pid, signal.SIGINT)
-                proc.wait(20)
+                if proc.poll() is None:
+                    os.killpg(proc.pid, signal.SIGINT)
+                    proc.wait(20)
             subprocess.run(['rosparam', 'delete', '/grader'], capture_output=True, timeout=30)
         self.assertNotIn('AttributeError', node.stdout.read().decode(errors='replace'))
 

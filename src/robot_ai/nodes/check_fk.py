@@ -37,7 +37,8 @@ QUIET = 0.03            # seconds without a tf message after an answer before th
                         # a message per link answers one send with a burst, which must not bring a send per message
 SAME_AS_BEFORE = 15     # fresh messages with the previous configuration's poses after which they are the answer
 MAX_MESSAGES = 400      # fresh messages for one configuration whose poses never settle: the last ones count
-STARTUP = 120.0         # seconds a candidate may take to subscribe to joint_states (a loaded machine is slow)
+STARTUP = 120.0         # seconds a candidate may take to register with the master (a loaded machine is slow)
+SUBSCRIBE = 10.0        # seconds from then to its joint_states subscription (it reads the URDF first)
 MAX_CONFIGURATIONS = 10000
 MAX_TIMEOUT = 600.0     # seconds
 MAX_FRAMES = 10000      # frame names a candidate's tree may introduce before the rest are only counted
@@ -565,6 +566,15 @@ def settle(candidate: TfTree, frame: str, links: dict, q: dict, previous: dict |
     return last
 
 
+def registered(node: str) -> bool:
+    """Whether a node of that name has registered with the master (rospy.init_node or ros::init has run)."""
+    import rosnode
+    try:
+        return node in rosnode.get_node_names()
+    except rosnode.ROSNodeIOException:
+        return False
+
+
 def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
     """Drive the candidate through the configurations; (report lines, exit status)."""
     names = {link: tf_name(link) for link in tree.links}     # URDF link -> the frame tf2 keeps
@@ -579,7 +589,13 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
     if len(tree.links) == 1:
         return [f'{tree.root} is a single link with no joint: there is no transform to publish or to grade',
                 'PASS'], 0
-    deadline = time.monotonic() + STARTUP + a.timeout   # a node's start on a loaded machine: waited for
+    # a node's start on a loaded machine (its imports can take many seconds) is waited for, up to STARTUP, until it
+    # has registered with the master; then it has SUBSCRIBE seconds (or --timeout, if longer) to subscribe
+    node = pub.resolved_name.rsplit('/', 1)[0] + '/candidate'
+    deadline = time.monotonic() + STARTUP
+    while not registered(node) and time.monotonic() < deadline and not dead():
+        time.sleep(0.1)
+    deadline = time.monotonic() + max(a.timeout, SUBSCRIBE)
     while pub.get_num_connections() < 1 and time.monotonic() < deadline and not dead():
         time.sleep(0.05)
     configs = configurations(tree, a.configurations, a.seed)
