@@ -141,9 +141,12 @@ class TestCheckFk(unittest.TestCase):
         setter = subprocess.run([sys.executable, '-c', 'import rospy, sys; rospy.set_param("/grader/robot_description", '
                                  'sys.stdin.read())'], input=xml, text=True, capture_output=True, timeout=60)
         self.assertEqual(setter.returncode, 0, setter.stderr)
+        # a user's shell, the venv first on PATH: rostest puts a `python` of its own before it (a link to the Python
+        # that runs rostest, which outside the venv's folder no longer finds the venv)
+        path = os.pathsep.join(p for p in os.environ['PATH'].split(os.pathsep) if 'rostest_bin_hook' not in p)
         node = subprocess.Popen(['rosrun', 'robot_ai', 'course_fk.py', '__ns:=/grader/deeper', '/tf:=/grader/tf'],
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=os.setsid,
-                                env=dict(os.environ, COURSE_FK_MISTAKE='none'))
+                                env=dict(os.environ, COURSE_FK_MISTAKE='none', PATH=path))
         pub = subprocess.Popen(['rostopic', 'pub', '-r', '5', '/grader/deeper/joint_states', 'sensor_msgs/JointState',
                                 '{name: [lwr_arm_0_joint], position: [0.3]}'], stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL, preexec_fn=os.setsid)

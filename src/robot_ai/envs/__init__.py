@@ -19,4 +19,7 @@ for _version, _steps, _threshold in (('v0', 200, 195.0), ('v1', 500, 475.0)):
     if f'robot_ai/RosCartPole-{_version}' not in registry:
         register(id=f'robot_ai/RosCartPole-{_version}', entry_point='robot_ai.envs.ros_cartpole:RosCartPoleEnv',
                  vector_entry_point='robot_ai.envs.ros_cartpole:RosCartPoleVectorEnv',
-                 max_episode_steps=_steps, reward_threshold=_threshold, kwargs={'env_id': f'CartPole-{_version}'})
+                 max_episode_steps=_steps, reward_threshold=_threshold, kwargs={'env_id': f'CartPole-{_version}'},
+                 # gymnasium 1.4's passive checker keeps no reset data when the first reset() raises (no sim yet),
+                 # and its first step() then fails with a TypeError: the env is checked by check_env in the tests
+                 disable_env_checker=True)
