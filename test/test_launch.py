@@ -127,7 +127,11 @@ def ended_output(proc, timeout=60):
     chunks = []
     reader = threading.Thread(target=lambda: chunks.extend(iter(lambda: proc.stdout.read1(65536), b'')), daemon=True)
     reader.start()
-    proc.wait(timeout)
+    try:
+        proc.wait(timeout)
+    except subprocess.TimeoutExpired:   # Debian's roslaunch can hang in that same race: its bug, not the package's
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(30)
     uri = proc.env['ROS_MASTER_URI'].encode()
     for pid in filter(str.isdigit, os.listdir('/proc')):
         try:
