@@ -18,9 +18,10 @@ Only the elements kinematics uses are read (link names; each joint's type, paren
 limit, mimic), so old or unusual elements elsewhere (PR2's ``<transmission>`` blocks, gazebo tags) cannot
 stop a robot from loading.
 """
-import xml.etree.ElementTree as ET
+from __future__ import annotations
 
 import math
+import xml.etree.ElementTree as ET
 
 import numpy as np
 from tf import transformations as tft
@@ -37,17 +38,20 @@ class URDFError(ValueError):
     """The robot description cannot be turned into a kinematic tree."""
 
 
-class Joint(object):
+class Joint:
     """One URDF joint with its fixed part precomputed.
 
     Attributes: name, type, parent, child (link names); xyz (3,), quat (4, x y z w) and matrix (4x4) of the
-    origin; axis (3,), normalised; lower, upper (limits or None); mimic: (source, multiplier, offset) or None.
+    origin; axis (3,), normalised; lower, upper (limits or None); velocity (the limit's velocity, rad/s or m/s, or
+    None); mimic: (source, multiplier, offset) or None.
     """
 
     __slots__ = ('name', 'type', 'parent', 'child', 'xyz', 'rpy', 'quat', 'matrix', 'axis', 'lower', 'upper',
-                 'mimic')
+                 'velocity', 'mimic')
 
-    def __init__(self, name, jtype, parent, child, xyz, rpy, axis, lower=None, upper=None, mimic=None):
+    def __init__(self, name: str, jtype: str, parent: str, child: str, xyz, rpy, axis, lower: float | None = None,
+                 upper: float | None = None, mimic: tuple[str, float, float] | None = None,
+                 velocity: float | None = None):
         self.name, self.type, self.parent, self.child = name, jtype, parent, child
         self.xyz = np.array(xyz, dtype=float)
         self.rpy = np.array(rpy, dtype=float)
@@ -56,16 +60,17 @@ class Joint(object):
         axis = np.array(axis, dtype=float)
         norm = np.linalg.norm(axis)
         if jtype in MOVING_TYPES and not (norm > 0.0 and np.all(np.isfinite(axis))):
-            raise URDFError('joint %r has an invalid axis %s' % (name, list(axis)))
+            raise URDFError(f'joint {name!r} has an invalid axis {list(axis)}')
         self.axis = axis / norm if norm > 0.0 else axis
         self.lower, self.upper = lower, upper
+        self.velocity = velocity
         self.mimic = mimic
 
     @property
-    def moving(self):
+    def moving(self) -> bool:
         return self.type in MOVING_TYPES
 
-    def transform(self, position=0.0):
+    def transform(self, position: float = 0.0) -> np.ndarray:
         """4x4 transform parent link -> child link at this joint position (tf.transformations)."""
         if self.type in ('revolute', 'continuous'):
             return np.dot(self.matrix, tft.rotation_matrix(position, self.axis))
@@ -79,9 +84,9 @@ def _kinematic_subset(xml_string):
     try:
         root = ET.fromstring(xml_string)
     except ET.ParseError as e:
-        raise URDFError('robot_description is not valid XML: %s' % e)
+        raise URDFError(f'robot_description is not valid XML: {e}')
     if root.tag != 'robot':
-        raise URDFError('robot_description has root element <%s>, expected <robot>' % root.tag)
+        raise URDFError(f'robot_description has root element <{root.tag}>, expected <robot>')
     out = ET.Element('robot', {'name': root.get('name', '')})
     for el in root:
         if el.tag == 'link':
@@ -102,7 +107,7 @@ def _parse_quietly(xml_string):
     try:
         return URDF.from_xml_string(xml_string)
     except Exception as e:  # urdf_parser_py raises ParseError, AssertionError, ValueError, ...
-        raise URDFError('cannot parse the URDF: %s' % str(e).strip().splitlines()[0])
+        raise URDFError(f'cannot parse the URDF: {str(e).strip().splitlines()[0]}')
     finally:
         xml_reflection.core.on_error = saved
 
@@ -113,16 +118,16 @@ def _check_finite(joint, *values):
         try:
             numbers = [float(x) for x in v]
         except (TypeError, ValueError):
-            raise URDFError('joint %r: %s must be numbers, got %r' % (joint, what, v))
+            raise URDFError(f'joint {joint!r}: {what} must be numbers, got {v!r}')
         if not all(math.isfinite(x) for x in numbers):
-            raise URDFError('joint %r: %s must be finite numbers, got %s' % (
-                joint, what, ' '.join(repr(x) for x in numbers)))
+            raise URDFError(f'joint {joint!r}: {what} must be finite numbers, got '
+                            f'{" ".join(repr(x) for x in numbers)}')
 
 
-class KinematicTree(object):
+class KinematicTree:
     """The kinematic tree of a URDF: joints in parent-before-child order from the single root link."""
 
-    def __init__(self, name, root, links, joints, floating_joints=()):
+    def __init__(self, name: str, root: str, links: list[str], joints: dict[str, Joint], floating_joints=()):
         self.name = name
         self.root = root
         self.links = links                      # every link, parents before children
@@ -139,39 +144,39 @@ class KinematicTree(object):
 
     # ----------------------------------------------------------------------------------------- loading
     @classmethod
-    def from_xml_string(cls, xml_string):
+    def from_xml_string(cls, xml_string: str) -> KinematicTree:
         if not xml_string or not xml_string.strip():
             raise URDFError('robot_description is empty')
         return cls.from_urdf(_parse_quietly(_kinematic_subset(xml_string)))
 
     @classmethod
-    def from_file(cls, path):
+    def from_file(cls, path: str) -> KinematicTree:
         with open(path) as f:
             return cls.from_xml_string(f.read())
 
     @classmethod
-    def from_urdf(cls, robot):
+    def from_urdf(cls, robot) -> KinematicTree:
         """Build from a urdf_parser_py URDF object."""
         link_names = [l.name for l in robot.links]
         if not link_names:
-            raise URDFError('the robot %r has no link' % robot.name)
+            raise URDFError(f'the robot {robot.name!r} has no link')
         if len(set(link_names)) != len(link_names):
-            raise URDFError('the robot %r names a link twice' % robot.name)
+            raise URDFError(f'the robot {robot.name!r} names a link twice')
         joint_names = [j.name for j in robot.joints]
         if len(set(joint_names)) != len(joint_names):
-            raise URDFError('the robot %r names a joint twice' % robot.name)
+            raise URDFError(f'the robot {robot.name!r} names a joint twice')
         by_child, children = {}, {}
         for j in robot.joints:
             for end in (j.parent, j.child):
                 if end not in link_names:
-                    raise URDFError('joint %r refers to the unknown link %r' % (j.name, end))
+                    raise URDFError(f'joint {j.name!r} refers to the unknown link {end!r}')
             if j.child in by_child:
-                raise URDFError('link %r is the child of two joints' % j.child)
+                raise URDFError(f'link {j.child!r} is the child of two joints')
             by_child[j.child] = j
             children.setdefault(j.parent, []).append(j)
         roots = [l for l in link_names if l not in by_child]
         if len(roots) != 1:
-            raise URDFError('a robot needs exactly one root link, found %d: %s' % (len(roots), roots[:5]))
+            raise URDFError(f'a robot needs exactly one root link, found {len(roots)}: {roots[:5]}')
         root = roots[0]
 
         joints, links, floating = {}, [root], []
@@ -187,14 +192,14 @@ class KinematicTree(object):
                     floating.append(j.name)
                     continue
                 if j.type not in MOVING_TYPES + STATIC_TYPES:
-                    raise URDFError('joint %r has the unknown type %r' % (j.name, j.type))
+                    raise URDFError(f'joint {j.name!r} has the unknown type {j.type!r}')
                 origin = j.origin
                 xyz = origin.xyz if origin is not None and origin.xyz is not None else [0.0, 0.0, 0.0]
                 rpy = origin.rpy if origin is not None and origin.rpy is not None else [0.0, 0.0, 0.0]
                 axis = j.axis if j.axis is not None else [1.0, 0.0, 0.0]
-                lower = upper = None
+                lower = upper = velocity = None
                 if j.limit is not None:
-                    lower, upper = j.limit.lower, j.limit.upper
+                    lower, upper, velocity = j.limit.lower, j.limit.upper, j.limit.velocity
                 mimic = None
                 if j.mimic is not None:
                     mimic = (j.mimic.joint,
@@ -202,13 +207,14 @@ class KinematicTree(object):
                              0.0 if j.mimic.offset is None else float(j.mimic.offset))
                 _check_finite(j.name, ('origin xyz', xyz), ('origin rpy', rpy), ('axis', axis),
                               ('mimic multiplier and offset', mimic[1:] if mimic else ()))
-                joints[j.name] = Joint(j.name, j.type, j.parent, j.child, xyz, rpy, axis, lower, upper, mimic)
+                joints[j.name] = Joint(j.name, j.type, j.parent, j.child, xyz, rpy, axis, lower, upper, mimic,
+                                       velocity)
         tree = cls(robot.name, root, links, joints, floating)
         tree._floating_child = {j.name: j.child for j in robot.joints if j.name in floating}
         tree._check_mimics()
         return tree
 
-    def _check_mimics(self):
+    def _check_mimics(self) -> None:
         """A mimic joint must follow a moving joint, through a chain without cycles. robot_state_publisher
         loads such a file anyway, so an invalid mimic is dropped with a warning, not a load failure.
         Linear in the number of joints, however long the chains (each joint is walked once)."""
@@ -218,13 +224,13 @@ class KinematicTree(object):
             chain, on_chain, src, problem = [name], {name}, self.joints[name].mimic[0], None
             while True:
                 if src in verdict:
-                    problem = None if verdict[src] is None else 'follows %r, which is an invalid mimic' % src
+                    problem = None if verdict[src] is None else f'follows {src!r}, which is an invalid mimic'
                     break
                 if src not in self.joints or not self.joints[src].moving:
-                    problem = 'follows %r, which is not a moving joint' % src
+                    problem = f'follows {src!r}, which is not a moving joint'
                     break
                 if src in on_chain:
-                    problem = 'is part of a cycle of mimics: %s' % ' -> '.join(chain[chain.index(src):] + [src])
+                    problem = f'is part of a cycle of mimics: {" -> ".join(chain[chain.index(src):] + [src])}'
                     break
                 if self.joints[src].mimic is None:
                     break
@@ -235,7 +241,7 @@ class KinematicTree(object):
                 verdict.setdefault(n, problem)
         for name in self.mimic_joints:
             if verdict[name] is not None:
-                self.warnings.append('mimic joint %r %s; it is treated as an ordinary joint' % (name, verdict[name]))
+                self.warnings.append(f'mimic joint {name!r} {verdict[name]}; it is treated as an ordinary joint')
                 dropped.append(name)
         for name in dropped:
             self.joints[name].mimic = None
@@ -243,7 +249,7 @@ class KinematicTree(object):
         self.active_joints = [n for n in self.moving_joints if self.joints[n].mimic is None]
 
     # ---------------------------------------------------------------------------------- single form
-    def resolve_positions(self, positions):
+    def resolve_positions(self, positions: dict) -> dict:
         """Positions of every joint that has one: the given ones, plus mimic joints whose source (or source's
         source, ...) is given. A value given for a mimic joint wins over the computed one."""
         resolved = dict(positions)
@@ -270,16 +276,16 @@ class KinematicTree(object):
             value = mult * value + off
         return value
 
-    def joint_transform(self, name, position=0.0):
+    def joint_transform(self, name: str, position: float = 0.0) -> np.ndarray:
         """4x4 parent link -> child link transform of one joint."""
         return self.joints[name].transform(position)
 
-    def joint_transforms(self, positions):
+    def joint_transforms(self, positions: dict) -> dict[str, np.ndarray]:
         """{joint: 4x4} for every moving joint that has a position (mimic joints resolved), as published."""
         resolved = self.resolve_positions(positions)
         return {n: self.joints[n].transform(resolved[n]) for n in self.moving_joints if n in resolved}
 
-    def end_effector(self):
+    def end_effector(self) -> str:
         """A tip link for a robot nobody named one for: the link below the most moving joints (mimic joints
         excluded), the deepest of those (a tool frame below the last wrist), the first in link order on a tie."""
         depth = {self.root: (0, 0)}  # (moving non-mimic joints, joints) from the root
@@ -291,11 +297,11 @@ class KinematicTree(object):
         best = max(depth.values())
         return next(link for link in self.links if depth.get(link) == best)
 
-    def static_transforms(self):
+    def static_transforms(self) -> dict[str, np.ndarray]:
         """{joint: 4x4} for the fixed (and planar) joints."""
         return {n: self.joints[n].transform(0.0) for n in self.static_joints}
 
-    def floating_base(self):
+    def floating_base(self) -> str | None:
         """The child of the floating joint that carries the most links (a humanoid's pelvis, a mobile base's
         body): joint_states cannot place it, but everything below it moves with the joints. None without one."""
         if not self.floating_joints:
@@ -310,7 +316,7 @@ class KinematicTree(object):
         children = [self._floating_child[n] for n in self.floating_joints]
         return max(children, key=size)
 
-    def link_poses(self, positions=None, base=None):
+    def link_poses(self, positions: dict | None = None, base: str | None = None) -> dict[str, np.ndarray]:
         """{link: 4x4 pose in the frame of base (the root by default)} of every link connected to base through
         joints other than floating ones; moving joints without a position are taken at 0."""
         resolved = self.resolve_positions(positions or {})
@@ -322,7 +328,7 @@ class KinematicTree(object):
         return poses
 
     # ----------------------------------------------------------------------------------- batch form
-    def link_poses_batch(self, q, names=None):
+    def link_poses_batch(self, q, names: list[str] | None = None) -> dict[str, np.ndarray]:
         """Poses of every link for N configurations at once.
 
         q: (N, len(names)) array; names defaults to ``active_joints``. Mimic joints follow their sources;
@@ -332,10 +338,10 @@ class KinematicTree(object):
         names = list(self.active_joints if names is None else names)
         q = np.asarray(q, dtype=float)
         if q.ndim != 2 or q.shape[1] != len(names):
-            raise ValueError('q must have shape (N, %d), got %s' % (len(names), q.shape))
+            raise ValueError(f'q must have shape (N, {len(names)}), got {q.shape}')
         unknown = [n for n in names if n not in self.joints or not self.joints[n].moving]
         if unknown:
-            raise ValueError('not moving joints of this robot: %s' % unknown)
+            raise ValueError(f'not moving joints of this robot: {unknown}')
         n = q.shape[0]
         # the single form's mimic resolution works on columns as well as on numbers
         cols = self.resolve_positions({name: q[:, i] for i, name in enumerate(names)})
@@ -349,7 +355,7 @@ class KinematicTree(object):
         return poses
 
     # ------------------------------------------------------------------------------ node's hot path
-    def transform_plan(self, tf_prefix=''):
+    def transform_plan(self, tf_prefix: str = '') -> TransformPlan:
         return TransformPlan(self, tf_prefix)
 
 
@@ -371,7 +377,7 @@ def _batch_joint_matrices(joint, values, n):
     return out
 
 
-def prefix_frame(tf_prefix, frame):
+def prefix_frame(tf_prefix: str, frame: str) -> str:
     """robot_state_publisher's frame naming: a frame with a leading slash loses it and gets no prefix;
     otherwise a non-empty prefix (without its own leading slash) and '/' are put before it."""
     if frame.startswith('/'):
@@ -381,7 +387,7 @@ def prefix_frame(tf_prefix, frame):
     return (tf_prefix[1:] if tf_prefix.startswith('/') else tf_prefix) + '/' + frame
 
 
-class TransformPlan(object):
+class TransformPlan:
     """Precomputed arrays that turn a JointState's positions into every published joint's parent -> child
     transform with a few numpy operations (no per-joint Python loop). Used by the node for each message:
 
@@ -391,7 +397,7 @@ class TransformPlan(object):
     Moving joints are indexed 0..M-1 in ``names``; static joints are in ``static_*``.
     """
 
-    def __init__(self, tree, tf_prefix=''):
+    def __init__(self, tree: KinematicTree, tf_prefix: str = ''):
         self.tree = tree
         self.names = list(tree.moving_joints)
         self.index = {n: i for i, n in enumerate(self.names)}
@@ -424,12 +430,12 @@ class TransformPlan(object):
         self.static_xyz = np.array([j.xyz for j in static]).reshape(len(static), 3)
         self.static_quat = np.array([j.quat for j in static]).reshape(len(static), 4)
 
-    def message_layout(self, names):
+    def message_layout(self, names) -> MessageLayout:
         """Everything about a JointState's tuple of names that does not depend on its positions, so that
         a stream of messages with the same names costs a few numpy operations each (MessageLayout)."""
         return MessageLayout(self, names)
 
-    def message_transforms(self, layout, positions):
+    def message_transforms(self, layout: MessageLayout, positions: np.ndarray) -> np.ndarray:
         """(K, 7) array: translation xyz and rotation xyzw of the layout's K joints (layout.out_idx) for one
         message's positions, with the mimic joints whose source has a value."""
         v = positions[layout.gather]
@@ -452,7 +458,7 @@ def _left_matrix(q):
     return np.array([[w, -z, y, x], [z, w, -x, y], [-y, x, w, z], [-x, -y, -z, w]])
 
 
-class MessageLayout(object):
+class MessageLayout:
     """Precomputed for one tuple of joint names (see TransformPlan.message_layout).
 
     out_idx: plan indices of the joints published (explicit first occurrences of moving joints, then the mimic
@@ -462,7 +468,7 @@ class MessageLayout(object):
     that translation = xyz + slide * v and rotation = p * sin(v / 2) + q * cos(v / 2) (revolute: the origin's
     quaternion times the rotation about the axis; prismatic: p = 0)."""
 
-    def __init__(self, plan, names):
+    def __init__(self, plan: TransformPlan, names):
         tree = plan.tree
         value_of, unknown, seen = {}, [], set()   # plan index -> message index, first occurrence wins
         floating = set(tree.floating_joints)
