@@ -1,0 +1,360 @@
+"""ReachEnv and ReachVectorEnv: any arm's reach task as gymnasium environments. No rospy.
+
+    env = gymnasium.make('robot_ai/Reach-v0', model='/path/arm.urdf.xacro', tip='tool0')     # 50 steps
+    envs = gymnasium.make_vec('robot_ai/Reach-v0', num_envs=4096)                            # ReachVectorEnv
+
+The observation follows gymnasium-robotics' goal-env convention (FetchReach): ``Dict(achieved_goal=Box(3),
+desired_goal=Box(3), observation=Box(n + 3))`` in float64, positions in metres in the arm's base frame; observation
+holds the n joint positions (the arm's joints, in chain order), then the tip. ``compute_reward(achieved_goal,
+desired_goal, info)`` is vectorised, so stable-baselines3's HER relabels goals on it as on FetchReach;
+``info['is_success']`` is a tip within ``distance_threshold`` (0.05 m) of the goal.
+
+Action: control='ee' (default): ``Box(-1, 1, (3,))``, a tip displacement of ``ee_step`` x action, turned into joint
+motion by damped least squares on the analytic Jacobian, the joints then clipped to their limits; ``ee_step``
+defaults to a twentieth of the chain's length, so that 50 steps cross any arm's workspace. control='joints':
+``Box(-1, 1, (n,))``, joint displacements of 0.05 rad (or m) x action. Actions are clipped to [-1, 1]; NaN or
+infinite ones are refused (ValueError).
+
+Episode: reset draws the goal as the tip of a configuration uniform within the limits (every goal reachable), then
+puts the arm at its start: start='home' (the middle of every joint's range, or ``home``) or 'random' (uniform within
+the limits), from the env's np_random. 50 steps (TimeLimit); no termination on success (Fetch's convention: the
+policy has to stay there). reward_type 'sparse': -1 outside the threshold, 0 inside; 'dense': -distance.
+
+ReachVectorEnv computes its N arms in one numpy pass per step and equals gymnasium's SyncVectorEnv over N ReachEnvs
+bit for bit (autoreset next-step, reset(seed=s) seeds env i with s + i).
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import numpy as np
+from gymnasium import spaces
+from gymnasium.error import ResetNeeded
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from robot_ai.reach.arm import Arm, ReachError
+from robot_ai.reach.model import Model, load_model
+from robot_ai.reach.task import DISTANCE_THRESHOLD, ReachTask, goal_distance
+
+CONTROLS = ('ee', 'joints')
+STARTS = ('home', 'random')
+EPISODE_STEPS = 50
+JOINT_STEP = 0.05            # rad (or m) per unit of a joints action
+EE_STEP_FRACTION = 1 / 20    # of the chain's length: 50 steps cross the workspace
+DAMPING_FRACTION = 0.5       # damped least squares' damping, in ee_steps
+RENDER_FPS = 10
+
+
+class ReachSetup:
+    """What ReachEnv and ReachVectorEnv share: the arm, the task, the control, the spaces, and the batched steps
+    (every array with the batch on its last axis)."""
+
+    def __init__(self, model: str | None = None, xacro_args=None, tip: str | None = None, control: str = 'ee',
+                 start: str = 'home', reward_type: str = 'sparse', distance_threshold: float = DISTANCE_THRESHOLD,
+                 ee_step: float | None = None, damping: float | None = None, home=None, urdf: str | None = None):
+        if control not in CONTROLS:
+            raise ReachError(f'control must be one of {", ".join(CONTROLS)}, got {control!r}')
+        if start not in STARTS:
+            raise ReachError(f'start must be one of {", ".join(STARTS)}, got {start!r}')
+        self.model: Model = load_model(model, xacro_args, urdf)
+        self.arm = Arm(self.model.tree, tip)
+        self.task = ReachTask(reward_type, distance_threshold)
+        self.control, self.start = control, start
+        self.ee_step = self._positive('ee_step', ee_step, self.arm.length * EE_STEP_FRACTION)
+        self.damping = self._positive('damping', damping, self.ee_step * DAMPING_FRACTION)
+        self.home = self._home(home)
+        bound = self.arm.radius + 1e-6
+        goal_space = spaces.Box(-bound, bound, (3,), np.float64)
+        low = np.concatenate((self.arm.lower, np.full(3, -bound)))
+        high = np.concatenate((self.arm.upper, np.full(3, bound)))
+        self.observation_space = spaces.Dict(achieved_goal=goal_space, desired_goal=goal_space,
+                                             observation=spaces.Box(low, high, dtype=np.float64))
+        size = 3 if control == 'ee' else self.arm.n
+        self.action_space = spaces.Box(-1.0, 1.0, (size,), np.float32)
+
+    @staticmethod
+    def _positive(name: str, value, default: float) -> float:
+        if value is None:
+            return float(default)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < float('inf'):
+            raise ReachError(f'{name} must be a positive number, got {value!r}')
+        return float(value)
+
+    def _home(self, home) -> np.ndarray:
+        arm = self.arm
+        if home is None:
+            return arm.home.copy()
+        if isinstance(home, dict):
+            unknown = sorted(set(home) - set(arm.joints))
+            if unknown:
+                raise ReachError(f'home names joints the arm does not have: {", ".join(unknown)} (its joints: '
+                                 f'{", ".join(arm.joints)})')
+            values = np.array([float(home.get(n, h)) for n, h in zip(arm.joints, arm.home)])
+        else:
+            values = np.asarray(home, dtype=float).reshape(-1)
+            if values.shape != (arm.n,):
+                raise ReachError(f'home must be {arm.n} joint positions ({", ".join(arm.joints)}), got {values.size}')
+        outside = [f'{n} {v:g} not in [{lo:g}, {hi:g}]' for n, v, lo, hi in zip(arm.joints, values, arm.lower, arm.upper)
+                   if not lo <= v <= hi]
+        if outside:
+            raise ReachError(f'home outside the joint limits: {"; ".join(outside)}')
+        return values
+
+    def settings(self) -> dict:
+        """The env's kwargs as plain values (a policy file keeps them)."""
+        return dict(tip=self.arm.tip, control=self.control, start=self.start, reward_type=self.task.reward_type,
+                    distance_threshold=self.task.distance_threshold, ee_step=self.ee_step, damping=self.damping,
+                    home=[float(v) for v in self.home])
+
+    # -------------------------------------------------------------------------------- batched steps
+    def check_actions(self, actions: np.ndarray) -> np.ndarray:
+        """Actions (N, a) as float64 clipped to [-1, 1]; ValueError for NaN or infinite ones."""
+        if not np.isfinite(actions).all():
+            raise ValueError(f'an action must be finite numbers in [-1, 1], got {actions.tolist()[:4]}')
+        return np.clip(actions, -1.0, 1.0)
+
+    def first_states(self, rngs: list) -> tuple[np.ndarray, np.ndarray]:
+        """(goal configurations, start configurations), each (n, k), drawn from each env's np_random in turn."""
+        goals, starts = [], []
+        for rng in rngs:
+            goals.append(self.task.goal_configuration(self.arm, rng))
+            starts.append(self.home if self.start == 'home' else rng.uniform(self.arm.lower, self.arm.upper))
+        return np.ascontiguousarray(np.array(goals).T), np.ascontiguousarray(np.array(starts).T)
+
+    def place(self, q_t: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(tip (3, N), Jacobian (3, n, N) for ee control, else None) of joint positions q_t (n, N)."""
+        if self.control == 'ee':
+            tip, axes, origins = self.arm.forward(q_t)
+            return tip, self.arm.jacobian_t(tip, axes, origins)
+        return self.arm.forward(q_t, with_axes=False)[0], None
+
+    def move(self, q_t: np.ndarray, jac_t: np.ndarray | None, actions_t: np.ndarray) -> np.ndarray:
+        """Joint positions (n, N) after actions_t (a, N), within the limits."""
+        if self.control == 'ee':
+            return self.arm.move_t(q_t, jac_t, actions_t * self.ee_step, self.damping)
+        return self.arm.clip(q_t + actions_t * JOINT_STEP)
+
+    @staticmethod
+    def observations(q_t: np.ndarray, tip_t: np.ndarray, goal_t: np.ndarray) -> dict:
+        """The observation dict of a batch: (N, 3), (N, 3), (N, n + 3), float64."""
+        return {'achieved_goal': tip_t.T.copy(), 'desired_goal': goal_t.T.copy(),
+                'observation': np.concatenate((q_t, tip_t)).T.copy()}
+
+
+class ReachEnv(gymnasium.Env):
+    """Any arm's reach task (see the module's docstring). Registered as robot_ai/Reach-v0 (50 steps).
+
+    Args: model (a URDF or xacro path; default the package's UR5), xacro_args ('a:=1 b:=2' or a dict), tip (a link;
+    default the link below the most joints), control ('ee' or 'joints'), start ('home' or 'random'), reward_type
+    ('sparse' or 'dense'), distance_threshold (0.05 m), ee_step (default: a twentieth of the chain), damping (of the
+    least squares; default ee_step), home (joint positions, a list in the arm's order or a dict; default mid-range),
+    urdf (a URDF text instead of a model file), render_mode ('rgb_array')."""
+
+    metadata = {'render_modes': ['rgb_array'], 'render_fps': RENDER_FPS}
+
+    def __init__(self, model: str | None = None, xacro_args=None, tip: str | None = None, control: str = 'ee',
+                 start: str = 'home', reward_type: str = 'sparse', distance_threshold: float = DISTANCE_THRESHOLD,
+                 ee_step: float | None = None, damping: float | None = None, home=None, urdf: str | None = None,
+                 render_mode: str | None = None):
+        if render_mode not in (None, *self.metadata['render_modes']):
+            raise ReachError(f'render_mode must be one of {self.metadata["render_modes"]} or None, got {render_mode!r}')
+        self.setup = ReachSetup(model, xacro_args, tip, control, start, reward_type, distance_threshold, ee_step,
+                                damping, home, urdf)
+        self.arm = self.setup.arm
+        self.task = self.setup.task
+        self.observation_space = self.setup.observation_space
+        self.action_space = self.setup.action_space
+        self.render_mode = render_mode
+        self._q = self._tip = self._goal = self._jac = None
+        self._renderer = None
+
+    def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:
+        return self.task.compute_reward(achieved_goal, desired_goal, info)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        goal_q, self._q = self.setup.first_states([self.np_random])
+        self._goal = self.setup.arm.forward(goal_q, with_axes=False)[0]
+        self._tip, self._jac = self.setup.place(self._q)
+        if self._renderer is not None:
+            self._renderer.new_episode()
+        return self._observation(), self._info()
+
+    def step(self, action):
+        if self._q is None:
+            raise ResetNeeded('Cannot call env.step() before calling env.reset()')
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != self.action_space.shape:
+            raise ValueError(f'an action is {self.action_space.shape[0]} numbers in [-1, 1], got shape {a.shape}')
+        a = self.setup.check_actions(a)
+        self._q = self.setup.move(self._q, self._jac, a[:, None])
+        self._tip, self._jac = self.setup.place(self._q)
+        info = self._info()
+        reward = float(self.task.reward_of(goal_distance(self._tip[:, 0], self._goal[:, 0])))
+        return self._observation(), reward, False, False, info
+
+    def _observation(self) -> dict:
+        return {k: v[0] for k, v in ReachSetup.observations(self._q, self._tip, self._goal).items()}
+
+    def _info(self) -> dict:
+        return {'is_success': bool(self.task.is_success(self._tip[:, 0], self._goal[:, 0]))}
+
+    @property
+    def joint_positions(self) -> np.ndarray:
+        """The arm's joint positions (n,) now."""
+        return self._q[:, 0].copy()
+
+    def render(self):
+        if self.render_mode != 'rgb_array':
+            return None
+        if self._renderer is None:
+            from robot_ai.reach.render import ArmRenderer
+            self._renderer = ArmRenderer(self.arm, self.task.distance_threshold)
+        if self._q is None:
+            return self._renderer.draw(self.setup.home, None)
+        return self._renderer.draw(self._q[:, 0], self._goal[:, 0])
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        super().close()
+
+
+class ReachVectorEnv(VectorEnv):
+    """num_envs ReachEnvs computed together, equal bit for bit to gymnasium's SyncVectorEnv over them (autoreset
+    next-step, reset(seed=s) seeds env i with s + i, infos with their masks). The kwargs are ReachEnv's (or a
+    ReachSetup already made, setup=)."""
+
+    metadata = {'render_modes': ['rgb_array'], 'render_fps': RENDER_FPS, 'autoreset_mode': AutoresetMode.NEXT_STEP}
+
+    def __init__(self, num_envs: int = 1, max_episode_steps: int = EPISODE_STEPS, render_mode: str | None = None,
+                 setup: ReachSetup | None = None, **kwargs: Any):
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ReachError(f'num_envs must be a whole number of at least 1, got {num_envs!r}')
+        if isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer)) \
+                or max_episode_steps < 1:
+            raise ReachError(f'max_episode_steps must be a whole number of at least 1, got {max_episode_steps!r}')
+        if setup is not None and kwargs:
+            raise ReachError(f'give a setup or its settings, not both: {sorted(kwargs)}')
+        self.setup = setup or ReachSetup(**kwargs)
+        self.arm = self.setup.arm
+        self.task = self.setup.task
+        self.num_envs = int(num_envs)
+        self.max_episode_steps = int(max_episode_steps)
+        self.render_mode = render_mode
+        self.single_observation_space = self.setup.observation_space
+        self.single_action_space = self.setup.action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        n = self.num_envs
+        self._rngs: list[np.random.Generator | None] = [None] * n
+        self._q = np.zeros((self.arm.n, n))
+        self._tip = np.zeros((3, n))
+        self._goal = np.zeros((3, n))
+        self._jac = np.zeros((3, self.arm.n, n)) if self.setup.control == 'ee' else None
+        self._elapsed = np.zeros(n, dtype=np.int64)
+        self._autoreset = np.zeros(n, dtype=np.bool_)
+        self._started = np.zeros(n, dtype=np.bool_)
+        self._renderers = None
+
+    def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:
+        return self.task.compute_reward(achieved_goal, desired_goal, info)
+
+    def _rng(self, i: int, seed: int | None) -> np.random.Generator:
+        if seed is not None or self._rngs[i] is None:    # gymnasium.Env.reset(seed) and np_random's first use
+            self._rngs[i] = seeding.np_random(seed)[0]
+        return self._rngs[i]
+
+    def _reset_envs(self, chosen: np.ndarray, seeds: list) -> None:
+        rngs = [self._rng(int(i), seeds[i]) for i in chosen]
+        goal_q, q = self.setup.first_states(rngs)
+        goal = self.arm.forward(goal_q, with_axes=False)[0]
+        tip, jac = self.setup.place(q)
+        self._q[:, chosen], self._goal[:, chosen], self._tip[:, chosen] = q, goal, tip
+        if jac is not None:
+            self._jac[:, :, chosen] = jac
+        self._elapsed[chosen] = 0
+        self._started[chosen] = True
+        if self._renderers is not None:
+            for i in chosen:
+                if i < len(self._renderers):
+                    self._renderers[i].new_episode()
+
+    def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
+        if seed is None:
+            seeds = [None] * self.num_envs
+        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            seeds = [int(seed) + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f'If seeds are passed as a list the length must match num_envs={self.num_envs} '
+                                 f'but got length={len(seeds)}.')
+        mask = np.ones(self.num_envs, dtype=np.bool_)
+        if options is not None and 'reset_mask' in options:     # as SyncVectorEnv: reset only these envs
+            mask = options['reset_mask']
+            if not isinstance(mask, np.ndarray):
+                raise TypeError(f"`options['reset_mask']` must be a numpy array, got {type(mask)}")
+            if mask.shape != (self.num_envs,):
+                raise ValueError(f"`options['reset_mask']` must have shape `({self.num_envs},)`, got {mask.shape}")
+            if mask.dtype != np.bool_:
+                raise TypeError(f"`options['reset_mask']` must have `dtype=np.bool_`, got {mask.dtype}")
+            if not mask.any():
+                raise ValueError(f"`options['reset_mask']` must contain a boolean array with at least one True "
+                                 f"value, got reset_mask={mask}")
+        chosen = np.flatnonzero(mask)
+        self._reset_envs(chosen, seeds)
+        self._autoreset[chosen] = False
+        success = self.task.is_success(self._tip.T, self._goal.T)
+        infos = {'is_success': np.where(mask, success, False), '_is_success': mask.copy()}
+        return ReachSetup.observations(self._q, self._tip, self._goal), infos
+
+    def step(self, actions):
+        if not self._started.all():
+            raise ResetNeeded('Cannot call env.step() before calling env.reset()')
+        actions = np.asarray(actions, dtype=np.float64)
+        if actions.shape != self.action_space.shape:
+            raise ValueError(f'actions must have shape {self.action_space.shape}, got {actions.shape}')
+        stepping = ~self._autoreset
+        a = self.setup.check_actions(actions[stepping])
+        rows = np.flatnonzero(stepping)
+        if len(rows) == self.num_envs:
+            self._q = self.setup.move(self._q, self._jac, np.ascontiguousarray(a.T))
+            self._tip, self._jac = self.setup.place(self._q)
+        elif len(rows):
+            jac = self._jac[:, :, rows] if self._jac is not None else None
+            q = self.setup.move(self._q[:, rows], jac, np.ascontiguousarray(a.T))
+            tip, jac = self.setup.place(q)
+            self._q[:, rows], self._tip[:, rows] = q, tip
+            if jac is not None:
+                self._jac[:, :, rows] = jac
+        resetting = np.flatnonzero(self._autoreset)
+        if len(resetting):
+            self._reset_envs(resetting, [None] * self.num_envs)
+        self._elapsed[rows] += 1
+        distance = goal_distance(self._tip.T, self._goal.T)
+        rewards = np.where(stepping, self.task.reward_of(distance), 0.0)
+        terminations = np.zeros(self.num_envs, dtype=np.bool_)
+        truncations = stepping & (self._elapsed >= self.max_episode_steps)
+        self._autoreset = truncations.copy()
+        infos = {'is_success': distance < self.task.distance_threshold,
+                 '_is_success': np.ones(self.num_envs, dtype=np.bool_)}
+        return ReachSetup.observations(self._q, self._tip, self._goal), rewards, terminations, truncations, infos
+
+    def render(self):
+        if self.render_mode != 'rgb_array':
+            return None
+        from robot_ai.reach.render import ArmRenderer
+        if self._renderers is None:
+            self._renderers = [ArmRenderer(self.arm, self.task.distance_threshold) for _ in range(self.num_envs)]
+        return tuple(r.draw(self._q[:, i], self._goal[:, i] if self._started[i] else None)
+                     for i, r in enumerate(self._renderers))
+
+    def close_extras(self, **kwargs):
+        for r in self._renderers or []:
+            r.close()
+        self._renderers = None

@@ -1,0 +1,56 @@
+"""The reach task: a goal for the tip, and how near the tip is to it. No rospy.
+
+gymnasium-robotics' goal-env convention (FetchReach, panda-gym's PandaReach): ``compute_reward(achieved_goal,
+desired_goal, info)`` works on one pair or on any batch of them (stable-baselines3's HER relabels goals in batches),
+success is a distance below ``distance_threshold`` (0.05 m, Panda's and Fetch's), and the sparse reward is 0 on
+success and -1 otherwise, the dense one minus the distance.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from robot_ai.reach.arm import Arm, ReachError
+
+REWARD_TYPES = ('sparse', 'dense')
+DISTANCE_THRESHOLD = 0.05
+
+
+def goal_distance(achieved, desired) -> np.ndarray:
+    """Euclidean distance over the last axis (3), for one pair or a batch; element-wise operations only, so that a
+    batch gives each pair's distance bit for bit."""
+    d = np.asarray(achieved, dtype=np.float64) - np.asarray(desired, dtype=np.float64)
+    return np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2])
+
+
+@dataclass(frozen=True)
+class ReachTask:
+    """Goals drawn as the tip of a configuration uniform within the limits (every goal reachable), a reward, and
+    success."""
+    reward_type: str = 'sparse'
+    distance_threshold: float = DISTANCE_THRESHOLD
+
+    def __post_init__(self):
+        if self.reward_type not in REWARD_TYPES:
+            raise ReachError(f'reward_type must be one of {", ".join(REWARD_TYPES)}, got {self.reward_type!r}')
+        if not (isinstance(self.distance_threshold, (int, float)) and 0 < self.distance_threshold < float('inf')):
+            raise ReachError(f'distance_threshold must be a positive number of metres, got {self.distance_threshold!r}')
+
+    @staticmethod
+    def goal_configuration(arm: Arm, rng: np.random.Generator) -> np.ndarray:
+        """Joint positions (n,) uniform within the limits, whose tip is the goal."""
+        return rng.uniform(arm.lower, arm.upper)
+
+    def reward_of(self, distance) -> np.ndarray:
+        distance = np.asarray(distance, dtype=np.float64)
+        if self.reward_type == 'sparse':
+            return -(distance >= self.distance_threshold).astype(np.float64)
+        return -distance
+
+    def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:
+        """The reward of reaching achieved_goal when desired_goal was asked, for one pair (3,) or a batch (..., 3)."""
+        return self.reward_of(goal_distance(achieved_goal, desired_goal))
+
+    def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
+        return goal_distance(achieved_goal, desired_goal) < self.distance_threshold
