@@ -10,30 +10,16 @@ their paths; evaluate and show take any policy file, of either kind.
 """
 import argparse
 import json
-import os
-import signal
 import sys
+from dataclasses import replace
 
 import numpy as np
 
 from robot_ai.cartpole import artifacts, linear_search, policies, q_learning
 from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
+from robot_ai.cli import output_folder, positive_number, run_command, whole_number, write_or_say
 from robot_ai.text import counted
-
-
-def whole_number(low: int, high: int):
-    """An argparse type: a whole number from low to high, or the one-line error (status 2) that --help's range
-    promises. 0 means "the default" in a ROS request only, never here."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f'must be a whole number from {low} to {high}, got {text!r}')
-        if not low <= value <= high:
-            raise argparse.ArgumentTypeError(f'must be {low} to {high}, got {value}')
-        return value
-    return parse
 
 
 def discount(text: str) -> float:
@@ -59,27 +45,6 @@ def add_common(p: argparse.ArgumentParser, default_env: str) -> None:
     p.add_argument('--output-dir', default=artifacts.default_output_dir(),
                    help='where the policy, the CSV log, the plot and the video go ($ROS_HOME/robot_ai, or '
                    '~/.ros/robot_ai)')
-
-
-def output_folder(a, parser) -> str:
-    """The output folder, created and checked before any work: a run never ends in a traceback over its files."""
-    folder = os.path.abspath(os.path.expanduser(a.output_dir))
-    try:
-        os.makedirs(folder, exist_ok=True)
-    except OSError as e:
-        parser.error(f'--output-dir: cannot create {folder}: {e.strerror or e}')
-    problem = artifacts.unwritable_reason(folder)
-    if problem:
-        parser.error(f'--output-dir: {problem}')
-    return folder
-
-
-def write_or_say(label: str, write) -> None:
-    """Print `label  path` once write() has written its file, or why it could not."""
-    try:
-        print(f'{label:<18}{write()}')
-    except Exception as e:  # the numbers above are printed already
-        print(f'{label:<18}not written: {e}')
 
 
 def random_search_parser(sub) -> None:
@@ -130,6 +95,71 @@ def run_random_search(a, parser) -> int:
     if a.video:
         write_or_say('video', lambda: artifacts.record_video(
             result.env_id, lambda obs: linear_search.act(weights, obs), search.max_steps, a.seed, stem + '.mp4')[0])
+    return 0
+
+
+def ars_parser(sub) -> None:
+    d = linear_search.ARS_SETTINGS
+    p = sub.add_parser('ars', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       help='Augmented Random Search of the course\'s linear policy, beside the course\'s random search',
+                       description='ARS (Mania, Guy and Recht 2018, V1): the course\'s random search grown into a '
+                       'walk: perturb the 4 weights along random directions, step toward the better ones. Prints its '
+                       'figures beside the course\'s random search (100 x 100) from the same seed: which needs fewer '
+                       'episodes?')
+    add_common(p, 'CartPole-v1')
+    p.add_argument('--directions', type=whole_number(1, 1000), default=d.directions,
+                   help='N: directions per iteration (each played with + and -)')
+    p.add_argument('--top-directions', type=whole_number(1, 1000), default=d.top_directions,
+                   help='b: the best directions kept for the step (at most N)')
+    p.add_argument('--step-size', type=positive_number, default=d.step_size, help='alpha')
+    p.add_argument('--noise', type=positive_number, default=d.noise, help='nu: the perturbations\' size')
+    p.add_argument('--max-steps', type=whole_number(1, 10 ** 9), default=d.max_steps,
+                   help='training steps the run may take (rl-baselines3-zoo trains CartPole for 50,000)')
+    p.add_argument('--final-episodes', type=whole_number(1, linear_search.MAX_EPISODES), default=100,
+                   help='episodes of the final evaluation (gymnasium\'s equations, start states from the seed)')
+    p.set_defaults(run=run_ars)
+
+
+def run_ars(a, parser) -> int:
+    if a.top_directions > a.directions:
+        parser.error(f'--top-directions ({a.top_directions}) must be at most --directions ({a.directions})')
+    dynamics = CartPoleDynamics.of(a.env_id)
+    settings = replace(linear_search.ARS_SETTINGS, directions=a.directions, top_directions=a.top_directions,
+                       step_size=a.step_size, noise=a.noise, max_steps=a.max_steps)
+    folder = output_folder(a, parser)
+    print(f'ARS on {a.env_id}, seed {a.seed}: {settings.directions} directions, top {settings.top_directions}, step '
+          f'{settings.step_size:g}, noise {settings.noise:g}, at most {settings.max_steps:,} steps')
+
+    def progress(stats):
+        print(f'iteration {stats.iteration:3d}  average length of the perturbed policies {stats.rollout_return:6.1f}  '
+              f'steps {stats.steps:7,d}  {stats.elapsed:5.2f} s', flush=True)
+    result = linear_search.ars_search(a.env_id, a.seed, settings, progress=progress)
+    weights = result.policy.weights[0].copy()
+    final = linear_search.evaluate(dynamics, weights, a.final_episodes, dynamics.max_episode_steps, a.seed)
+    ars_episodes = 2 * settings.directions * settings.episodes * len(result.history)
+    search = linear_search.random_search(dynamics, seed=a.seed, final_episodes=a.final_episodes)
+    search_episodes, search_steps = linear_search.episodes_used(search)
+    print(f'weights           {np.array2string(weights, precision=4)}')
+    print(f'ARS               average {final.mean():.2f} over {counted(a.final_episodes, "episode")} after '
+          f'{len(result.history)} iterations: {ars_episodes:,} episodes, {result.steps:,} steps, {result.elapsed:.2f} s')
+    print(f'random search     average {search.final_avg_length:.2f} over {counted(a.final_episodes, "episode")} '
+          f'(the course\'s, {search.iterations} x {search.episodes}): {search_episodes:,} episodes, '
+          f'{search_steps:,} steps, {search.elapsed:.2f} s')
+    fewer = 'ARS' if ars_episodes < search_episodes else 'the random search'
+    print(f'fewer episodes    {fewer}: {min(ars_episodes, search_episodes):,} against '
+          f'{max(ars_episodes, search_episodes):,} ({max(ars_episodes, search_episodes) / max(1, min(ars_episodes, search_episodes)):.0f} times fewer)')
+    stem = artifacts.artifact_stem(folder, 'ars', a.env_id, a.seed)
+    figures = dict(final_avg_length=float(final.mean()), training_steps=int(result.steps), episodes=ars_episodes,
+                   iterations=len(result.history))
+    write_or_say('policy', lambda: policies.save(stem + '.npz', LinearPolicy(weights), a.env_id, a.seed,
+                                                 settings.as_dict(), figures, 'ARS (CLI)'))
+    write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *artifacts.ars_log(result, settings)))
+    write_or_say('plot', lambda: artifacts.write_plot(artifacts.ars_plot_job(result, settings, search, a.env_id,
+                                                                             float(final.mean())), stem + '.png'))
+    if a.video:
+        write_or_say('video', lambda: artifacts.record_video(
+            a.env_id, lambda obs: linear_search.act(weights, obs), dynamics.max_episode_steps, a.seed,
+            stem + '.mp4')[0])
     return 0
 
 
@@ -297,40 +327,16 @@ def run_show(a, parser) -> int:
     return 0
 
 
-class Interrupted(Exception):
-    """A SIGTERM or SIGHUP, raised where the run is, so that it ends through its finally clauses."""
-
-    def __init__(self, signum: int):
-        super().__init__(signum)
-        self.signal = signal.Signals(signum)
-
-
-def _interrupt(signum, frame):
-    raise Interrupted(signum)
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog='python -m robot_ai.cartpole',
                                      description='The course\'s CartPole agents, and their policy files, without ROS.')
     sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
     random_search_parser(sub)
     q_learning_parser(sub)
+    ars_parser(sub)
     evaluate_parser(sub)
     show_parser(sub)
-    a = parser.parse_args(argv)
-    # SIGTERM and SIGHUP (a closed terminal) end a run as a Ctrl-C does: the learner processes end with it.
-    previous = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGTERM, signal.SIGHUP)}
-    try:
-        return a.run(a, sub.choices[a.command])
-    except KeyboardInterrupt:
-        print('interrupted', file=sys.stderr)
-        return 130
-    except Interrupted as e:
-        print(f'interrupted by {e.signal.name}', file=sys.stderr)
-        return 128 + e.signal
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+    return run_command(parser, sub, argv)
 
 
 if __name__ == '__main__':

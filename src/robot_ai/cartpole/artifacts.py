@@ -7,7 +7,7 @@ A plot is described by a job, a plain dict that crosses a pipe as JSON (the node
            'series': [{'y': [...], 'x': [...] (default 1..n), 'label': ..., 'style': 'line' | 'points' | 'step',
                        'color': ..., 'lw': ..., 'alpha': ...}, ...],
            'hlines': [{'y': ..., 'label': ..., 'color': ..., 'ls': ...}, ...],
-           'ylim': [low, high] (optional), 'integer_x': true}
+           'ylim': [low, high] (optional), 'integer_x': true, 'xscale': 'log' (optional)}
     write_plot(search_plot_job(result), stem + '.png')
 
 Plots, videos, policy files and CSV logs are written whole or not at all: into a hidden temporary file beside them,
@@ -71,6 +71,33 @@ def search_plot_job(result) -> dict:
         hlines=hlines, ylim=[0, result.max_steps * 1.05], integer_x=True)
 
 
+def ars_plot_job(result, settings, search, env_id: str, final_average: float) -> dict:
+    """ARS's learning curve beside the course's random search, against the episodes each played (log scale): ARS's
+    average length of its perturbed policies per iteration, the random search's best candidate so far."""
+    per_iteration = 2 * settings.directions * settings.episodes
+    ars_x = [per_iteration * (i + 1) for i in range(len(result.history))]
+    search_x = [search.episodes * (i + 1) for i in range(len(search.avg_lengths))]
+    return dict(
+        title=f'{env_id}: ARS (final average {final_average:.1f}) and the course\'s random search (final average '
+              f'{search.final_avg_length:.1f}), seed {result.seed}',
+        xlabel='episodes played (log scale)', ylabel='average episode length', xscale='log',
+        series=[dict(x=ars_x, y=[float(h.rollout_return) for h in result.history], style='line', color='tab:orange',
+                     lw=2, label=f'ARS: its perturbed policies ({settings.directions} directions x 2)'),
+                dict(x=search_x, y=[float(v) for v in np.maximum.accumulate(search.avg_lengths)], style='step',
+                     color='tab:blue', lw=2, label=f'random search: best so far ({search.episodes} episodes each)')],
+        hlines=[dict(y=search.max_steps, label=f'step limit ({search.max_steps})', color='tab:red', ls=':')],
+        ylim=[0, search.max_steps * 1.05])
+
+
+def ars_log(result, settings) -> tuple[list, list]:
+    """(header, rows) of an ARS run's CSV log: one row per iteration."""
+    header = ['iteration', 'steps', 'episodes', 'seconds', 'rollout_return', 'eval_return', 'success_rate',
+              'final_metric']
+    per_iteration = 2 * settings.directions * settings.episodes + settings.eval_episodes
+    return header, [[h.iteration, h.steps, h.iteration * per_iteration, f'{h.elapsed:.3f}', repr(h.rollout_return),
+                     repr(h.eval_return), repr(h.success_rate), repr(h.final_metric)] for h in result.history]
+
+
 def q_learning_plot_job(result) -> dict:
     """The learning curves of a q_learning.TrainingResult: learner 0's total reward per episode and its running
     average of 100, every other learner's running average as a faint line, the random-action baseline."""
@@ -130,6 +157,8 @@ def write_plot(job: dict, path: str) -> str:
                 ax.plot(x, y, '-', lw=s.get('lw', 1.5), drawstyle='steps-post' if style == 'step' else 'default', **kw)
         for h in job.get('hlines', []):
             ax.axhline(h['y'], color=h.get('color', 'tab:gray'), ls=h.get('ls', '--'), lw=1.2, label=h.get('label'))
+        if job.get('xscale'):
+            ax.set_xscale(job['xscale'])
         if job.get('integer_x'):
             ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         if job.get('ylim'):
@@ -193,34 +222,24 @@ def q_learning_log(result) -> tuple[list, list]:
                     for j, totals in enumerate(result.total_rewards) for n, total in enumerate(totals)]
 
 
-def record_video(env_id: str, policy, max_steps: int, seed: int, path: str) -> tuple[str, int]:
-    """mp4 of one episode rendered by gymnasium (rgb_array), written whole or not at all; returns (path, steps).
-
-    policy(observation) -> action (0 or 1); the start state comes from gymnasium's reset(seed). Frames are
-    streamed to ffmpeg one at a time (memory stays flat however long the episode) into a hidden temporary file
-    beside path, named after this process, and renamed into place when complete."""
-    os.environ.setdefault('SDL_VIDEODRIVER', 'dummy')
-    os.environ.setdefault('SDL_AUDIODRIVER', 'dummy')
+def write_video(path: str, frames, fps: float) -> str:
+    """An mp4 of frames (an iterable of (H, W, 3) uint8 arrays, all one size), written whole or not at all; return
+    path. Frames are streamed to ffmpeg one at a time (memory stays flat however long the video) into a hidden
+    temporary file beside path, named after this process, and renamed into place when complete."""
     import imageio_ffmpeg
-    from robot_ai.cartpole.dynamics import make_env
     folder = os.path.dirname(os.path.abspath(path))
     fd, tmp = tempfile.mkstemp(prefix=f'{TEMP_PREFIX}{os.getpid()}_', suffix='.mp4', dir=folder)
     os.close(fd)
-    env = make_env(env_id, render_mode='rgb_array', max_episode_steps=max_steps)
     writer = None
     try:
-        obs, _ = env.reset(seed=int(seed) % (2 ** 32))
-        frame = env.render()
-        writer = imageio_ffmpeg.write_frames(tmp, (frame.shape[1], frame.shape[0]), fps=env.metadata['render_fps'],
-                                             macro_block_size=1, output_params=['-y'])
-        writer.send(None)  # start ffmpeg
-        writer.send(frame)
-        steps, done = 0, False
-        while not done:
-            obs, _, terminated, truncated, _ = env.step(policy(obs))
-            steps += 1
-            done = terminated or truncated
-            writer.send(env.render())
+        for frame in frames:
+            if writer is None:
+                writer = imageio_ffmpeg.write_frames(tmp, (frame.shape[1], frame.shape[0]), fps=fps,
+                                                     macro_block_size=1, output_params=['-y'])
+                writer.send(None)  # start ffmpeg
+            writer.send(np.ascontiguousarray(frame))
+        if writer is None:
+            raise RuntimeError('no frame to write')
         writer.close()
         writer = None
         if os.path.getsize(tmp) == 0:
@@ -233,6 +252,30 @@ def record_video(env_id: str, policy, max_steps: int, seed: int, path: str) -> t
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+    return path
+
+
+def record_video(env_id: str, policy, max_steps: int, seed: int, path: str) -> tuple[str, int]:
+    """mp4 of one episode rendered by gymnasium (rgb_array), written whole or not at all (write_video); returns
+    (path, steps). policy(observation) -> action (0 or 1); the start state comes from gymnasium's reset(seed)."""
+    os.environ.setdefault('SDL_VIDEODRIVER', 'dummy')
+    os.environ.setdefault('SDL_AUDIODRIVER', 'dummy')
+    from robot_ai.cartpole.dynamics import make_env
+    env = make_env(env_id, render_mode='rgb_array', max_episode_steps=max_steps)
+    steps = 0
+
+    def frames():
+        nonlocal steps
+        obs, _ = env.reset(seed=int(seed) % (2 ** 32))
+        yield env.render()
+        done = False
+        while not done:
+            obs, _, terminated, truncated, _ = env.step(policy(obs))
+            steps += 1
+            done = terminated or truncated
+            yield env.render()
+    try:
+        write_video(path, frames(), env.metadata['render_fps'])
     finally:
         env.close()
     return path, steps

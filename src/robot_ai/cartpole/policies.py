@@ -7,6 +7,12 @@ a JSON string (``format`` "robot_ai-policy/1", ``kind``, ``env_id``, ``seed`` (t
 ``feature_weights`` (4, D), ``feature_offsets`` (D,) (the scaler folded in), ``amplitude`` (0-d) and
 ``q_weights`` (2, D): everything it needs to act, nothing re-drawn from a seed.
 
+Kind ``ars_linear`` is ARS's linear policy for any env with a Box(-1, 1) action (the reach task): ``weights``
+(act, obs), ``obs_mean`` and ``obs_std`` (obs,), an optional ``bias`` (act,); its action is
+``clip(weights @ ((x - obs_mean) / obs_std) + bias, -1, 1)`` for x the flattened observation. Its metadata names the
+env it acts in: ``env_id`` (any), ``env_kwargs`` (the env's settings), and for a reach policy ``joints``, ``robot``,
+``model`` and ``model_sha256`` (robot_ai.reach.learn checks them against the arm it is asked to drive).
+
     path = save('/tmp/best.npz', LinearPolicy(np.array([0.1, 0.2, 0.9, 0.5])), env_id='CartPole-v1', seed=0)
     policy = load(path)                # a Policy; anything else raises PolicyError with one line
     policy.act(state), policy.kind, policy.metadata['figures']
@@ -22,13 +28,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from robot_ai import ars
 from robot_ai.cartpole.artifacts import write_whole
 from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.cartpole.q_learning import Agent
 
 FORMAT = 'robot_ai-policy/1'
-KINDS = ('linear', 'q_learning')
+KINDS = ('linear', 'q_learning', 'ars_linear')
+CARTPOLE_KINDS = ('linear', 'q_learning')
+MAX_ARS_ACTIONS = 64                     # an arm's joints (joint control) or a tip's 3 coordinates
+MAX_ARS_INPUTS = 1024                    # an arm's joints + 9
+MAX_LIST = 256                           # items of a list in env_kwargs or joints
 EXTENSION = '.npz'
 MAX_FILE_BYTES = 16 * 1024 * 1024        # a 10,000-component agent is 1.1 MB; anything far larger is not a policy
 MAX_DIMENSIONS = 4 * 10000               # q_learning.MAX_COMPONENTS banks of 4
@@ -46,7 +57,7 @@ class PolicyError(ValueError):
 @dataclass(frozen=True, eq=False)
 class Policy:
     """A policy and where it came from. actor: a linear_search.LinearPolicy or a q_learning.Agent."""
-    actor: LinearPolicy | Agent
+    actor: LinearPolicy | Agent | ars.LinearPolicy
     metadata: dict
     path: str = ''
 
@@ -62,8 +73,9 @@ class Policy:
     def seed(self) -> int:
         return self.metadata['seed']
 
-    def act(self, state) -> int:
-        """The policy's action (0 or 1) for one state (x, x_dot, theta, theta_dot)."""
+    def act(self, state):
+        """The policy's action for one state: 0 or 1 for a CartPole state (x, x_dot, theta, theta_dot); an array
+        in [-1, 1] for an ars_linear policy's flattened observation."""
         return self.actor.act(state)
 
     def push_right(self, observations: np.ndarray) -> np.ndarray:
@@ -84,23 +96,29 @@ class Policy:
         return f'{m["kind"]} policy{where} ({m["env_id"]}, seed {m["seed"]}{source}{"; " + figures if figures else ""})'
 
 
-def arrays_of(actor: LinearPolicy | Agent) -> dict:
+def arrays_of(actor: LinearPolicy | Agent | ars.LinearPolicy) -> dict:
     """The arrays a policy file holds for actor."""
     if isinstance(actor, LinearPolicy):
         return dict(weights=np.asarray(actor.weights, dtype=np.float64).reshape(4))
+    if isinstance(actor, ars.LinearPolicy):
+        arrays = dict(weights=actor.weights, obs_mean=actor.obs_mean, obs_std=actor.obs_std)
+        if actor.bias is not None:
+            arrays['bias'] = actor.bias
+        return {k: np.asarray(v, dtype=np.float64) for k, v in arrays.items()}
     return dict(feature_weights=actor.feature_weights, feature_offsets=actor.feature_offsets,
                 amplitude=np.array(actor.amplitude, dtype=np.float64), q_weights=actor.q_weights)
 
 
-def save(path: str, actor: LinearPolicy | Agent, env_id: str, seed: int, settings: dict | None = None,
-         figures: dict | None = None, source: str = '') -> str:
+def save(path: str, actor: LinearPolicy | Agent | ars.LinearPolicy, env_id: str, seed: int,
+         settings: dict | None = None, figures: dict | None = None, source: str = '', **extra) -> str:
     """Write actor as a policy file at path, whole or not at all (a temporary file renamed into place); return path.
 
     seed: the policy's own (a learner's, not its batch's); settings: what made it; figures: how good it is;
-    source: a few words on where it came from ("search", "training, learner 3")."""
+    source: a few words on where it came from ("search", "training, learner 3"); extra: more metadata (an
+    ars_linear policy's env_kwargs, joints, robot, model, model_sha256)."""
     metadata = dict(format=FORMAT, kind=actor.kind, env_id=env_id, seed=int(seed),
                     created=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds'),
-                    settings=settings or {}, figures=figures or {}, source=source)
+                    settings=settings or {}, figures=figures or {}, source=source, **extra)
     arrays = arrays_of(actor)
     _check_arrays(actor.kind, arrays)  # never write a file that load() would refuse
     text = json.dumps(metadata, allow_nan=False)
@@ -131,6 +149,10 @@ def load(path: str) -> Policy:
         raise PolicyError(f'{path}: {e}') from None
     if kind == 'linear':
         actor = LinearPolicy(arrays['weights'])
+    elif kind == 'ars_linear':
+        a = arrays['weights'].shape[0]
+        actor = ars.LinearPolicy(arrays['weights'], arrays['obs_mean'], arrays['obs_std'], arrays.get('bias'),
+                                 low=-np.ones(a), high=np.ones(a))
     else:
         actor = Agent(arrays['feature_weights'], arrays['feature_offsets'], float(arrays['amplitude']),
                       arrays['q_weights'])
@@ -213,9 +235,23 @@ def _peek_kind(metadata: np.ndarray) -> str:
 
 
 def _wanted_shapes(kind: str, archive: zipfile.ZipFile, by_name: dict) -> dict:
-    """{array name: shape} a policy of kind holds; a Q-learning agent's D is read from feature_offsets' header."""
+    """{array name: shape} a policy of kind holds; a Q-learning agent's D is read from feature_offsets' header, an
+    ars_linear policy's sizes from its weights'."""
     if kind == 'linear':
         return {'weights': (4,)}
+    if kind == 'ars_linear':
+        if 'weights' not in by_name:
+            raise PolicyError('an ars_linear policy holds weights (actions, observations): this file does not')
+        with archive.open(by_name['weights']) as f:
+            shape, _, _ = _check_header(f, by_name['weights'], 'weights')
+        if len(shape) != 2 or not (1 <= shape[0] <= MAX_ARS_ACTIONS and 1 <= shape[1] <= MAX_ARS_INPUTS):
+            raise PolicyError(f'weights must have shape (actions, observations), at most ({MAX_ARS_ACTIONS}, '
+                              f'{MAX_ARS_INPUTS}), got {_shown(shape)}')
+        a, d = shape
+        want = {'weights': (a, d), 'obs_mean': (d,), 'obs_std': (d,)}
+        if 'bias' in by_name:
+            want['bias'] = (a,)
+        return want
     if 'feature_offsets' not in by_name:
         raise PolicyError(f'feature_offsets must have shape (D,) with D from 1 to {MAX_DIMENSIONS}: a q_learning '
                           'policy holds it, this file does not')
@@ -305,8 +341,10 @@ def _metadata(raw: np.ndarray) -> dict:
         raise PolicyError(f'format is {_shown(metadata.get("format"))}, this version reads {FORMAT!r}')
     if metadata.get('kind') not in KINDS:
         raise PolicyError(f'kind is {_shown(metadata.get("kind"))}, not one of {", ".join(KINDS)}')
-    if metadata.get('env_id') not in SUPPORTED_ENVS:
+    if metadata['kind'] in CARTPOLE_KINDS and metadata.get('env_id') not in SUPPORTED_ENVS:
         raise PolicyError(f'env_id is {_shown(metadata.get("env_id"))}, not one of {", ".join(SUPPORTED_ENVS)}')
+    if metadata['kind'] == 'ars_linear':
+        _check_ars_metadata(metadata)
     if not isinstance(metadata.get('seed'), int) or isinstance(metadata.get('seed'), bool):
         raise PolicyError(f'seed is {_shown(metadata.get("seed"))}, not a whole number')
     for name in ('settings', 'figures'):
@@ -325,9 +363,42 @@ def _metadata(raw: np.ndarray) -> dict:
     return metadata
 
 
+def _plain(value, depth: int = 0) -> bool:
+    """A short JSON value an env's settings hold: a number, a short text, true/false, null, or a short list of
+    them (or of such lists, one level down)."""
+    if value is None or isinstance(value, (bool, int, float)):
+        return True
+    if isinstance(value, str):
+        return len(value) <= MAX_TEXT
+    if isinstance(value, list) and depth < 2:
+        return len(value) <= MAX_LIST and all(_plain(v, depth + 1) for v in value)
+    return False
+
+
+def _check_ars_metadata(metadata: dict) -> None:
+    """An ars_linear policy's env: env_id a short text, env_kwargs short names to plain values, joints names."""
+    env_id = metadata.get('env_id')
+    if not isinstance(env_id, str) or not 0 < len(env_id) <= 200:
+        raise PolicyError(f'env_id is {_shown(env_id)}, not the id of an env')
+    kwargs = metadata.setdefault('env_kwargs', {})
+    if not isinstance(kwargs, dict) or not all(isinstance(k, str) and len(k) <= 100 and _plain(v)
+                                               for k, v in kwargs.items()):
+        raise PolicyError('env_kwargs must map short names to numbers, short texts, true/false, null or lists of them')
+    joints = metadata.setdefault('joints', [])
+    if not isinstance(joints, list) or len(joints) > MAX_LIST or not all(isinstance(j, str) and len(j) <= MAX_TEXT
+                                                                         for j in joints):
+        raise PolicyError('joints must be a list of joint names')
+    for name in ('robot', 'model', 'model_sha256'):
+        value = metadata.setdefault(name, '')
+        if not isinstance(value, str) or len(value) > MAX_TEXT:
+            raise PolicyError(f'{name} must be text of at most {MAX_TEXT} characters')
+
+
 def _check_figures(metadata: dict) -> None:
     """A file's claimed figures are within what its env can give: an average length or reward from 0 to the env's
     step limit (CartPole-v1: 500). A node never compares with a figure nobody could have measured."""
+    if metadata['kind'] not in CARTPOLE_KINDS:
+        return
     limit = CartPoleDynamics.of(metadata['env_id']).max_episode_steps
     for key in AVERAGE_FIGURES:
         if key not in metadata['figures']:
@@ -343,6 +414,15 @@ def _check_arrays(kind: str, arrays: dict) -> None:
     Converts them to that type, in place."""
     if kind == 'linear':
         want = {'weights': ((4,), np.float64)}
+    elif kind == 'ars_linear':
+        shape = np.shape(arrays.get('weights', np.zeros(0)))
+        if len(shape) != 2 or not (1 <= shape[0] <= MAX_ARS_ACTIONS and 1 <= shape[1] <= MAX_ARS_INPUTS):
+            raise PolicyError(f'weights must have shape (actions, observations), at most ({MAX_ARS_ACTIONS}, '
+                              f'{MAX_ARS_INPUTS}), got {_shown(shape)}')
+        a, d = shape
+        want = {'weights': ((a, d), np.float64), 'obs_mean': ((d,), np.float64), 'obs_std': ((d,), np.float64)}
+        if 'bias' in arrays:
+            want['bias'] = ((a,), np.float64)
     else:
         d = arrays.get('feature_offsets', np.zeros(0)).shape
         dimensions = d[0] if len(d) == 1 else -1
@@ -373,6 +453,8 @@ def _check_arrays(kind: str, arrays: dict) -> None:
             raise PolicyError(f'{name} holds {int(subnormal.sum())} subnormal number(s) (below '
                               f'{np.finfo(compute).smallest_normal:.3g} in {np.dtype(compute).name})')
         arrays[name] = converted
+    if kind == 'ars_linear' and not (arrays['obs_std'] > 0).all():
+        raise PolicyError('obs_std must hold positive numbers: a policy divides by them')
     if kind == 'q_learning':
         amplitude = float(arrays['amplitude'])
         if not amplitude > 0:

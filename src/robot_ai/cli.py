@@ -1,0 +1,102 @@
+"""What the package's command lines share: argument types, the output folder, and how a run ends. No rospy.
+
+    p.add_argument('--episodes', type=whole_number(1, 1000))
+    folder = output_folder(args, parser)             # created and checked before any work
+    write_or_say('policy', lambda: save(...))        # `policy            /path`, or why it was not written
+    return run_command(parser, sub, argv)            # Ctrl-C, SIGTERM and SIGHUP end a run through its finally clauses
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+
+from robot_ai.cartpole import artifacts
+
+
+def whole_number(low: int, high: int):
+    """An argparse type: a whole number from low to high, or the one-line error (status 2) that --help's range
+    promises. 0 means "the default" in a ROS request only, never here."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f'must be a whole number from {low} to {high}, got {text!r}')
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f'must be {low} to {high}, got {value}')
+        return value
+    return parse
+
+
+def positive_number(text: str) -> float:
+    """An argparse type: a finite number above 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a number above 0, got {text!r}')
+    if not 0 < value < float('inf'):
+        raise argparse.ArgumentTypeError(f'must be a number above 0, got {text}')
+    return value
+
+
+def fraction(text: str) -> float:
+    """An argparse type: a number from 0 to 1."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a number from 0 to 1, got {text!r}')
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f'must be from 0 to 1, got {value:g}')
+    return value
+
+
+def output_folder(a, parser) -> str:
+    """The output folder, created and checked before any work: a run never ends in a traceback over its files."""
+    folder = os.path.abspath(os.path.expanduser(a.output_dir))
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as e:
+        parser.error(f'--output-dir: cannot create {folder}: {e.strerror or e}')
+    problem = artifacts.unwritable_reason(folder)
+    if problem:
+        parser.error(f'--output-dir: {problem}')
+    return folder
+
+
+def write_or_say(label: str, write) -> None:
+    """Print `label  path` once write() has written its file, or why it could not."""
+    try:
+        print(f'{label:<18}{write()}')
+    except Exception as e:  # the numbers above are printed already
+        print(f'{label:<18}not written: {e}')
+
+
+class Interrupted(Exception):
+    """A SIGTERM or SIGHUP, raised where the run is, so that it ends through its finally clauses."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signal = signal.Signals(signum)
+
+
+def _interrupt(signum, frame):
+    raise Interrupted(signum)
+
+
+def run_command(parser: argparse.ArgumentParser, sub, argv=None) -> int:
+    """Parse argv and run the chosen command (its `run(args, its parser)`); SIGTERM and SIGHUP (a closed terminal)
+    end a run as a Ctrl-C does, through its finally clauses (helper processes end with it)."""
+    a = parser.parse_args(argv)
+    previous = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        return a.run(a, sub.choices[a.command])
+    except KeyboardInterrupt:
+        print('interrupted', file=sys.stderr)
+        return 130
+    except Interrupted as e:
+        print(f'interrupted by {e.signal.name}', file=sys.stderr)
+        return 128 + e.signal
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
