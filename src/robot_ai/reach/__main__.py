@@ -1,0 +1,224 @@
+"""Reach without ROS: ``python -m robot_ai.reach <command> [options]`` (see --help).
+
+    python -m robot_ai.reach train --model /path/arm.urdf.xacro --xacro-args "hand:=true" --tip tool0 --video
+    python -m robot_ai.reach evaluate ~/.ros/robot_ai/reach_..._seed0.npz --episodes 1000 --video
+    python -m robot_ai.reach show ~/.ros/robot_ai/reach_..._seed0.npz
+
+train runs ARS (robot_ai.ars) on the arm's reach task, a line per iteration, and writes the policy file (.npz), its
+CSV log and its learning curve side by side; it ends with the success rate over 1000 fresh goals, beside the plain
+P-controller's on the same goals. A first Ctrl-C stops after the iteration under way and keeps the best policy so
+far; a second ends the run.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import signal
+import sys
+from dataclasses import replace
+
+
+from robot_ai import ars
+from robot_ai.cartpole import artifacts, policies
+from robot_ai.cli import fraction, output_folder, positive_number, run_command, whole_number, write_or_say
+from robot_ai.reach import learn
+from robot_ai.reach.arm import ReachError
+from robot_ai.reach.env import CONTROLS, STARTS, ReachSetup
+
+
+def add_robot(p: argparse.ArgumentParser, required_default: str) -> None:
+    p.add_argument('--model', default=None, metavar='FILE',
+                   help=f'a URDF or xacro file ($(find pkg) through ROS_PACKAGE_PATH); {required_default}')
+    p.add_argument('--xacro-args', default='', metavar='ARGS',
+                   help='the xacro file\'s arguments: "name:=value name2:=value2" (name=value too)')
+
+
+def train_parser(sub) -> None:
+    d = learn.SETTINGS
+    p = sub.add_parser('train', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       help='ARS learns the arm\'s reach task: policy file, CSV log, plot, held-out success rate',
+                       description='Augmented Random Search (Mania et al. 2018) of a linear policy on the reach task '
+                       'of any arm (robot_ai/Reach-v0), then the success rate over 1000 fresh goals beside the plain '
+                       'P-controller\'s.')
+    add_robot(p, 'default: the package\'s UR5')
+    p.add_argument('--tip', default=None, help='the link that reaches; default: the link below the most joints')
+    p.add_argument('--control', default='ee', choices=CONTROLS,
+                   help='ee: tip displacements (damped least squares); joints: joint displacements')
+    p.add_argument('--start', default='home', choices=STARTS, help='where each episode starts: home (mid-range) or '
+                   'random configurations')
+    p.add_argument('--seed', type=int, default=0, help='random seed; the same seed gives the same policy')
+    p.add_argument('--iterations', type=whole_number(1, 100000), default=None,
+                   help=f'ARS iterations; default {d.iterations} x (ee_step / 0.05 m) ** 0.3, at least {d.iterations} '
+                   '(a large arm needs finer weights)')
+    p.add_argument('--directions', type=whole_number(1, 4096), default=d.directions,
+                   help='N: directions per iteration')
+    p.add_argument('--top-directions', type=whole_number(1, 4096), default=d.top_directions,
+                   help='b: the best directions kept (at most N)')
+    p.add_argument('--step-size', type=positive_number, default=d.step_size, help='alpha')
+    p.add_argument('--noise', type=positive_number, default=d.noise, help='nu')
+    p.add_argument('--episodes', type=whole_number(1, 4096), default=d.episodes,
+                   help='goals per direction and sign in an iteration (the same for every direction)')
+    p.add_argument('--target-success', type=fraction, default=None,
+                   help='stop once an iteration\'s evaluation (256 goals) reaches this success rate')
+    p.add_argument('--video', action='store_true', help='also write an mp4 of the arm reaching 3 fresh goals')
+    p.add_argument('--output-dir', default=artifacts.default_output_dir(),
+                   help='where the policy, the CSV log, the plot and the video go')
+    p.set_defaults(run=run_train)
+
+
+def stem_name(setup: ReachSetup) -> str:
+    """The robot's name as a file name's part."""
+    return 'reach-' + (re.sub(r'[^A-Za-z0-9_.-]+', '_', setup.model.tree.name or 'robot')[:60] or 'robot')
+
+
+def run_train(a, parser) -> int:
+    if a.top_directions > a.directions:
+        parser.error(f'--top-directions ({a.top_directions}) must be at most --directions ({a.directions})')
+    kwargs = dict(model=a.model, xacro_args=a.xacro_args or None, tip=a.tip, control=a.control, start=a.start)
+    try:
+        setup = ReachSetup(**kwargs)
+    except ReachError as e:
+        parser.error(str(e))
+    for warning in setup.arm.warnings:
+        print(f'warning: {warning}', file=sys.stderr)
+    folder = output_folder(a, parser)
+    settings = replace(learn.default_settings(setup), directions=a.directions,
+                       top_directions=a.top_directions, step_size=a.step_size, noise=a.noise, episodes=a.episodes)
+    if a.iterations:
+        settings = replace(settings, iterations=a.iterations)
+    print(f'robot             {setup.arm.describe()}')
+    print(f'task              reach within {setup.task.distance_threshold:g} m in 50 steps from '
+          f'{"home" if a.start == "home" else "random starts"}, control {a.control} (ee_step '
+          f'{setup.ee_step:.3f} m)')
+    print(f'ARS               {settings.directions} directions, top {settings.top_directions}, step '
+          f'{settings.step_size:g}, noise {settings.noise:g}, {settings.episodes} goals each, seed {a.seed}')
+    stop = {'asked': False}
+
+    def on_sigint(signum, frame):
+        if stop['asked']:
+            raise KeyboardInterrupt
+        stop['asked'] = True
+        print('\nstopping after this iteration (Ctrl-C again to end now): the best policy so far is kept',
+              file=sys.stderr)
+
+    def progress(s: ars.IterationStats) -> None:
+        print(f'iteration {s.iteration:4d}/{settings.iterations}  success {100 * s.success_rate:5.1f} %  final '
+              f'distance {s.final_metric:.3f} m  steps {s.steps:11,d}  {s.elapsed:6.1f} s', flush=True)
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        training = learn.train(kwargs, settings, a.seed, progress=progress, should_stop=lambda: stop['asked'],
+                               target_success=a.target_success)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    result, held = training.result, training.held_out
+    print(f'held-out          {100 * held.success_rate:.1f} % of {len(held.distances)} fresh goals within '
+          f'{setup.task.distance_threshold:g} m (mean final distance {held.mean_distance:.3f} m), the policy of '
+          f'iteration {result.best_iteration}')
+    if training.p_controller is not None:
+        print(f'P-controller      {100 * training.p_controller.success_rate:.1f} % of the same goals (the plain '
+              f'P-controller on the tip error)')
+    print(f'training          {len(result.history)} iterations, {result.steps:,} steps, {result.elapsed:.1f} s'
+          f'{" (stopped early: best so far kept)" if result.cancelled else ""}')
+    stem = artifacts.artifact_stem(folder, stem_name(setup), 'Reach-v0', a.seed)
+    write_or_say('policy', lambda: learn.save(training, stem + '.npz'))
+    write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *artifacts.ars_log(result, settings)))
+    write_or_say('plot', lambda: artifacts.write_plot(plot_job(training), stem + '.png'))
+    if a.video:
+        write_or_say('video', lambda: learn.record_video(result.policy, setup, stem + '.mp4'))
+    return 0 if not result.cancelled else 1
+
+
+def plot_job(training: learn.Training) -> dict:
+    """The learning curve: each iteration's success rate on its 256 evaluation goals, the held-out rate, the
+    P-controller's."""
+    result, setup = training.result, training.setup
+    x = [h.steps / 1e6 for h in result.history]
+    hlines = [dict(y=95.0, label='95 %', color='tab:gray', ls=':')]
+    if training.p_controller is not None:
+        hlines.append(dict(y=100 * training.p_controller.success_rate, color='tab:green', ls='--',
+                           label=f'P-controller on the tip error ({100 * training.p_controller.success_rate:.1f} %)'))
+    if training.held_out is not None:
+        hlines.append(dict(y=100 * training.held_out.success_rate, color='tab:red', ls='--',
+                           label=f'ARS, held-out ({100 * training.held_out.success_rate:.1f} % of '
+                                 f'{len(training.held_out.distances)} goals)'))
+    return dict(title=f'Reach with ARS: {setup.model.tree.name} ({setup.model.name}), tip {setup.arm.tip}, '
+                      f'{setup.control} control, seed {result.seed}: {result.elapsed:.1f} s',
+                xlabel='training steps (millions)', ylabel='goals reached within '
+                f'{setup.task.distance_threshold:g} m (%)',
+                series=[dict(x=x, y=[100 * h.success_rate for h in result.history], style='line', color='tab:blue',
+                             lw=2, label='each iteration\'s policy on 256 fresh goals')],
+                hlines=hlines, ylim=[0, 105])
+
+
+def evaluate_parser(sub) -> None:
+    p = sub.add_parser('evaluate', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       help='the success rate of a reach policy file over fresh goals',
+                       description='Play a reach policy file on fresh goals of the arm it learned on (or of --model, '
+                       'the same robot) and print its success rate beside the P-controller\'s.')
+    p.add_argument('policy', help='a reach policy file (.npz)')
+    add_robot(p, 'default: the file the policy learned on')
+    p.add_argument('--episodes', type=whole_number(1, 10 ** 6), default=learn.HELD_OUT_EPISODES, help='fresh goals')
+    p.add_argument('--seed', type=int, default=learn.HELD_OUT_SEED, help='seed of the first goal (goal i: seed + i)')
+    p.add_argument('--video', action='store_true', help='also write an mp4 of the arm reaching 3 of the goals')
+    p.add_argument('--output-dir', default=artifacts.default_output_dir(), help='where the video goes')
+    p.set_defaults(run=run_evaluate)
+
+
+def run_evaluate(a, parser) -> int:
+    try:
+        if a.model:
+            policy = policies.load(a.policy)
+            setup = learn.setup_of(policy, model=a.model, xacro_args=a.xacro_args or None)
+            note = learn.check_fits(policy, setup)
+        else:
+            policy, setup, note = learn.load(a.policy)
+    except (policies.PolicyError, ReachError) as e:
+        parser.error(str(e))
+    if note:
+        print(note, file=sys.stderr)
+    folder = output_folder(a, parser) if a.video else ''
+    result = learn.evaluate(policy.actor, setup, a.episodes, a.seed)
+    print(policy.describe())
+    print(f'robot             {setup.arm.describe()}')
+    print(f'success rate      {100 * result.success_rate:.1f} % of {a.episodes} fresh goals within '
+          f'{setup.task.distance_threshold:g} m (mean final distance {result.mean_distance:.3f} m)')
+    if setup.control == 'ee':
+        p = learn.evaluate(learn.p_controller(setup), setup, a.episodes, a.seed)
+        print(f'P-controller      {100 * p.success_rate:.1f} % of the same goals')
+    if a.video:
+        stem = artifacts.artifact_stem(folder, 'evaluate-' + stem_name(setup), 'Reach-v0', a.seed)
+        write_or_say('video', lambda: learn.record_video(policy.actor, setup, stem + '.mp4', seed=a.seed))
+    return 0
+
+
+def show_parser(sub) -> None:
+    p = sub.add_parser('show', help='print a reach policy file\'s metadata and arrays',
+                       description='Print the metadata of a policy file (JSON) and the shapes of its arrays.')
+    p.add_argument('policy', help='a policy file (.npz)')
+    p.set_defaults(run=run_show)
+
+
+def run_show(a, parser) -> int:
+    try:
+        policy = policies.load(a.policy)
+    except policies.PolicyError as e:
+        parser.error(str(e))
+    print(json.dumps(policy.metadata, indent=2))
+    for name, array in policies.arrays_of(policy.actor).items():
+        print(f'{name}: {array.dtype} {array.shape}')
+    return 0
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog='python -m robot_ai.reach',
+                                     description='Any arm learns to reach (ARS), without ROS.')
+    sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
+    train_parser(sub)
+    evaluate_parser(sub)
+    show_parser(sub)
+    return run_command(parser, sub, argv)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

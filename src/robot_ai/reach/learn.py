@@ -1,0 +1,268 @@
+"""ARS learns an arm's reach task; held-out evaluation; the P-controller it is measured against; policy files. No rospy.
+
+    training = train(dict(model='/path/arm.urdf', tip='tool0'), seed=0, progress=print)   # seconds, on 2 cores
+    training.policy.act(flat_observation), training.held_out.success_rate
+    path = save(training, '/tmp/reach.npz');  policy = load(path, ReachSetup(model=...))
+
+The policy is ARS's linear policy (robot_ai.ars) on the flattened goal-env observation (achieved goal, desired goal,
+joint positions, tip). ARS learns on the dense reward (minus the distance, every step). Its observation statistics
+are chosen so that the P-controller on the tip error lies in the class and exploration acts through the goal: the
+x, y and z of the achieved goal, the desired goal and the tip share one mean and standard deviation each (seeded with
+the distribution of goals, which is known), and the joint positions are scaled by JOINT_SCALE times their range, so
+that joint terms stay small corrections (measured here: with each joint's own statistics the joint weights
+random-walk into 5-8 cm offsets and ARS stalls near 90 % on the Panda; at 3 x the range a 2.8 m industrial arm
+still missed 15 %). alpha and nu shrink over the run (decay). A large arm's step is several times the 5 cm
+threshold, so it needs finer weights: the default number of iterations grows with ee_step / distance_threshold
+(80 for a UR5, 121 for a 2.8 m arm; default_settings).
+
+A policy file is the package's .npz of kind ars_linear (robot_ai.cartpole.policies); its metadata names the env
+(env_id, env_kwargs), the robot, the tip and the joints in order: loading it for another robot or tip is refused.
+"""
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from robot_ai import ars
+from robot_ai.cartpole import policies
+from robot_ai.reach.env import ReachSetup, ReachVectorEnv
+from robot_ai.reach.task import goal_distance
+
+ENV_ID = 'robot_ai/Reach-v0'
+JOINT_SCALE = 10.0              # joint positions normalised by 10 x their range (see the module's docstring)
+PRIOR_STATES = 2000             # random configurations and goals that seed the goal coordinates' statistics
+HELD_OUT_EPISODES = 1000
+HELD_OUT_SEED = 2 ** 31         # held-out goals: seeds no training iteration draws (those are below 2 ** 31)
+SETTINGS = ars.ARSSettings(iterations=80, directions=32, top_directions=16, step_size=0.1, noise=0.1, episodes=8,
+                           eval_episodes=256, decay=0.9, bias=True, normalize=True)
+ENV_SETTINGS = ('model', 'xacro_args', 'tip', 'control', 'start', 'distance_threshold', 'ee_step', 'damping', 'home')
+
+
+@dataclass
+class Evaluation:
+    """A policy over fresh goals: the success rate (tip within the threshold at the last step), the final
+    distances (episodes,), and the seed of the first episode."""
+    success_rate: float
+    distances: np.ndarray
+    seed: int
+
+    @property
+    def mean_distance(self) -> float:
+        return float(self.distances.mean())
+
+
+@dataclass
+class Training:
+    """An ARS run on a reach task: the setup, ARS's result, the best policy's held-out evaluation and the
+    P-controller's on the same goals."""
+    setup: ReachSetup
+    env_kwargs: dict
+    result: ars.ARSResult
+    held_out: Evaluation | None = None
+    p_controller: Evaluation | None = None
+    seed: int = 0
+    wall_time: float = 0.0
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def policy(self) -> ars.LinearPolicy:
+        return self.result.policy
+
+
+def default_settings(setup: ReachSetup) -> ars.ARSSettings:
+    """SETTINGS with as many iterations as setup's arm needs: 80 x (ee_step / distance_threshold) ** 0.3, at least
+    80."""
+    ratio = max(1.0, setup.ee_step / setup.task.distance_threshold)
+    return replace(SETTINGS, iterations=int(round(SETTINGS.iterations * ratio ** 0.3)))
+
+
+def env_kwargs_of(setup: ReachSetup, kwargs: dict) -> dict:
+    """The kwargs that make setup's env again, as a policy file keeps them: the model's absolute path and xacro
+    arguments, and every setting resolved (ee_step, damping, home)."""
+    out = dict(model=setup.model.path or None, xacro_args=' '.join(f'{k}:={v}' for k, v in setup.model.xacro_args),
+               **setup.settings())
+    out.pop('reward_type')
+    return out
+
+
+def statistics(setup: ReachSetup, rng_seed: int = 1) -> tuple[list[list[int]], dict, np.ndarray]:
+    """(shared groups, fixed statistics, prior states) of ARS's normalisation for setup's flattened observation:
+    achieved goal (0-2), desired goal (3-5), joints (6 .. 6 + n - 1), tip (6 + n .. 8 + n)."""
+    arm, n = setup.arm, setup.arm.n
+    groups = [[i, 3 + i, 6 + n + i] for i in range(3)]
+    fixed = {6 + j: (float(setup.home[j]), float(JOINT_SCALE * (arm.upper[j] - arm.lower[j]))) for j in range(n)}
+    rng = np.random.default_rng(rng_seed)
+    q = rng.uniform(arm.lower, arm.upper, (PRIOR_STATES, n))
+    goals = arm.tip_positions(rng.uniform(arm.lower, arm.upper, (PRIOR_STATES, n)))
+    tips = arm.tip_positions(q)
+    return groups, fixed, np.concatenate((tips, goals, q, tips), axis=1)
+
+
+def final_distance(observations: dict) -> np.ndarray:
+    return goal_distance(observations['achieved_goal'], observations['desired_goal'])
+
+
+def train(env_kwargs: dict | None = None, settings: ars.ARSSettings | None = None, seed: int = 0, progress=None,
+          should_stop=None, target_success: float | None = None, evaluate_episodes: int = HELD_OUT_EPISODES) -> Training:
+    """ARS on the reach task of env_kwargs (ReachEnv's: model, xacro_args, tip, control, start, ...), reproducible from
+    seed. progress(ars.IterationStats) after each iteration; should_stop() before each (cancel keeps the best so
+    far); target_success: stop once an iteration's evaluation reaches it. settings: default_settings(the arm's).
+    Ends with the held-out evaluation of the
+    best policy and of the P-controller (ee control) over evaluate_episodes fresh goals (0: none)."""
+    kwargs = {k: v for k, v in (env_kwargs or {}).items() if k != 'reward_type'}
+    t0 = time.monotonic()
+    setup = ReachSetup(**kwargs)
+    settings = settings or default_settings(setup)
+    groups, fixed, prior = statistics(setup)
+    reached = {'done': False}
+
+    def on_iteration(stats: ars.IterationStats) -> None:
+        if target_success is not None and stats.success_rate >= target_success:
+            reached['done'] = True
+        if progress is not None:
+            progress(stats)
+
+    def stop() -> bool:
+        return reached['done'] or (should_stop is not None and should_stop())
+
+    result = ars.train(lambda k: ReachVectorEnv(k, reward_type='dense', **kwargs), settings, seed,
+                       progress=on_iteration, should_stop=stop, shared_statistics=groups, final_metric=final_distance,
+                       prior_states=prior, fixed_statistics=fixed)
+    if reached['done']:
+        result.cancelled = False
+    training = Training(setup, env_kwargs_of(setup, kwargs), result, seed=seed)
+    if evaluate_episodes:
+        training.held_out = evaluate(result.policy, setup, evaluate_episodes)
+        if setup.control == 'ee':
+            training.p_controller = evaluate(p_controller(setup), setup, evaluate_episodes)
+    training.wall_time = time.monotonic() - t0
+    return training
+
+
+def evaluate(policy, setup: ReachSetup, episodes: int = HELD_OUT_EPISODES, seed: int = HELD_OUT_SEED,
+             batch: int = 4096) -> Evaluation:
+    """policy (anything with act_batch(flat observations) -> actions) over `episodes` fresh goals of setup's task,
+    env i seeded seed + i, all in one vector env (or batches of `batch`)."""
+    distances, successes = [], []
+    for first in range(0, episodes, batch):
+        k = min(batch, episodes - first)
+        env = ReachVectorEnv(k, setup=setup)
+        obs, _ = env.reset(seed=seed + first)
+        space = env.single_observation_space
+        for _ in range(env.max_episode_steps):
+            obs, _, _, _, infos = env.step(policy.act_batch(ars.flatten_batch(space, obs)))
+        distances.append(final_distance(obs))
+        successes.append(infos['is_success'])
+        env.close()
+    return Evaluation(float(np.concatenate(successes).mean()), np.concatenate(distances), seed)
+
+
+def p_controller(setup: ReachSetup, gain: float = 1.0) -> ars.LinearPolicy:
+    """The plain P-controller on the tip error, action = clip(gain (goal - tip) / ee_step, -1, 1), as an ars_linear
+    policy (weights on the desired and achieved goal only): the baseline a learned reach policy is measured against."""
+    d = 9 + setup.arm.n
+    weights = np.zeros((3, d))
+    k = gain / setup.ee_step
+    for i in range(3):
+        weights[i, i], weights[i, 3 + i] = -k, k
+    return ars.LinearPolicy(weights, np.zeros(d), np.ones(d), np.zeros(3), -np.ones(3), np.ones(3))
+
+
+# ------------------------------------------------------------------------------------------------- policy files
+def save(training: Training, path: str) -> str:
+    setup, result = training.setup, training.result
+    figures = dict(training_steps=int(result.steps), iterations=len(result.history),
+                   best_iteration=int(result.best_iteration), train_seconds=round(result.elapsed, 3))
+    if training.held_out is not None:
+        figures.update(success_rate=training.held_out.success_rate,
+                       mean_final_distance=training.held_out.mean_distance, held_out_episodes=len(
+                           training.held_out.distances))
+    if training.p_controller is not None:
+        figures['p_controller_success_rate'] = training.p_controller.success_rate
+    return policies.save(path, training.policy, ENV_ID, training.seed, settings=result.settings.as_dict(),
+                         figures=figures, source='ARS (python -m robot_ai.reach train)',
+                         env_kwargs=training.env_kwargs, joints=list(setup.arm.joints),
+                         robot=setup.model.tree.name, model=setup.model.name, model_sha256=setup.model.sha256,
+                         training_steps=int(result.steps),
+                         success_rate=training.held_out.success_rate if training.held_out else None)
+
+
+def setup_of(policy: policies.Policy, **overrides) -> ReachSetup:
+    """The reach setup a policy file names (its env_kwargs), with overrides (another model file, say)."""
+    kwargs = {k: v for k, v in policy.metadata.get('env_kwargs', {}).items() if k in ENV_SETTINGS}
+    kwargs.update({k: v for k, v in overrides.items() if v is not None})
+    if 'model' in overrides or 'urdf' in overrides:      # another robot file: its own limits and sizes
+        kwargs = {k: v for k, v in kwargs.items() if k not in ('home', 'ee_step', 'damping')}
+    return ReachSetup(**kwargs)
+
+
+def check_fits(policy: policies.Policy, setup: ReachSetup) -> str:
+    """PolicyError (one line naming both) unless policy is a reach policy for setup's robot, tip, joints and spaces;
+    returns a note ('' or a warning to show) when only the URDF's text differs."""
+    m = policy.metadata
+    where = policy.path or 'the policy'
+    if policy.kind != 'ars_linear' or m.get('env_id') != ENV_ID:
+        raise policies.PolicyError(f'{where} is a {policy.kind} policy for {m.get("env_id")}, not a reach policy '
+                                   f'({ENV_ID})')
+    arm = setup.arm
+    robot = setup.model.tree.name
+    learned = f'{m.get("robot") or "?"} ({m.get("model") or "?"}), tip {m.get("env_kwargs", {}).get("tip")}'
+    here = f'{robot} ({setup.model.name}), tip {arm.tip}'
+    if m.get('robot') != robot or m.get('env_kwargs', {}).get('tip') != arm.tip or m.get('joints') != arm.joints:
+        raise policies.PolicyError(f'{where} learned to reach with {learned} (joints {", ".join(m.get("joints", []))});'
+                                   f' this arm is {here} (joints {", ".join(arm.joints)})')
+    control = m.get('env_kwargs', {}).get('control', 'ee')
+    if control != setup.control:
+        raise policies.PolicyError(f'{where} acts with control={control}; this env has control={setup.control}')
+    actions, inputs = policy.actor.weights.shape
+    if inputs != 9 + arm.n or actions != setup.action_space.shape[0]:
+        raise policies.PolicyError(f'{where} maps {inputs} observations to {actions} actions; this env has '
+                                   f'{9 + arm.n} and {setup.action_space.shape[0]}')
+    if m.get('model_sha256') and m['model_sha256'] != setup.model.sha256:
+        return (f'note: {setup.model.name} is not the URDF text {where} learned on ({m.get("model")}); same robot, '
+                f'tip and joints, so it drives it')
+    return ''
+
+
+def load(path: str, setup: ReachSetup | None = None) -> tuple[policies.Policy, ReachSetup, str]:
+    """(the policy, its setup, a note) of a reach policy file: for setup's arm when given (refused in one line if it
+    is another robot or tip), else for the env its metadata names. PolicyError or ReachError: one line."""
+    policy = policies.load(path)
+    if policy.kind != 'ars_linear':
+        raise policies.PolicyError(f'{policy.path} is a {policy.kind} policy for {policy.env_id}, not a reach policy')
+    if setup is None:
+        model = policy.metadata.get('env_kwargs', {}).get('model')
+        if model and not os.path.exists(model):
+            raise policies.PolicyError(f'{policy.path} learned on {model}, which is not there any more: give the '
+                                       f'robot file with --model')
+        setup = setup_of(policy)
+    return policy, setup, check_fits(policy, setup)
+
+
+def record_video(policy, setup: ReachSetup, path: str, episodes: int = 3, seed: int = HELD_OUT_SEED) -> str:
+    """An mp4 of the arm reaching `episodes` fresh goals with policy (act_batch), drawn from the kinematics
+    (robot_ai.reach.render), written whole or not at all."""
+    from robot_ai.cartpole.artifacts import write_video
+    from robot_ai.reach.env import RENDER_FPS
+    from robot_ai.reach.render import ArmRenderer
+    renderer = ArmRenderer(setup.arm, setup.task.distance_threshold)
+
+    def frames():
+        for episode in range(episodes):
+            env = ReachVectorEnv(1, setup=setup)
+            obs, _ = env.reset(seed=seed + episode)
+            renderer.new_episode()
+            renderer.title = f'{setup.model.tree.name}: goal {episode + 1} of {episodes}'
+            yield renderer.draw(env._q[:, 0], env._goal[:, 0])
+            for _ in range(env.max_episode_steps):
+                obs, *_ = env.step(policy.act_batch(ars.flatten_batch(env.single_observation_space, obs)))
+                yield renderer.draw(env._q[:, 0], env._goal[:, 0])
+            for _ in range(RENDER_FPS // 2):         # a pause on the result before the next goal
+                yield renderer.draw(env._q[:, 0], env._goal[:, 0])
+    try:
+        return write_video(path, frames(), RENDER_FPS)
+    finally:
+        renderer.close()

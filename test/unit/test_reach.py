@@ -1,0 +1,303 @@
+"""robot_ai.reach without ROS: the arm's tip and Jacobian against KinematicTree.link_poses and finite differences on
+every robot in ../shared/robots and a xacro arm; ReachVectorEnv against gymnasium's SyncVectorEnv bit for bit;
+gymnasium's env checker; the goal-env reward; the refusals; policy files; the command line."""
+import glob
+import os
+import subprocess
+import sys
+from dataclasses import replace
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import robot_ai.reach  # registers robot_ai/Reach-v0
+from fk_helpers import robot_path
+from robot_ai import ars
+from robot_ai.cartpole import policies
+from robot_ai.reach import Arm, ReachEnv, ReachError, ReachSetup, ReachVectorEnv, goal_distance, learn
+
+HERE = os.path.dirname(os.path.realpath(__file__))
+XACRO_ARM = os.path.join(HERE, '..', 'urdf', 'reach_arm7.urdf.xacro')
+PACKAGE_UR5 = os.path.join(HERE, '..', '..', 'urdf', 'ur5_arm.urdf')
+SHARED_ROBOTS = sorted(glob.glob(os.path.join(os.path.dirname(robot_path('ur5.urdf')), '**', '*.urdf'),
+                              recursive=True))
+
+
+def tree_of(path, xacro_args=None):
+    return robot_ai.reach.load_model(path, xacro_args).tree
+
+
+def arms_of(tree, most=12):
+    """Arms of every tip that can be one (the deepest first, at most `most`), and the tips that cannot."""
+    tips = Arm.candidate_tips(tree)[:most]
+    arms, refused = [], []
+    for tip in tips:
+        try:
+            arms.append(Arm(tree, tip))
+        except ReachError as e:
+            refused.append((tip, str(e)))
+    return arms, refused
+
+
+def test_the_shared_robots_are_all_there():
+    names = {os.path.basename(p) for p in SHARED_ROBOTS}
+    assert {'ur5.urdf', 'panda.urdf', 'kuka_lwr_arm.urdf', 'pr2.urdf', 'one_link.urdf'} <= names
+
+
+@pytest.mark.parametrize('path, xacro_args', [(p, None) for p in SHARED_ROBOTS] + [(PACKAGE_UR5, None),
+                         (XACRO_ARM, None), (XACRO_ARM, 'scale:=2.5 tool:=true')],
+                         ids=lambda v: os.path.basename(v) if isinstance(v, str) and '/' in v else str(v))
+def test_tip_equals_link_poses_and_jacobian_equals_finite_differences(path, xacro_args):
+    tree = tree_of(path, xacro_args)
+    arms, refused = arms_of(tree)
+    for tip, message in refused:     # a tip on its joint's axis (a fixture's second link): refused in one line
+        assert '\n' not in message and tip in message
+    if not Arm.candidate_tips(tree):
+        with pytest.raises(ReachError, match='no moving joint|does not move'):
+            Arm(tree)
+        return
+    if not arms:     # robot_state_publisher's fixture: one joint whose child sits on its axis
+        assert os.path.basename(path) == 'two_links_moving_joint.urdf', refused
+        assert all('does not move' in m for _, m in refused)
+        return
+    rng = np.random.default_rng(0)
+    for arm in arms:
+        q = rng.uniform(arm.lower, arm.upper, size=(25, arm.n))
+        tips = arm.tip_positions(q)
+        base = arm.base if arm.base != tree.root else None
+        for i in range(len(q)):
+            poses = tree.link_poses(tree.resolve_positions(arm.positions(q[i])), base=base)
+            np.testing.assert_allclose(tips[i], poses[arm.tip][:3, 3], atol=1e-12, err_msg=f'{path} {arm.tip}')
+            assert np.linalg.norm(tips[i]) <= arm.radius + 1e-9
+        jac, eps = arm.jacobian(q), 1e-6
+        for k in range(arm.n):
+            dq = np.zeros(arm.n)
+            dq[k] = eps
+            fd = (arm.tip_positions(q + dq) - arm.tip_positions(q - dq)) / (2 * eps)
+            np.testing.assert_allclose(jac[:, :, k], fd, atol=1e-8, err_msg=f'{path} {arm.tip} {arm.joints[k]}')
+        np.testing.assert_array_equal(arm.tip_positions(q[3]), tips[3])          # one configuration alone
+
+
+def test_mimic_joints_follow_their_source_even_off_the_chain():
+    tree = tree_of(robot_path('panda.urdf'))
+    right = Arm(tree, 'panda_rightfinger')     # panda_finger_joint2 mimics panda_finger_joint1, off this chain
+    assert right.joints[-1] == 'panda_finger_joint1' and 'panda_finger_joint2' not in right.joints
+
+
+def test_limits_home_and_velocities_come_from_the_urdf():
+    arm = Arm(tree_of(robot_path('ur5.urdf')), 'tool0')
+    np.testing.assert_allclose(arm.lower, [-2 * np.pi, -2 * np.pi, -np.pi, -2 * np.pi, -2 * np.pi, -2 * np.pi])
+    np.testing.assert_allclose(arm.home, 0.0)
+    np.testing.assert_allclose(arm.velocity, np.pi)
+    pr2 = Arm(tree_of(robot_path('pr2.urdf')))
+    continuous = [i for i, n in enumerate(pr2.joints) if pr2.tree.joints[n].type == 'continuous']
+    assert continuous and all(pr2.lower[i] == -np.pi and pr2.upper[i] == np.pi for i in continuous)
+
+
+def test_damped_least_squares_is_the_textbook_formula_and_clamping_keeps_the_limits():
+    arm = Arm(tree_of(robot_path('panda.urdf')))
+    rng = np.random.default_rng(1)
+    q = rng.uniform(arm.lower, arm.upper, size=(40, arm.n))
+    jac = arm.jacobian(q)
+    dx = rng.normal(size=(40, 3)) * 0.05
+    dq = arm.damped_least_squares(jac.transpose(1, 2, 0), dx.T, 0.03).T
+    for i in range(40):
+        j = jac[i]
+        expected = j.T @ np.linalg.solve(j @ j.T + 0.03 ** 2 * np.eye(3), dx[i])
+        np.testing.assert_allclose(dq[i], expected, rtol=1e-9, atol=1e-12)
+    moved = arm.move_tip(q, dx * 20, 0.03)
+    assert (moved >= arm.lower - 1e-12).all() and (moved <= arm.upper + 1e-12).all()
+
+
+def make_sync(n, **kwargs):
+    return gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make('robot_ai/Reach-v0', **kwargs) for _ in range(n)])
+
+
+def assert_same(a, b):
+    if isinstance(a, dict):
+        assert list(a) == list(b)
+        for k in a:
+            assert_same(a[k], b[k])
+        return
+    assert isinstance(b, np.ndarray) and a.dtype == b.dtype and a.shape == b.shape
+    assert np.array_equal(a, b), (a, b)
+
+
+@pytest.mark.parametrize('model, control, start, n', [
+    (None, 'ee', 'home', 5), (None, 'joints', 'random', 3), (robot_path('panda.urdf'), 'ee', 'random', 4),
+    (robot_path('pr2.urdf'), 'ee', 'home', 3), (XACRO_ARM, 'joints', 'home', 2), (XACRO_ARM, 'ee', 'random', 6)])
+def test_vector_env_equals_sync_vector_env_bit_for_bit(model, control, start, n):
+    kwargs = dict(model=model, control=control, start=start, reward_type='dense')
+    sync, vec = make_sync(n, **kwargs), gymnasium.make_vec('robot_ai/Reach-v0', num_envs=n, **kwargs)
+    assert isinstance(vec.unwrapped, ReachVectorEnv)
+    rng = np.random.default_rng(7)
+    for first in (11, [3, None, 5] + [None] * (n - 3)):   # an int seed, then a list with unseeded envs
+        seeds = first if isinstance(first, int) else first[:n]   # None: the env goes on with its generator
+        o1, i1 = sync.reset(seed=seeds)
+        o2, i2 = vec.reset(seed=seeds)
+        assert_same(o1, o2)
+        assert_same(i1, i2)
+        ee_step = vec.unwrapped.setup.ee_step
+        for t in range(120):     # two autoresets of the 50-step episodes
+            if control == 'ee' and t % 3:   # a P-controller most steps: the arm reaches, clamps, settles
+                a = np.clip((o1['desired_goal'] - o1['achieved_goal']) / ee_step, -1, 1).astype(np.float32)
+            else:
+                a = rng.uniform(-1.5, 1.5, size=vec.action_space.shape).astype(np.float32)
+            r1, r2 = sync.step(a), vec.step(a)
+            for x, y in zip(r1, r2):      # observations, rewards, terminations, truncations, infos
+                assert_same(x, y)
+            o1 = r1[0]
+    mask = np.array([i % 2 == 0 for i in range(n)])
+    assert_same(sync.reset(seed=99, options={'reset_mask': mask})[1],
+                vec.reset(seed=99, options={'reset_mask': mask})[1])
+    assert_same(sync.step(np.zeros(vec.action_space.shape, np.float32))[0],
+                vec.step(np.zeros(vec.action_space.shape, np.float32))[0])
+
+
+def test_reach_env_passes_gymnasiums_checker_and_follows_the_goal_env_convention():
+    for control in ('ee', 'joints'):
+        env = gymnasium.make('robot_ai/Reach-v0', control=control, render_mode='rgb_array').unwrapped
+        assert isinstance(env, ReachEnv)
+        check_env(env)     # raises on a failure
+        obs, info = env.reset(seed=0)
+        assert set(obs) == {'achieved_goal', 'desired_goal', 'observation'} and 'is_success' in info
+        assert obs['observation'].shape == (env.arm.n + 3,) and obs['observation'].dtype == np.float64
+        np.testing.assert_array_equal(obs['observation'][-3:], obs['achieved_goal'])
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        # stable-baselines3's HER calls compute_reward on batches of relabelled goals
+        batch_a = np.stack([obs['achieved_goal']] * 5)
+        batch_d = np.stack([obs['desired_goal'], obs['achieved_goal'], obs['achieved_goal'] + [0.06, 0, 0],
+                            obs['achieved_goal'] + [0, 0.04, 0], obs['desired_goal']])
+        rewards = env.compute_reward(batch_a, batch_d, [info] * 5)
+        assert rewards.shape == (5,) and rewards[0] == reward and rewards[1] == 0.0
+        assert rewards[2] == -1.0 and rewards[3] == 0.0      # 0.06 m is outside 0.05 m, 0.04 m inside
+        frame = env.render()
+        assert frame.shape == (480, 640, 3) and frame.dtype == np.uint8 and frame.std() > 0
+        env.close()
+
+
+def test_dense_reward_is_minus_the_distance_and_success_is_within_the_threshold():
+    env = gymnasium.make('robot_ai/Reach-v0', reward_type='dense', distance_threshold=0.1)
+    obs, _ = env.reset(seed=3)
+    for _ in range(50):
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        d = float(goal_distance(obs['achieved_goal'], obs['desired_goal']))
+        assert reward == -d and info['is_success'] == (d < 0.1) and not terminated
+    assert truncated     # 50 steps, as FetchReach and PandaReach
+
+
+@pytest.mark.parametrize('kwargs, words', [
+    (dict(tip='no_such_link'), ['no_such_link', 'is not a link', 'tool0']),
+    (dict(tip='base_link'), ['base_link', 'no moving joint']),
+    (dict(model='/nonexistent/arm.urdf'), ['/nonexistent/arm.urdf']),
+    (dict(model=robot_path('fixtures/one_link.urdf')), ['no moving joint']),
+    (dict(model=XACRO_ARM, xacro_args='scale'), ['name:=value']),
+    (dict(control='torque'), ['control must be one of']),
+    (dict(home=[0.0] * 3), ['home must be 6 joint positions']),
+    (dict(home={'elbow_joint': 9.0}), ['elbow_joint 9 not in']),
+])
+def test_refusals_are_one_line_that_says_what_is_wrong(kwargs, words):
+    with pytest.raises(ReachError) as e:
+        ReachSetup(**kwargs)
+    message = str(e.value)
+    assert '\n' not in message and all(w in message for w in words), message
+
+
+def test_a_model_that_does_not_load_is_one_line(tmp_path):
+    bad = tmp_path / 'bad.urdf.xacro'
+    bad.write_text('<robot xmlns:xacro="http://www.ros.org/wiki/xacro"><xacro:nope/></robot>')
+    with pytest.raises(ReachError) as e:
+        ReachSetup(model=str(bad))
+    assert '\n' not in str(e.value) and 'bad.urdf.xacro' in str(e.value) and 'nope' in str(e.value)
+
+
+def test_actions_that_are_not_numbers_are_refused_and_the_env_goes_on():
+    env = gymnasium.make('robot_ai/Reach-v0')
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match='finite'):
+        env.step(np.array([np.nan, 0, 0], np.float32))
+    with pytest.raises(ValueError, match='3 numbers'):
+        env.step(np.zeros(6, np.float32))
+    env.step(np.zeros(3, np.float32))
+
+
+def test_p_controller_reaches_from_home_and_a_random_policy_does_not():
+    setup = ReachSetup()
+    p = learn.evaluate(learn.p_controller(setup), setup, 400)
+    assert p.success_rate >= 0.98
+    random_policy = ars.LinearPolicy(np.random.default_rng(0).normal(size=(3, 15)), np.zeros(15), np.ones(15),
+                                     np.zeros(3), -np.ones(3), np.ones(3))
+    assert learn.evaluate(random_policy, setup, 400).success_rate < 0.1
+
+
+def test_a_short_ars_run_learns_to_reach_is_reproducible_and_its_file_drives_the_same_arm(tmp_path):
+    settings = replace(learn.SETTINGS, iterations=40)
+    first = learn.train(dict(model=XACRO_ARM), settings, seed=3, evaluate_episodes=300)
+    again = learn.train(dict(model=XACRO_ARM), settings, seed=3, evaluate_episodes=0)
+    np.testing.assert_array_equal(first.policy.weights, again.policy.weights)
+    assert first.held_out.success_rate >= 0.5          # a random policy: below 0.1 (above)
+    path = learn.save(first, str(tmp_path / 'arm7.npz'))
+    policy, setup, note = learn.load(path)
+    assert note == '' and setup.arm.joints == first.setup.arm.joints
+    x = np.random.default_rng(0).normal(size=(10, 9 + setup.arm.n))
+    np.testing.assert_array_equal(policy.actor.act_batch(x), first.policy.act_batch(x))
+    assert policy.metadata['training_steps'] == first.result.steps and policy.metadata['joints'] == setup.arm.joints
+    # the same robot with other xacro arguments is another tip; another robot is refused, naming both
+    with pytest.raises(policies.PolicyError) as e:
+        learn.load(path, ReachSetup(model=XACRO_ARM, xacro_args='tool:=true', tip='tool'))
+    assert 'reach_arm7' in str(e.value) and 'tip flange' in str(e.value) and 'tip tool' in str(e.value)
+    with pytest.raises(policies.PolicyError) as e:
+        learn.load(path, ReachSetup())
+    assert 'reach_arm7' in str(e.value) and 'robot_ai_ur5_arm' in str(e.value) and '\n' not in str(e.value)
+
+
+def test_ars_cancel_keeps_the_best_policy_so_far():
+    calls = []
+    settings = ars.ARSSettings(iterations=50, directions=8, top_directions=4, step_size=0.1, noise=0.1, episodes=2,
+                               eval_episodes=32)
+    result = learn.train({}, settings, seed=0, progress=calls.append, should_stop=lambda: len(calls) >= 6,
+                         evaluate_episodes=0)
+    assert result.result.cancelled and len(result.result.history) == 6
+    best = max(range(6), key=lambda i: (calls[i].success_rate, calls[i].eval_return))
+    assert result.result.best_iteration == best       # the policy evaluated in iteration best + 1
+
+
+def run_cli(*args, cwd=None):
+    return subprocess.run([sys.executable, '-m', 'robot_ai.reach', *args], capture_output=True, text=True,
+                          timeout=600, cwd=cwd)
+
+
+@pytest.mark.parametrize('args, words', [
+    (['train', '--tip', 'nowhere'], ['nowhere', 'is not a link']),
+    (['train', '--model', '/no/such/arm.xacro'], ['/no/such/arm.xacro']),
+    (['train', '--tip', 'base_link'], ['no moving joint']),
+    (['train', '--top-directions', '9', '--directions', '4'], ['--top-directions']),
+    (['evaluate', '/no/such/policy.npz'], ['no policy file']),
+])
+def test_command_line_refusals_are_one_line_and_exit_2(args, words):
+    done = run_cli(*args)
+    assert done.returncode == 2 and 'Traceback' not in done.stderr
+    last = done.stderr.strip().splitlines()[-1]
+    assert all(w in last for w in words), done.stderr
+
+
+def test_command_line_trains_evaluates_and_shows(tmp_path):
+    done = run_cli('train', '--model', XACRO_ARM, '--iterations', '20', '--output-dir', str(tmp_path), '--video')
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert sum(line.startswith('iteration') for line in lines) == 20
+    held = next(line for line in lines if line.startswith('held-out'))
+    assert 'of 1000 fresh goals' in held
+    files = {os.path.splitext(f)[1]: f for f in os.listdir(tmp_path)}
+    assert set(files) == {'.npz', '.csv', '.png', '.mp4'}, files
+    assert os.path.getsize(tmp_path / files['.png']) > 10000 and os.path.getsize(tmp_path / files['.mp4']) > 10000
+    with open(tmp_path / files['.csv']) as f:
+        assert len(f.read().splitlines()) == 21
+    done = run_cli('evaluate', str(tmp_path / files['.npz']), '--episodes', '200')
+    assert done.returncode == 0 and 'success rate' in done.stdout, done.stderr
+    done = run_cli('show', str(tmp_path / files['.npz']))
+    assert done.returncode == 0 and '"kind": "ars_linear"' in done.stdout and 'weights: float64 (3, 16)' in done.stdout
+    done = run_cli('evaluate', str(tmp_path / files['.npz']), '--model', PACKAGE_UR5)
+    assert done.returncode == 2 and 'reach_arm7' in done.stderr and 'Traceback' not in done.stderr
