@@ -10,6 +10,7 @@
     python bench/reach_speed.py [--seconds 3]
 """
 import argparse
+import importlib
 import os
 import sys
 import time
@@ -20,8 +21,7 @@ import numpy as np
 HERE = os.path.dirname(os.path.realpath(__file__))
 sys.path.insert(0, os.path.join(HERE, '..', 'src'))
 
-import robot_ai.reach  # noqa: E402  (registers robot_ai/Reach-v0)
-from robot_ai.reach import ReachVectorEnv  # noqa: E402
+from robot_ai.reach import ReachVectorEnv  # noqa: E402  (the import registers robot_ai/Reach-v0)
 
 PANDA = os.path.join(HERE, '..', '..', 'shared', 'robots', 'panda.urdf')
 
@@ -53,7 +53,7 @@ def single_rate(env, seconds: float) -> float:
 
 def panda_reach(seconds: float) -> float | None:
     try:
-        import panda_gym  # noqa: F401
+        importlib.import_module('panda_gym')      # registers PandaReach-v3
     except ImportError:
         return None
     return single_rate(gymnasium.make('PandaReach-v3'), seconds)
