@@ -3,6 +3,7 @@
 (bit for bit), gymnasium's env checker, the faults a user meets, worker processes and the CLI."""
 import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -15,9 +16,11 @@ import numpy as np
 import rospy
 import rostest
 from gymnasium.utils.env_checker import check_env
+from sensor_msgs.msg import JointState
 
 from robot_ai.envs import RosCartPoleError, RosCartPoleVectorEnv  # registers robot_ai/RosCartPole-v0, -v1
 
+VECTORISERS = os.path.join(os.path.dirname(os.path.realpath(__file__)), 'ros_env_vectorisers.py')
 GOOD = np.array([0.1, 0.5, 10.0, 2.0])      # a linear policy that balances the pole: episodes end by truncation
 
 
@@ -33,8 +36,14 @@ def same(a, b) -> bool:
     return type(a) is type(b) and a == b
 
 
-def make_ros(ns):
-    return gymnasium.make('robot_ai/RosCartPole-v1', robot_ns=ns)
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(('127.0.0.1', 0))
+        return s.getsockname()[1]
+
+
+def make_ros(ns='', **kwargs):
+    return gymnasium.make('robot_ai/RosCartPole-v1', robot_ns=ns, **kwargs)
 
 
 def async_run(context, seed=7, steps=300):
@@ -57,6 +66,19 @@ def async_run(context, seed=7, steps=300):
 
 
 class TestRosEnv(unittest.TestCase):
+    """Each test closes the envs it made (self.ros): an env holds its sim's lease until it is closed."""
+
+    def setUp(self):
+        self.opened = []
+
+    def tearDown(self):
+        for env in self.opened:
+            env.close()
+
+    def ros(self, ns='', **kwargs):
+        env = make_ros(ns, **kwargs)
+        self.opened.append(env)
+        return env
 
     @classmethod
     def setUpClass(cls):
@@ -85,7 +107,7 @@ class TestRosEnv(unittest.TestCase):
                     break
 
     def test_steps_equal_gymnasiums_bit_for_bit(self):
-        ros, ref = make_ros('/cartpole_0'), gymnasium.make('CartPole-v1')
+        ros, ref = self.ros('/cartpole_0'), gymnasium.make('CartPole-v1')
         rng = np.random.default_rng(0)
         self.assert_same_run(ros, ref, range(6), lambda o, t: int(rng.integers(2)))
         self.assert_same_run(ros, ref, [11, 12], lambda o, t: good(o))   # truncated at 500
@@ -93,7 +115,9 @@ class TestRosEnv(unittest.TestCase):
         ros.close()
 
     def test_v0_truncates_at_200(self):
-        ros, ref = gymnasium.make('robot_ai/RosCartPole-v0', robot_ns='/cartpole_1'), gymnasium.make('CartPole-v0')
+        ros = gymnasium.make('robot_ai/RosCartPole-v0', robot_ns='/cartpole_1')
+        self.opened.append(ros)
+        ref = gymnasium.make('CartPole-v0')
         self.assertEqual(ros.spec.max_episode_steps, 200)
         ros.reset(seed=3)
         n = 0
@@ -115,14 +139,14 @@ class TestRosEnv(unittest.TestCase):
                 warnings.simplefilter('always')
                 check_env(env)
             return sorted({str(w.message) for w in caught if issubclass(w.category, UserWarning)})
-        ours = warned(make_ros('/cartpole_1').unwrapped)
+        ours = warned(self.ros().unwrapped)   # check_env makes a second env from the spec: it claims another sim
         theirs = warned(gymnasium.make('CartPole-v1').unwrapped)
         self.assertEqual(ours, theirs)
         self.assertTrue(all('infinity' in w for w in theirs), theirs)
 
     def test_step_after_terminated_as_gymnasium(self):
         """step() after terminated, before reset(): gymnasium's warning, reward 0.0, the state integrated on."""
-        ros = gymnasium.make('robot_ai/RosCartPole-v1', robot_ns='/cartpole_0', disable_env_checker=True)
+        ros = self.ros('/cartpole_0', disable_env_checker=True)
         ref = gymnasium.make('CartPole-v1', disable_env_checker=True)
         for env in (ros, ref):
             env.reset(seed=4)
@@ -142,7 +166,7 @@ class TestRosEnv(unittest.TestCase):
         ros.close()
 
     def test_a_bad_action_raises_and_the_env_goes_on(self):
-        ros, ref = make_ros('/cartpole_2').unwrapped, gymnasium.make('CartPole-v1').unwrapped
+        ros, ref = self.ros('/cartpole_2').unwrapped, gymnasium.make('CartPole-v1').unwrapped
         ros.reset(seed=9)
         ref.reset(seed=9)
         for bad in (2, -1, 0.5, 'left', None):
@@ -158,6 +182,7 @@ class TestRosEnv(unittest.TestCase):
     def test_vector_env_equals_gymnasiums_sync_vector_env(self):
         for env_id, n, seed in (('CartPole-v1', 4, 5), ('CartPole-v0', 3, 0)):
             ros = gymnasium.make_vec(f'robot_ai/{env_id.replace("CartPole", "RosCartPole")}', num_envs=n)
+            self.opened.append(ros)
             ref = gymnasium.make_vec(env_id, num_envs=n, vectorization_mode='sync')
             self.assertIsInstance(ros, RosCartPoleVectorEnv)
             self.assertEqual((ros.observation_space, ros.action_space), (ref.observation_space, ref.action_space))
@@ -218,14 +243,14 @@ class TestRosEnv(unittest.TestCase):
         self.assertIn('cartpole_gym.launch', str(caught.exception))
 
     def test_a_sim_not_in_lockstep_is_refused(self):
-        with self.assertRaises(RosCartPoleError) as caught:
-            make_ros('/free').reset(seed=0)
+        with self.assertRaises(RosCartPoleError) as caught:   # asked for by name
+            self.ros('/free').reset(seed=0)
         self.assertIn('/free', str(caught.exception))
         self.assertIn('lockstep', str(caught.exception))
 
     def test_a_sim_with_a_controller_is_refused(self):
         with self.assertRaises(RosCartPoleError) as caught:
-            make_ros('/driven').reset(seed=0)
+            self.ros('/driven').reset(seed=0)
         self.assertIn('/driven', str(caught.exception))
         self.assertIn('cartpole_controller', str(caught.exception))
 
@@ -294,6 +319,150 @@ class TestRosEnv(unittest.TestCase):
             self.assertIn('/nobody_here', gone.stderr)
             self.assertNotIn('Traceback', gone.stderr)
 
+
+    # ----------------------------------------------------------------------- leases: every vectoriser, third parties
+    def test_envs_without_a_namespace_claim_free_sims_and_more_than_sims_is_an_error_naming_the_holders(self):
+        envs = [self.ros(timeout=2.0) for _ in range(4)]
+        for env in envs:
+            env.reset(seed=0)
+        claimed = [env.unwrapped.sim_namespace for env in envs]
+        self.assertEqual(sorted(claimed), ['/cartpole_0', '/cartpole_1', '/cartpole_2', '/cartpole_3'])
+        with self.assertRaises(RosCartPoleError) as caught:
+            self.ros(timeout=2.0).reset(seed=0)
+        message = str(caught.exception)
+        self.assertIn('no running cartpole_sim is free', message)
+        for ns in claimed:
+            self.assertIn(f'{ns} leased to {rospy.get_name()}#', message)
+        self.assertIn('/free is not in lockstep', message)
+        self.assertIn('/driven is driven already: /driven/cartpole_controller', message)
+        with self.assertRaises(RosCartPoleError) as caught:     # a held sim, asked by name: who holds it
+            self.ros('/cartpole_2', timeout=2.0).reset(seed=0)
+        self.assertIn('/cartpole_2', str(caught.exception))
+        self.assertIn('leased to', str(caught.exception))
+        envs[0].close()                                         # a closed env gives its sim back
+        again = self.ros(timeout=2.0)
+        again.reset(seed=0)
+        self.assertEqual(again.unwrapped.sim_namespace, claimed[0])
+
+    def test_every_standard_vectoriser_trains_on_the_sims_bit_for_bit(self):
+        """SyncVectorEnv over gymnasium.make (CleanRL), make_vec 'sync' and the package's vector env, in this
+        process; AsyncVectorEnv over gymnasium.make and make_vec 'async' in fresh processes (forked workers of a
+        process where rospy never ran)."""
+        make = [lambda: gymnasium.vector.SyncVectorEnv([lambda: make_ros()] * 4),
+                lambda: gymnasium.make_vec('robot_ai/RosCartPole-v1', num_envs=4, vectorization_mode='sync'),
+                lambda: gymnasium.make_vec('robot_ai/RosCartPole-v1', num_envs=4)]
+        for build in make:
+            vector = build()
+            self.opened.append(vector)
+            self.assert_same_vector_run(vector)
+            vector.close()
+        for mode in ('async-make', 'make_vec-async'):
+            done = subprocess.run([sys.executable, VECTORISERS, mode], capture_output=True, text=True, timeout=300)
+            self.assertEqual(done.returncode, 0, done.stderr[-3000:])
+            self.assertEqual(done.stdout.strip(), 'same as gymnasium', (mode, done.stdout, done.stderr[-2000:]))
+
+    def assert_same_vector_run(self, vector, seed=5, steps=300):
+        ref = gymnasium.make_vec('CartPole-v1', num_envs=4, vectorization_mode='sync')
+        rng = np.random.default_rng(seed)
+        self.assertTrue(same(vector.reset(seed=seed)[0], ref.reset(seed=seed)[0]))
+        for _ in range(steps):
+            a = rng.integers(2, size=4)
+            for x, y in zip(vector.step(a)[:4], ref.step(a)[:4]):
+                self.assertTrue(same(x, y))
+
+    def test_third_parties_never_take_a_step(self):
+        """While an env pauses (a PPO update), another node floods cart_force, calls ~reset, ~set_state and ~push
+        and publishes joint_states of its own on the sim's topic: the sim refuses and ignores them all, and the env's
+        run equals gymnasium's."""
+        env, ref = self.ros('/cartpole_0'), gymnasium.make('CartPole-v1')
+        obs, _ = env.reset(seed=21)
+        ref.reset(seed=21)
+        for _ in range(5):
+            for x, y in zip(env.step(good(obs)), ref.step(good(obs))):
+                self.assertTrue(same(x, y))
+        flood = subprocess.Popen(['rostopic', 'pub', '-r', '200', '/cartpole_0/cart_force', 'std_msgs/Float64',
+                                  'data: 10.0'], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                 preexec_fn=os.setsid)
+        fake = subprocess.Popen(['rostopic', 'pub', '-r', '100', '/cartpole_0/joint_states', 'sensor_msgs/JointState',
+                                 '{name: [cart_slider, pole_hinge], position: [0.5, 0.1], velocity: [0, 0]}'],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid)
+        try:
+            time.sleep(3.0)          # a pause longer than the sim's 1 s driver silence
+            for service, args in (('reset', '{}'), ('set_state', '{state: [0, 0, 0.1, 0]}'),
+                                  ('push', '{angular_velocity: 1.0}')):
+                answer = subprocess.run(['rosservice', 'call', f'/cartpole_0/cartpole_sim/{service}', args],
+                                        capture_output=True, text=True, timeout=60).stdout
+                self.assertIn('success: False', answer, service)
+                self.assertIn('leased to', answer, service)
+            obs = env.unwrapped.state.astype(np.float32)
+            for t in range(300):
+                r1, r2 = env.step(good(obs)), ref.step(good(obs))
+                for x, y in zip(r1, r2):
+                    self.assertTrue(same(x, y), (t, r1, r2))
+                obs = r1[0]
+                if r1[2] or r1[3]:
+                    break
+        finally:
+            for p in (flood, fake):
+                os.killpg(p.pid, signal.SIGINT)
+                p.wait(30)
+
+    def test_a_killed_env_frees_its_sim(self):
+        code = ("import gymnasium, os, signal, robot_ai.envs; e = gymnasium.make('robot_ai/RosCartPole-v1', "
+                "robot_ns='/cartpole_3'); e.reset(seed=0); print('held', flush=True); os.kill(os.getpid(), 9)")
+        done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=120)
+        self.assertEqual(done.returncode, -signal.SIGKILL, done.stderr[-2000:])
+        self.assertIn('held', done.stdout)
+        t = time.monotonic()
+        env = self.ros('/cartpole_3', timeout=5.0)
+        env.reset(seed=0)           # the holder is gone: its lease ends when someone asks
+        self.assertLess(time.monotonic() - t, 5.0)
+
+    def test_no_master_is_an_error_within_the_timeout_and_every_call_after_a_failure_is_the_envs_own_error(self):
+        code = ("import gymnasium, time, robot_ai.envs\n"
+                "env = gymnasium.make('robot_ai/RosCartPole-v1', timeout=2.0)\n"
+                "t = time.monotonic()\n"
+                "try:\n    env.reset(seed=0)\nexcept robot_ai.envs.RosCartPoleError as e:\n"
+                "    print('reset:', e, round(time.monotonic() - t, 1))\n"
+                "try:\n    env.step(0)\nexcept robot_ai.envs.RosCartPoleError as e:\n    print('step:', e)\n")
+        env = dict(os.environ, ROS_MASTER_URI=f'http://localhost:{free_port()}')
+        done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=60, env=env)
+        self.assertEqual(done.returncode, 0, done.stderr[-2000:])
+        lines = done.stdout.splitlines()
+        self.assertTrue(lines[0].startswith('reset: no ROS master answers'), done.stdout)
+        self.assertLess(float(lines[0].split()[-1]), 2.0 + 3.0)
+        self.assertTrue(lines[1].startswith('step: no ROS master answers'), done.stdout)
+        self.assertIn('call reset()', lines[1])
+        with tempfile.TemporaryDirectory() as folder:
+            subprocess.run([sys.executable, '-m', 'robot_ai.cartpole', 'random-search', '--iterations', '3',
+                            '--episodes', '3', '--output-dir', folder], check=True, capture_output=True, timeout=120)
+            policy = next(os.path.join(folder, f) for f in os.listdir(folder) if f.endswith('.npz'))
+            t = time.monotonic()
+            cli = subprocess.run([sys.executable, '-m', 'robot_ai.cartpole', 'evaluate', policy, '--ros-env',
+                                  '/cartpole_0', '--timeout', '1'], capture_output=True, text=True, timeout=60, env=env)
+        self.assertLess(time.monotonic() - t, 30.0)
+        self.assertEqual(cli.returncode, 1, cli.stderr)
+        self.assertNotIn('Traceback', cli.stderr)
+        self.assertIn('no ROS master answers', cli.stderr)
+
+    def test_a_flood_of_invalid_forces_never_stalls_a_free_running_sim(self):
+        """Each ignored force still answers its state (the last valid force held): the free sim keeps its 50
+        states a second of ROS time."""
+        counted = []
+        sub = rospy.Subscriber('/free/joint_states', JointState, lambda m: counted.append(time.monotonic()))
+        flood = subprocess.Popen(['rostopic', 'pub', '-r', '300', '/free/cart_force', 'std_msgs/Float64',
+                                  'data: 1e308'], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                 preexec_fn=os.setsid)
+        try:
+            time.sleep(3.0)
+            start = len(counted)
+            time.sleep(4.0)
+            states = len(counted) - start
+        finally:
+            os.killpg(flood.pid, signal.SIGINT)
+            flood.wait(30)
+            sub.unregister()
+        self.assertGreater(states, 100, states)        # 200 in 4 s; the old sim answered about 4
 
 if __name__ == '__main__':
     rospy.init_node('test_ros_env')

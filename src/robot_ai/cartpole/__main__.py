@@ -287,7 +287,12 @@ def run_evaluate(a, parser) -> int:
     if a.ros_env is None:
         lengths = policy.evaluate(dynamics, a.episodes, max_steps, a.seed)
     else:
-        from robot_ai.envs.ros_cartpole import RosCartPoleError, episode_lengths   # rospy: only when asked
+        try:
+            from robot_ai.envs.ros_cartpole import RosCartPoleError, episode_lengths   # rospy: only when asked
+        except ImportError as e:
+            print(f'evaluate: --ros-env needs ROS and robot_ai\'s messages ({e}): source the workspace first '
+                  f'(source .catkin_ws/devel/setup.bash, or your own devel/setup.bash)', file=sys.stderr)
+            return 1
         if not 0 < a.timeout <= 3600:
             parser.error(f'--timeout must be in (0, 3600] seconds, got {a.timeout:g}')
         try:

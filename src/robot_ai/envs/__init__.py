@@ -4,22 +4,24 @@
 each with a vector entry point::
 
     import gymnasium, robot_ai.envs
-    env = gymnasium.make('robot_ai/RosCartPole-v1', robot_ns='/cartpole_0')
-    envs = gymnasium.make_vec('robot_ai/RosCartPole-v1', num_envs=4)   # sims /cartpole_0 ... /cartpole_3
+    env = gymnasium.make('robot_ai/RosCartPole-v1')                          # the first free sim of the running ones
+    env = gymnasium.make('robot_ai/RosCartPole-v1', robot_ns='/cartpole_0')  # that one
+    envs = gymnasium.make_vec('robot_ai/RosCartPole-v1', num_envs=4)         # 4 free sims, stepped together
 
-with the sims of ``roslaunch robot_ai cartpole_gym.launch sims:=4`` (lockstep) running.
+with the sims of ``roslaunch robot_ai cartpole_gym.launch sims:=4`` (lockstep) running. Every standard vectoriser
+works unchanged (SyncVectorEnv and AsyncVectorEnv over gymnasium.make, make_vec's 'sync' and 'async', and
+stable-baselines3's make_vec_env): each env leases a sim of its own. robot_ai.envs.sb3 offers stable-baselines3 a
+VecEnv over the package's vector env.
 """
 from gymnasium.envs.registration import register, registry
 
+from robot_ai.envs.link import RosEnvError
 from robot_ai.envs.ros_cartpole import RosCartPoleEnv, RosCartPoleError, RosCartPoleVectorEnv, default_namespaces
 
-__all__ = ['RosCartPoleEnv', 'RosCartPoleError', 'RosCartPoleVectorEnv', 'default_namespaces']
+__all__ = ['RosCartPoleEnv', 'RosCartPoleError', 'RosCartPoleVectorEnv', 'RosEnvError', 'default_namespaces']
 
 for _version, _steps, _threshold in (('v0', 200, 195.0), ('v1', 500, 475.0)):
     if f'robot_ai/RosCartPole-{_version}' not in registry:
         register(id=f'robot_ai/RosCartPole-{_version}', entry_point='robot_ai.envs.ros_cartpole:RosCartPoleEnv',
                  vector_entry_point='robot_ai.envs.ros_cartpole:RosCartPoleVectorEnv',
-                 max_episode_steps=_steps, reward_threshold=_threshold, kwargs={'env_id': f'CartPole-{_version}'},
-                 # gymnasium 1.4's passive checker keeps no reset data when the first reset() raises (no sim yet),
-                 # and its first step() then fails with a TypeError: the env is checked by check_env in the tests
-                 disable_env_checker=True)
+                 max_episode_steps=_steps, reward_threshold=_threshold, kwargs={'env_id': f'CartPole-{_version}'})

@@ -7,19 +7,20 @@ steps float64 states with gymnasium's equations and the observation is their flo
 reward, terminated and truncated equals ``gymnasium.make('CartPole-v1')``'s from the same seed under the same
 actions, bit for bit.
 
-The sim must be in lockstep (one step per cart_force: ``roslaunch robot_ai cartpole_gym.launch``). Every wait
-(the sim's service, its first connection, each state) lasts at most ``timeout`` seconds and then raises
-RosCartPoleError naming the namespace: an env never hangs. The env connects at its first reset(), not when it is
-made, so gymnasium's AsyncVectorEnv can make one in its parent process before it starts its workers.
+The sim must be in lockstep (one step per cart_force: ``roslaunch robot_ai cartpole_gym.launch``) and the env's
+own: it takes the sim's lease (robot_ai.envs.link), in ``robot_ns`` or, without one, the first free sim of the
+running ones, so that ``gymnasium.make('robot_ai/RosCartPole-v1')`` copies made by any vectoriser each find a sim
+of their own. A state counts only if it comes from the sim's node and answers the env's own command. Every wait (the
+master, the sim's service, its first connection, each state) lasts at most ``timeout`` seconds and then raises
+RosCartPoleError naming the namespace: an env never hangs; after a failure every call raises until the next
+reset(). The env connects at its first reset(), not when it is made, so gymnasium's AsyncVectorEnv can make one in
+its parent process before it starts its workers.
 
 This is rospy client code, not a node: the first env of a process without a node starts one
 (``robot_ai_env_<pid>_<time>``, anonymous, rospy's signal handlers left out).
 """
 from __future__ import annotations
 
-import multiprocessing
-import os
-import sys
 import threading
 import time
 import warnings
@@ -36,64 +37,45 @@ from gymnasium.vector.utils import batch_space
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
+from robot_ai.envs.link import DEFAULT_TIMEOUT, RosEnvError, claim, ensure_node, lease, new_token, release, resolve
+from robot_ai.nodes.lease import node_alive
 from robot_ai.srv import SetCartPoleState
 
-DEFAULT_TIMEOUT = 5.0        # seconds a wait lasts before it raises
 POLL = 0.05                  # s: how often a wait looks at what no message announces (connections)
 SIM_NODE = 'cartpole_sim'    # the sim's node name in a robot namespace (cartpole_gym.launch, cartpole.launch)
+LAUNCH_HINT = 'roslaunch robot_ai cartpole_gym.launch sims:=N'
 
 
-class RosCartPoleError(RuntimeError):
-    """The ROS side failed: no sim in the namespace, a sim not in lockstep, a sim that stopped answering."""
-
-
-_inherited_node = False      # this process was forked from one where rospy already ran
-
-
-def _after_fork_in_child() -> None:
-    global _inherited_node
-    _inherited_node = rospy.core.is_initialized()
-
-
-os.register_at_fork(after_in_child=_after_fork_in_child)
-
-
-def ensure_node() -> None:
-    """A rospy node in this process: the caller's own, or an anonymous one started here."""
-    if _inherited_node:
-        raise RosCartPoleError('this process was forked from one where rospy already ran, and rospy\'s threads do '
-                               'not survive a fork: make the envs in the worker processes only, or start them with '
-                               'AsyncVectorEnv(..., context="spawn")')
-    if not rospy.core.is_initialized():
-        argv = sys.argv
-        if multiprocessing.parent_process() is not None:
-            # a spawned worker's argv is its parent's: a __name:= there (roslaunch's, rostest's) would register this
-            # process under the parent node's name, and the master would shut the parent down
-            argv = [a for a in argv if not a.startswith(('__name:=', '__log:='))]
-        rospy.init_node('robot_ai_env', argv=argv, anonymous=True, disable_signals=True)
-
-
-def _name(ns: str, name: str) -> str:
-    return rospy.resolve_name(f'{ns.rstrip("/")}/{name}' if ns else name)
+class RosCartPoleError(RosEnvError):
+    """The ROS side failed: no master, no sim, a sim another env holds, a sim not in lockstep, a sim that stopped
+    answering."""
 
 
 class SimLink:
-    """One cartpole_sim as an env holds it: its cart_force publisher, joint_states subscriber and set_state
-    service, connected once; a step is one message out and one back."""
+    """One cartpole_sim as an env holds it: its lease, its cart_force publisher, joint_states subscriber and set_state
+    service, connected once; a step is one message out and one back, which counts only if it comes from the sim's
+    node with the header.seq that follows the last one (robot_ai.envs.link)."""
 
     def __init__(self, robot_ns: str, timeout: float):
-        ensure_node()
         self.timeout = float(timeout)
-        self.force_topic = _name(robot_ns, 'cart_force')
-        self.state_topic = _name(robot_ns, 'joint_states')
-        self.service = _name(robot_ns, f'{SIM_NODE}/set_state')
-        self.ns = self.service.rsplit('/', 2)[0] or '/'
+        try:
+            ensure_node(self.timeout)
+        except RosEnvError as e:
+            raise RosCartPoleError(str(e)) from None
+        self.token = new_token()
+        self.ns = robot_ns or ''
+        self.leased = False
         self.changed = threading.Condition()
-        self.received = 0            # joint_states messages received
+        self.seq = -1                # header.seq of the sim's last state this env has taken
         self.latest: tuple | None = None
+        self.last_seq = -1           # header.seq of the sim's last message received
+        self.intruders: dict[str, int] = {}     # other nodes' joint_states on the sim's topic, by sender
         self.force_pub = self.state_sub = self.set_state = None
         try:
             self._connect()
+        except RosEnvError as e:
+            self.close()
+            raise RosCartPoleError(str(e)) from None
         except BaseException:
             self.close()
             raise
@@ -102,43 +84,68 @@ class SimLink:
         return RosCartPoleError(f'{self.ns}: {what}')
 
     def _connect(self) -> None:
-        try:
-            rospy.wait_for_service(self.service, self.timeout)
-        except rospy.ROSException:
-            raise self._fail(f'no cartpole_sim: its service {self.service} did not appear within {self.timeout:g} s '
-                             f'(start the sims first: roslaunch robot_ai cartpole_gym.launch sims:=N)') from None
-        param = f'{self.service.rsplit("/", 1)[0]}/lockstep'
-        if rospy.get_param(param, False) is not True:
-            raise self._fail(f'the cartpole_sim is not in lockstep ({param} is not true): it steps on its own clock '
-                             f'and an env needs one step per action; start it with lockstep true '
-                             f'(roslaunch robot_ai cartpole_gym.launch, or cartpole.launch lockstep:=true '
-                             f'controller:=false)')
-        drivers = self._other_publishers()
-        if drivers:
-            raise self._fail(f'{", ".join(drivers)} publishes {self.force_topic} and drives the sim already: an env '
-                             f'needs a sim of its own (cartpole_gym.launch starts no controller)')
+        if self.ns:
+            self.ns = rospy.resolve_name(self.ns)
+            lease(self.ns, SIM_NODE, self.token, self.timeout, LAUNCH_HINT)
+            self.leased = True
+            reason = self._unusable(self.ns)
+            if reason:
+                raise self._fail(reason)
+        else:
+            self.ns = claim(SIM_NODE, self.token, self.timeout, LAUNCH_HINT, self._unusable)
+            self.leased = True
+        self.force_topic = resolve(self.ns, 'cart_force')
+        self.state_topic = resolve(self.ns, 'joint_states')
+        self.sim_node = resolve(self.ns, SIM_NODE)
+        self.service = f'{self.sim_node}/set_state'
         with warnings.catch_warnings():   # queue_size None: published in the caller's thread, the shortest way
             warnings.simplefilter('ignore')
             self.force_pub = rospy.Publisher(self.force_topic, Float64, queue_size=None, tcp_nodelay=True)
         self.state_sub = rospy.Subscriber(self.state_topic, JointState, self._on_state, tcp_nodelay=True)
         self.set_state = rospy.ServiceProxy(self.service, SetCartPoleState, persistent=True)
-        self._wait(lambda: self.force_pub.get_num_connections() > 0 and self.state_sub.get_num_connections() > 0,
+        self._wait(lambda: self.force_pub.get_num_connections() > 0 and self.state_sub.get_num_connections() > 0
+                   and self.last_seq >= 0,
                    f'the cartpole_sim did not connect to {self.force_topic} and {self.state_topic} within '
                    f'{self.timeout:g} s')
+        self.seq = self.last_seq     # the latched state: where the sim stands
 
-    def _other_publishers(self) -> list[str]:
+    @staticmethod
+    def _unusable(ns: str) -> str:
+        """Why the sim in ns cannot serve an env ('' if it can): not in lockstep, or a controller drives it."""
+        param = f'{resolve(ns, SIM_NODE)}/lockstep'
+        if rospy.get_param(param, False) is not True:
+            return (f'is not in lockstep ({param} is not true): it steps on its own clock and an env needs one step '
+                    f'per action; start it with lockstep true ({LAUNCH_HINT}, or cartpole.launch lockstep:=true '
+                    f'controller:=false)')
+        drivers = SimLink._other_publishers(resolve(ns, 'cart_force'))
+        if drivers:
+            return (f'is driven already: {", ".join(drivers)} publishes {resolve(ns, "cart_force")}; an env needs a '
+                    f'sim of its own (cartpole_gym.launch starts no controller)')
+        return ''
+
+    @staticmethod
+    def _other_publishers(topic: str) -> list[str]:
+        """The running nodes other than this one that publish topic (a controller); a node killed without
+        unregistering stays at the master, so each is asked whether it still runs."""
         try:
             state = rospy.get_master().getSystemState()[2][0]
         except Exception:   # the master's answer is only a courtesy check here
             return []
         me = rospy.get_name()
-        return [node for topic, nodes in state for node in nodes if topic == self.force_topic and node != me]
+        return [node for t, nodes in state for node in nodes if t == topic and node != me and node_alive(node)]
 
     def _on_state(self, msg: JointState) -> None:
+        sender = getattr(msg, '_connection_header', {}).get('callerid', '')
+        if sender != self.sim_node:
+            with self.changed:
+                self.intruders[sender] = self.intruders.get(sender, 0) + 1
+            rospy.logwarn_throttle(5.0, f'{self.state_topic} from {sender} ignored: only {self.sim_node} answers '
+                                        f'this env')
+            return
         state = (msg.position[0], msg.velocity[0], msg.position[1], msg.velocity[1])
         with self.changed:
             self.latest = state
-            self.received += 1
+            self.last_seq = msg.header.seq
             self.changed.notify_all()
 
     def _wait(self, done, failure: str) -> None:
@@ -151,38 +158,43 @@ class SimLink:
                     raise self._fail(failure if left <= 0 else 'rospy is shutting down')
                 self.changed.wait(min(left, POLL))
 
+    def _answer(self, failure: str) -> tuple:
+        """The sim's state that answers this env's last command or reset: the next header.seq from the sim's node;
+        a later one means the sim published a state nobody asked this env for."""
+        expected = self.seq + 1
+        self._wait(lambda: self.last_seq >= expected, failure)
+        if self.last_seq != expected:
+            raise self._fail(f'the cartpole_sim published {self.last_seq - expected} state(s) this env did not ask '
+                             f'for: another node reset, pushed or stepped it (a sim of this robot_ai refuses them '
+                             f'while an env holds its lease)')
+        self.seq = expected
+        return self.latest
+
     # ------------------------------------------------------------------------------------- the two operations
-    def begin_start(self, state: np.ndarray) -> int:
-        """Ask the sim to start a new episode at state; returns the count to wait past (finish_start)."""
-        with self.changed:
-            seen = self.received
+    def begin_start(self, state: np.ndarray) -> None:
+        """Ask the sim to start a new episode at state (finish_start waits for it)."""
         try:
             answer = self.set_state(list(map(float, state)))
         except (rospy.ServiceException, OSError) as e:
             raise self._fail(f'cartpole_sim\'s set_state failed ({e}): the sim stopped or died') from None
         if not answer.success:
             raise self._fail(f'cartpole_sim refused the start state: {answer.message}')
-        return seen
 
-    def finish_start(self, seen: int, state: np.ndarray) -> None:
-        target = tuple(map(float, state))
-        self._wait(lambda: self.received > seen and self.latest == target,
-                   f'the cartpole_sim did not publish the start state on {self.state_topic} within {self.timeout:g} s')
+    def finish_start(self, state: np.ndarray) -> None:
+        got = self._answer(f'the cartpole_sim did not publish the start state on {self.state_topic} within '
+                           f'{self.timeout:g} s')
+        if got != tuple(map(float, state)):
+            raise self._fail(f'the cartpole_sim published {got} where this env set {tuple(state)}')
 
-    def begin_step(self, force: float) -> int:
-        with self.changed:
-            seen = self.received
+    def begin_step(self, force: float) -> None:
         try:
             self.force_pub.publish(Float64(force))
         except rospy.ROSException as e:
             raise self._fail(f'cannot publish {self.force_topic}: {e}') from None
-        return seen
 
-    def finish_step(self, seen: int) -> tuple:
-        self._wait(lambda: self.received > seen,
-                   f'no joint_states on {self.state_topic} within {self.timeout:g} s of the cart_force: the '
-                   f'cartpole_sim stopped answering (killed, or no longer in lockstep)')
-        return self.latest
+    def finish_step(self) -> tuple:
+        return self._answer(f'no joint_states on {self.state_topic} within {self.timeout:g} s of the cart_force: '
+                            f'the cartpole_sim stopped answering (killed, or no longer in lockstep)')
 
     def close(self) -> None:
         for part in (self.force_pub, self.state_sub):
@@ -191,6 +203,9 @@ class SimLink:
         if self.set_state is not None:
             self.set_state.close()
         self.force_pub = self.state_sub = self.set_state = None
+        if self.leased:
+            release(self.ns, SIM_NODE, self.token)
+            self.leased = False
 
 
 class RosCartPoleEnv(CartPoleEnv):
@@ -211,6 +226,12 @@ class RosCartPoleEnv(CartPoleEnv):
         self.timeout = float(timeout)
         self.link: SimLink | None = None
         self._pending = None          # what begin_step / begin_reset left for their finish
+        self._failure = ''            # why the last call failed: every call but reset() raises until the next one
+
+    @property
+    def sim_namespace(self) -> str | None:
+        """The namespace of the sim this env holds (robot_ns, or the one it claimed); None before a reset."""
+        return self.link.ns if self.link is not None else None
 
     # ------------------------------------------------------------------------------------- gymnasium's API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -233,32 +254,41 @@ class RosCartPoleEnv(CartPoleEnv):
             self.link = SimLink(self.robot_ns, self.timeout)
         return self.link
 
-    def _broken(self) -> None:
-        """After a failure the next reset connects anew (the sim may have been restarted)."""
+    def _broken(self, error: RosCartPoleError) -> None:
+        """After a failure every call raises until the next reset, which connects anew (the sim may have been
+        restarted)."""
         if self.link is not None:
             self.link.close()
             self.link = None
         self._pending = None
+        self.state = None
+        self._failure = str(error)
+
+    def _check_usable(self) -> None:
+        if self._failure:
+            raise RosCartPoleError(f'{self._failure} [this env failed: call reset() to start again]')
 
     def begin_reset(self, *, seed: int | None = None, options: dict | None = None) -> None:
         gymnasium.Env.reset(self, seed=seed)
         low, high = utils.maybe_parse_reset_bounds(options, -0.05, 0.05)
         state = self.np_random.uniform(low=low, high=high, size=(4,))
+        self._failure = ''
         try:
-            seen = self._linked().begin_start(state)
-        except RosCartPoleError:
-            self._broken()
+            self._linked().begin_start(state)
+        except RosCartPoleError as e:
+            self._broken(e)
             raise
         self.state = None             # no step until the sim has the new start state
-        self._pending = ('reset', seen, state)
+        self._pending = ('reset', state)
 
     def finish_reset(self):
-        _, seen, state = self._pending
+        self._check_usable()
+        _, state = self._pending
         self._pending = None
         try:
-            self.link.finish_start(seen, state)
-        except RosCartPoleError:
-            self._broken()
+            self.link.finish_start(state)
+        except RosCartPoleError as e:
+            self._broken(e)
             raise
         self.state = state
         self.steps_beyond_terminated = None
@@ -270,27 +300,28 @@ class RosCartPoleEnv(CartPoleEnv):
         # a plain int in range is what contains() accepts in 20 us; anything else goes through contains() itself
         if not (type(action) is int and 0 <= action < 2):
             assert self.action_space.contains(action), f'{action!r} ({type(action)}) invalid'
+        self._check_usable()
         assert self.state is not None, 'Call reset before using step method.'
         force = self.force_mag if action == 1 else -self.force_mag
         try:
             if self.steps_beyond_terminated is not None:
                 # gymnasium integrates on after a terminal state; the sim waits for a new episode then: give it the
                 # state it ended in
-                self.link.finish_start(self.link.begin_start(self.state), self.state)
-            self._pending = ('step', self.link.begin_step(force))
-        except RosCartPoleError:
-            self._broken()
-            self.state = None
+                self.link.begin_start(self.state)
+                self.link.finish_start(self.state)
+            self.link.begin_step(force)
+            self._pending = ('step',)
+        except RosCartPoleError as e:
+            self._broken(e)
             raise
 
     def finish_step(self):
-        _, seen = self._pending
+        self._check_usable()
         self._pending = None
         try:
-            state = self.link.finish_step(seen)
-        except RosCartPoleError:
-            self._broken()
-            self.state = None
+            state = self.link.finish_step()
+        except RosCartPoleError as e:
+            self._broken(e)
             raise
         self.state = np.array(state, dtype=np.float64)
         x, _, theta, _ = state
@@ -320,24 +351,25 @@ def default_namespaces(num_envs: int) -> list[str]:
 
 
 class RosCartPoleVectorEnv(VectorEnv):
-    """num_envs RosCartPoleEnvs, one sim each, stepped together (all actions out, then all states in), as
-    gymnasium's SyncVectorEnv steps them: autoreset next-step, reset(seed=s) seeds env i with s + i."""
+    """num_envs RosCartPoleEnvs, one sim each (robot_namespaces, or free sims of the running ones, claimed at the
+    first reset), stepped together (all actions out, then all states in), as gymnasium's SyncVectorEnv steps them:
+    autoreset next-step, reset(seed=s) seeds env i with s + i."""
 
     def __init__(self, num_envs: int = 1, robot_namespaces: list[str] | None = None, env_id: str = 'CartPole-v1',
                  max_episode_steps: int | None = None, timeout: float = DEFAULT_TIMEOUT,
                  render_mode: str | None = None, sutton_barto_reward: bool = False):
         if robot_namespaces is None:
-            robot_namespaces = default_namespaces(num_envs)
+            robot_namespaces = [''] * num_envs      # each claims a free sim at its first reset
         if len(robot_namespaces) != num_envs:
             raise ValueError(f'{num_envs} envs need {num_envs} robot namespaces, got {len(robot_namespaces)}')
-        if len(set(robot_namespaces)) != num_envs:
+        named = [ns for ns in robot_namespaces if ns]
+        if len(set(named)) != len(named):
             raise ValueError(f'each env needs a sim of its own: {robot_namespaces} repeats a namespace')
         self.envs = [RosCartPoleEnv(ns, env_id, timeout, render_mode if render_mode != 'human' else None,
                                     sutton_barto_reward) for ns in robot_namespaces]
         if max_episode_steps is None:
             max_episode_steps = gymnasium.spec(env_id).max_episode_steps
         self.max_episode_steps = int(max_episode_steps)
-        self.robot_namespaces = list(robot_namespaces)
         self.num_envs = num_envs
         self.render_mode = render_mode
         self.metadata = dict(CartPoleEnv.metadata, autoreset_mode=AutoresetMode.NEXT_STEP)
@@ -405,6 +437,11 @@ class RosCartPoleVectorEnv(VectorEnv):
                 truncations[i] = self._elapsed[i] >= self.max_episode_steps
         self._autoreset = terminations | truncations
         return self._observations.copy(), rewards, terminations, truncations, {}
+
+    @property
+    def robot_namespaces(self) -> list[str | None]:
+        """The sims the envs hold (None for one that has none yet)."""
+        return [env.sim_namespace for env in self.envs]
 
     def render(self):
         if self.render_mode != 'rgb_array':

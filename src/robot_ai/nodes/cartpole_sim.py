@@ -12,7 +12,9 @@ is no time limit: a robot has none.
 
 The controller is the node whose cart_force answers the states (the first to send one; another node takes over when
 it is the only publisher left or the controller has been silent for DRIVER_SILENCE seconds): forces from other nodes
-(a `rostopic pub` by hand while a controller drives) are ignored with a throttled warning.
+(a `rostopic pub` by hand while a controller drives) are ignored with a throttled warning. An env (robot_ai.envs)
+takes the sim's ~lease: while it holds it, only its forces count, and ~reset, ~set_state and ~push from any other
+node are refused (robot_ai.nodes.lease).
 
 ROS Parameters
     ~real_time_factor (float, 1.0): simulated seconds per second of ROS time (5: five times faster than real time);
@@ -33,7 +35,8 @@ ROS Publishers
 
 ROS Subscribers
     cart_force (std_msgs/Float64): the force on the cart in newtons (+ toward +x); the last value holds, 0 before
-        any. NaN, infinite values and forces beyond MAX_FORCE are ignored with a throttled warning.
+        any. NaN, infinite values and forces beyond MAX_FORCE are ignored with a throttled warning: such a force
+        still answers the state (the last valid force held), so a flood of them never stalls the sim.
 
 ROS Services
     ~reset (std_srvs/Trigger): end the episode (reason "reset") and start a new one at once (a reset pause too).
@@ -42,6 +45,7 @@ ROS Services
     ~set_state (robot_ai/SetCartPoleState): end the episode (reason "reset") and start a new one at the given state
         (x, x_dot, theta, theta_dot), published at once on joint_states; refused unless 4 finite numbers within
         +-MAX_STATE_VALUE. robot_ai.envs resets the sim through it, with start states it draws as gymnasium does.
+    ~lease (robot_ai/Lease): an env takes the sim (or gives it back); see robot_ai.nodes.lease.
 
 Bounds: with forces within +-MAX_FORCE and theta_dot within +-MAX_ANGULAR_VELOCITY after a push, every state stays
 finite (an episode ends within a step or two of any such input), so a command can never make the state NaN or inf.
@@ -58,7 +62,9 @@ from std_srvs.srv import Trigger, TriggerResponse
 
 from robot_ai.cartpole.dynamics import CartPoleDynamics, rng_for, start_states
 from robot_ai.msg import CartPoleEpisode
+from robot_ai.nodes.lease import Lease, caller_of
 from robot_ai.nodes.params import bool_param, int_param, number_param, publish, quiet_on_shutdown
+from robot_ai.srv import Lease as LeaseService
 from robot_ai.srv import PushPole, PushPoleResponse, SetCartPoleState, SetCartPoleStateResponse
 
 JOINTS = ('cart_slider', 'pole_hinge')
@@ -92,6 +98,7 @@ class CartPoleSim:
                                               # state comes after the pause (lockstep: with the next force)
         self.state = self._start_state()
         self.steps = self.missed_steps = 0
+        self.lease = Lease(rospy.get_name())
         # lockstep: latched, so that a controller that subscribes after the sim's last state still gets it
         self.state_pub = rospy.Publisher('joint_states', JointState, queue_size=10, tcp_nodelay=True,
                                          latch=self.lockstep)
@@ -99,7 +106,8 @@ class CartPoleSim:
         self.force_sub = rospy.Subscriber('cart_force', Float64, self._on_force, queue_size=100, tcp_nodelay=True)
         self.services = [rospy.Service('~reset', Trigger, self._on_reset),
                          rospy.Service('~push', PushPole, self._on_push),
-                         rospy.Service('~set_state', SetCartPoleState, self._on_set_state)]
+                         rospy.Service('~set_state', SetCartPoleState, self._on_set_state),
+                         rospy.Service('~lease', LeaseService, self.lease.handle)]
         mode = (' (lockstep: one step per state, on the controller\'s cart_force)' if self.lockstep else
                 f', each waiting up to {self.answer_timeout:g} s for the controller\'s answer'
                 if self.wait_for_controller else ' (on the clock, whatever the controller does)')
@@ -232,7 +240,7 @@ class CartPoleSim:
     # ------------------------------------------------------------------------------------- callbacks
     def _from_driver(self, msg) -> bool:
         """Whether msg came from the controller (see the module's docstring); a new controller takes over here."""
-        sender = getattr(msg, '_connection_header', {}).get('callerid', '')
+        sender = caller_of(msg)
         now = time.monotonic()
         if sender != self.driver and (not self.driver or now - self.driver_heard > DRIVER_SILENCE
                                       or self.force_sub.get_num_connections() <= 1):
@@ -246,14 +254,20 @@ class CartPoleSim:
         return False
 
     def _on_force(self, msg: Float64) -> None:
-        force = msg.data
-        if not (math.isfinite(force) and abs(force) <= MAX_FORCE):
-            rospy.logwarn_throttle(5.0, f'cart_force {force} ignored: a force must be a finite number of newtons, '
-                                        f'at most {MAX_FORCE:g} in size')
+        caller = caller_of(msg)
+        if not self.lease.allows(caller):
+            rospy.logwarn_throttle(5.0, f'cart_force from {caller} ignored: {self.lease.refusal(caller)}')
             return
+        force = msg.data
+        valid = math.isfinite(force) and abs(force) <= MAX_FORCE
+        if not valid:
+            rospy.logwarn_throttle(5.0, f'cart_force {force} ignored: a force must be a finite number of newtons, '
+                                        f'at most {MAX_FORCE:g} in size; the last valid force holds')
         with self.lock:
             if not self._from_driver(msg):
                 return
+            if not valid:
+                force = self.force
             if not self.lockstep:
                 self.force = force
                 if not self.answered:
@@ -270,6 +284,8 @@ class CartPoleSim:
             self._advance(force)
 
     def _on_reset(self, req) -> TriggerResponse:
+        if not self.lease.allows(caller_of(req)):
+            return TriggerResponse(success=False, message=self.lease.refusal(caller_of(req)))
         with self.lock:
             steps = self.steps
             if not self.awaiting_reset:               # after a fall its episode is published already
@@ -280,8 +296,13 @@ class CartPoleSim:
                                                      f'start state {[round(v, 4) for v in state]}')
 
     def _on_set_state(self, req) -> SetCartPoleStateResponse:
+        if not self.lease.allows(caller_of(req)):
+            return SetCartPoleStateResponse(success=False, message=self.lease.refusal(caller_of(req)))
+        if len(req.state) != 4:      # counted before anything is converted: a request may hold millions
+            return SetCartPoleStateResponse(success=False, message=f'a state is 4 numbers (x, x_dot, theta, '
+                                                                   f'theta_dot), got {len(req.state)}')
         state = tuple(float(v) for v in req.state)
-        if len(state) != 4 or not all(math.isfinite(v) and abs(v) <= MAX_STATE_VALUE for v in state):
+        if not all(math.isfinite(v) and abs(v) <= MAX_STATE_VALUE for v in state):
             return SetCartPoleStateResponse(success=False, message=f'a state is 4 finite numbers (x, x_dot, theta, '
                                                                    f'theta_dot) within +-{MAX_STATE_VALUE:g}, got '
                                                                    f'{list(state)[:8]}')
@@ -294,6 +315,8 @@ class CartPoleSim:
                                                               f'{steps} step{"s" if steps != 1 else ""}')
 
     def _on_push(self, req) -> PushPoleResponse:
+        if not self.lease.allows(caller_of(req)):
+            return PushPoleResponse(success=False, message=self.lease.refusal(caller_of(req)))
         v = req.angular_velocity
         if not math.isfinite(v):
             return PushPoleResponse(success=False, message='angular_velocity must be a finite number of rad/s')
