@@ -7,6 +7,10 @@ gigabytes, so it is not a dependency of robot_ai):
     roslaunch robot_ai cartpole_gym.launch sims:=8
     python examples/sb3_ppo_ros_cartpole.py --model ppo_ros_cartpole.zip
     python examples/sb3_ppo_ros_cartpole.py --in-process     # the same PPO on gymnasium's CartPole-v1, to compare
+    python examples/sb3_ppo_ros_cartpole.py --sb3-make-vec-env   # stable-baselines3's own make_vec_env(env_id)
+
+The envs are the package's vector env through robot_ai.sb3.GymnasiumVecEnv (each env leases a free sim), or, with
+--sb3-make-vec-env, stable-baselines3's make_vec_env over gymnasium.make (one leased sim per env, stepped in turn).
 
 The settings are rl-baselines3-zoo's for CartPole-v1 (8 envs, 1e5 steps, n_steps 32, batch 256, 20 epochs, gamma
 0.98, GAE lambda 0.8, learning rate and clip range decaying linearly from 1e-3 and 0.2), on one torch thread. At the
@@ -21,71 +25,18 @@ import gymnasium
 import numpy as np
 import torch
 from stable_baselines3 import PPO
-from stable_baselines3.common.vec_env import VecEnv
+
+from robot_ai.sb3 import GymnasiumVecEnv
 
 # 'robot_ai.envs:robot_ai/RosCartPole-v1': gymnasium imports robot_ai.envs, which registers the env
 ROS_ENV = 'robot_ai.envs:robot_ai/RosCartPole-v1'
-
-
-class GymnasiumVecEnv(VecEnv):
-    """A gymnasium 1.x vector env (autoreset next-step) as stable-baselines3's VecEnv (reset in the same step,
-    the last observation in info['terminal_observation'], truncation in info['TimeLimit.truncated'])."""
-
-    def __init__(self, venv: gymnasium.vector.VectorEnv):
-        self.venv = venv          # first: VecEnv's constructor asks for render_mode
-        super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
-        self._actions = None
-        self._seed = None
-
-    def reset(self):
-        obs, _ = self.venv.reset(seed=self._seed)
-        self._seed = None
-        return obs
-
-    def step_async(self, actions):
-        self._actions = np.asarray(actions)
-
-    def step_wait(self):
-        obs, rewards, terminated, truncated, _ = self.venv.step(self._actions)
-        dones = terminated | truncated
-        infos = [{} for _ in range(self.num_envs)]
-        if dones.any():
-            for i in np.flatnonzero(dones):
-                infos[i] = {'terminal_observation': obs[i].copy(),
-                            'TimeLimit.truncated': bool(truncated[i] and not terminated[i])}
-            obs, _ = self.venv.reset(options={'reset_mask': dones})
-        return obs, rewards.astype(np.float32), dones, infos
-
-    def seed(self, seed=None):
-        self._seed = seed
-        return [None if seed is None else seed + i for i in range(self.num_envs)]
-
-    def close(self):
-        self.venv.close()
-
-    def get_attr(self, attr_name, indices=None):
-        return [getattr(self.venv, attr_name)] * len(self._get_indices(indices))
-
-    def set_attr(self, attr_name, value, indices=None):
-        setattr(self.venv, attr_name, value)
-
-    def env_method(self, method_name, *args, indices=None, **kwargs):
-        raise NotImplementedError(method_name)
-
-    def env_is_wrapped(self, wrapper_class, indices=None):
-        return [False] * len(self._get_indices(indices))
-
-    def _get_indices(self, indices):
-        if indices is None:
-            return range(self.num_envs)
-        return [indices] if isinstance(indices, int) else indices
 
 
 def linear(start: float):
     return lambda progress: progress * start
 
 
-def evaluate(model, env_id: str, episodes: int, seed: int, robot_ns: str) -> float:
+def evaluate(model, env_id: str, episodes: int, seed: int, robot_ns: str | None) -> float:
     env = (gymnasium.make(env_id) if robot_ns is None else
            gymnasium.make(ROS_ENV, robot_ns=robot_ns))
     total = []
@@ -110,16 +61,23 @@ def main() -> int:
     p.add_argument('--eval-episodes', type=int, default=10)
     p.add_argument('--in-process', action='store_true', help='train on gymnasium\'s CartPole-v1 instead of ROS')
     p.add_argument('--model', default='', help='where to save the model (.zip); "" = not saved')
+    p.add_argument('--sb3-make-vec-env', action='store_true',
+                   help='stable-baselines3\'s make_vec_env(env_id) (DummyVecEnv over gymnasium.make) instead')
     a = p.parse_args()
     torch.set_num_threads(1)
-    if a.in_process:
-        venv = gymnasium.make_vec('CartPole-v1', num_envs=a.envs, vectorization_mode='sync')
-        where = 'gymnasium CartPole-v1 in-process'
+    if a.sb3_make_vec_env:
+        from stable_baselines3.common.env_util import make_vec_env
+        env = make_vec_env('CartPole-v1' if a.in_process else ROS_ENV, n_envs=a.envs, seed=a.seed)
+        where = ('gymnasium CartPole-v1 in-process' if a.in_process else 'the ROS cart-pole') + ' (sb3 make_vec_env)'
     else:
-        venv = gymnasium.make_vec(ROS_ENV, num_envs=a.envs)
-        where = f'the ROS cart-pole ({", ".join(venv.robot_namespaces)})'
-    env = GymnasiumVecEnv(venv)
-    env.seed(a.seed)
+        if a.in_process:
+            venv = gymnasium.make_vec('CartPole-v1', num_envs=a.envs, vectorization_mode='sync')
+            where = 'gymnasium CartPole-v1 in-process'
+        else:
+            venv = gymnasium.make_vec(ROS_ENV, num_envs=a.envs)
+            where = 'the ROS cart-pole (robot_ai.sb3 over the package\'s vector env)'
+        env = GymnasiumVecEnv(venv)
+        env.seed(a.seed)
     model = PPO('MlpPolicy', env, n_steps=32, batch_size=256, gae_lambda=0.8, gamma=0.98, n_epochs=20,
                 ent_coef=0.0, learning_rate=linear(1e-3), clip_range=linear(0.2), seed=a.seed, verbose=0,
                 device='cpu')
@@ -128,8 +86,8 @@ def main() -> int:
     elapsed = time.perf_counter() - t
     if a.model:
         model.save(a.model)
-    mean = evaluate(model, 'CartPole-v1', a.eval_episodes, a.seed, None if a.in_process else '/cartpole_0')
-    env.close()
+    env.close()    # gives the sims back: the evaluation leases one
+    mean = evaluate(model, 'CartPole-v1', a.eval_episodes, a.seed, None if a.in_process else '')
     weights = sum(float(v.double().abs().sum()) for v in model.policy.state_dict().values())
     print(f'PPO on {where}: {model.num_timesteps} steps in {elapsed:.1f} s '
           f'({model.num_timesteps / elapsed:,.0f} steps/s); greedy evaluation over {a.eval_episodes} episodes: '
