@@ -13,7 +13,8 @@ def test_registered_as_gymnasiums_cartpole_is(version, steps, threshold):
     assert (ours.max_episode_steps, ours.reward_threshold) == (steps, threshold)
     assert ours.vector_entry_point == 'robot_ai.envs.ros_cartpole:RosCartPoleVectorEnv'
     assert ours.kwargs == {'env_id': f'CartPole-{version}'}
-    assert ours.disable_env_checker     # gymnasium's passive checker breaks after a first reset() that raised
+    assert not ours.disable_env_checker     # gymnasium's passive checker stays on: a failed call raises the env's own
+    # error until the next reset(), never a TypeError from the checker
 
 
 def test_make_connects_nothing_and_has_cartpoles_spaces():
@@ -24,11 +25,12 @@ def test_make_connects_nothing_and_has_cartpoles_spaces():
     env.close()
 
 
-def test_make_vec_passes_the_step_limit_and_the_default_namespaces():
+def test_make_vec_passes_the_step_limit_and_claims_its_sims_at_the_first_reset():
     v0 = gymnasium.make_vec('robot_ai/RosCartPole-v0', num_envs=3)
     assert isinstance(v0, RosCartPoleVectorEnv)
     assert v0.max_episode_steps == 200
-    assert v0.robot_namespaces == ['/cartpole_0', '/cartpole_1', '/cartpole_2'] == default_namespaces(3)
+    assert v0.robot_namespaces == [None, None, None]        # no sim is held before a reset
+    assert default_namespaces(3) == ['/cartpole_0', '/cartpole_1', '/cartpole_2']   # cartpole_gym.launch's
     ref = gymnasium.make_vec('CartPole-v0', num_envs=3, vectorization_mode='sync')
     assert (v0.observation_space, v0.action_space) == (ref.observation_space, ref.action_space)
     v0.close()
@@ -43,4 +45,4 @@ def test_bad_arguments_are_refused():
         RosCartPoleVectorEnv(3, robot_namespaces=['/a', '/b'])
     with pytest.raises(ValueError, match='repeats'):
         RosCartPoleVectorEnv(2, robot_namespaces=['/a', '/a'])
-    assert robot_ai.envs.RosCartPoleError.__mro__[1] is RuntimeError
+    assert robot_ai.envs.RosCartPoleError.__mro__[1:3] == (robot_ai.envs.RosEnvError, RuntimeError)

@@ -76,3 +76,117 @@ def test_the_reference_robots_read_the_same_through_it():
             assert np.array_equal(pose, through.link_poses(q)[link]), (name, link)
     with open(robot_path('pr2.urdf')) as f:
         assert expand(robot_path('pr2.urdf')) == f.read()
+
+
+# ------------------------------------------------------------------ a robot file is data: it cannot run commands
+EVIL_TARGET = 'robot_ai_pwned'
+
+
+def escape_expression(target: str) -> str:
+    """PyPI xacro 2.1.1's published escape: python.vars and python.type reach a function's __globals__ (string keys
+    pass its check of names), and so os.system; here it would create the file target."""
+    u = '_' * 2
+
+    def dunder(n):
+        return f"'{u}{n}{u}'"
+    t = 'python.type(xacro.dotify)'
+
+    def get(desc):
+        return f'python.vars(python.type({desc}))[{dunder("get")}]'
+    mro = f'python.vars({t})[{dunder("mro")}]'
+    obj = f'{get(mro)}({mro}, xacro.dotify)[-1]'
+    classes = f'python.vars({t})[{dunder("subclasses")}]({obj})'
+    init = f'python.vars(c)[{dunder("init")}]'
+    gdesc = f'python.vars(python.type({init}))[{dunder("globals")}]'
+    return (f"[{get(gdesc)}({gdesc}, {init})['system']('touch {target}') for c in {classes} "
+            f"if 'wrap_close' in python.repr(c)]")
+
+
+def robot_with(tmp_path, expression: str, name: str = 'evil.urdf.xacro') -> str:
+    """A robot file with expression in a link name (a .urdf that declares the xacro namespace is taken as it is
+    when xacro refuses it and it reads as a URDF: the PR2's leftover macros)."""
+    value = expression.replace('&', '&amp;').replace('"', '&quot;').replace('<', '&lt;')
+    path = tmp_path / name
+    path.write_text(f'<?xml version="1.0"?>\n<robot name="r" xmlns:xacro="http://www.ros.org/wiki/xacro">\n'
+                    f'  <link name="base"/>\n  <link name="a${{{value}}}"/>\n'
+                    f'  <joint name="j" type="revolute"><parent link="base"/><child link="a${{{value}}}"/>'
+                    f'<axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>\n</robot>\n')
+    return str(path)
+
+
+def test_the_published_escape_runs_nothing(tmp_path):
+    target = tmp_path / EVIL_TARGET
+    with pytest.raises(XacroError) as caught:
+        expand(robot_with(tmp_path, escape_expression(str(target))))
+    assert not target.exists()
+    assert '\n' not in str(caught.value) and 'evil.urdf.xacro' in str(caught.value)
+    text = expand(robot_with(tmp_path, escape_expression(str(target)), 'evil.urdf'))   # a .urdf: taken as it is
+    assert not target.exists() and '${' in text
+
+
+@pytest.mark.parametrize('expression', [
+    "python.type(1)", "python.vars(math)", "().__class__", "[x for x in (1,)][0].__class__",
+    "'{0.__class__}'.format(1)", "'{x.__class__}'.format_map(python.dict(x=1))", "(x for x in (1,)).gi_frame",
+    "f'{(1).__class__}'", "xacro.load_yaml.__globals__", "python.dict.mro()", "__import__('os')",
+    "(lambda: 1)()", "python.print(**python.dict(a=1))"])
+def test_other_ways_out_are_refused_in_one_line(tmp_path, expression):
+    with pytest.raises(XacroError) as caught:
+        expand(robot_with(tmp_path, expression))
+    assert '\n' not in str(caught.value)
+
+
+def test_what_real_robot_files_evaluate_still_works(tmp_path):
+    (tmp_path / 'limits.yaml').write_text('shoulder: {lower: -1.5, upper: 1.5}\nlength: 0.4\n')
+    path = tmp_path / 'arm.urdf.xacro'
+    path.write_text(f'''<?xml version="1.0"?>
+<robot name="arm" xmlns:xacro="http://www.ros.org/wiki/xacro">
+  <xacro:arg name="scale" default="2"/>
+  <xacro:property name="cfg" value="${{xacro.load_yaml('{tmp_path}/limits.yaml')}}"/>
+  <xacro:property name="type" value="revolute"/>
+  <xacro:property name="lengths" value="${{[cfg['length'] * i for i in python.range(1, 3)]}}"/>
+  <xacro:macro name="seg" params="name parent type:=revolute length">
+    <link name="${{name}}"/>
+    <joint name="${{name}}_joint" type="${{type}}"><parent link="${{parent}}"/><child link="${{name}}"/>
+      <origin xyz="0 0 ${{length * $(arg scale)}}" rpy="0 ${{math.pi / 4}} ${{radians(30)}}"/><axis xyz="0 1 0"/>
+      <limit lower="${{cfg.shoulder.lower}}" upper="${{max(cfg['shoulder']['upper'], 0.1)}}" effort="1" velocity="1"/>
+    </joint>
+  </xacro:macro>
+  <link name="base"/>
+  <xacro:seg name="s1" parent="base" length="${{lengths[0]}}"/>
+  <xacro:seg name="s2" parent="s1" type="${{type}}" length="${{python.sum(lengths) if True else 0}}"/>
+  <link name="tip_${{'%d' % python.len(lengths)}}_$(eval 2 * scale)"/>
+  <joint name="tip" type="fixed"><parent link="s2"/><child link="tip_2_4"/></joint>
+</robot>''')
+    tree = KinematicTree.from_xml_string(expand(str(path)))
+    assert abs(tree.joints['s2_joint'].xyz[2] - (0.4 + 0.8) * 2) < 1e-12 and 'tip_2_4' in tree.links
+    assert tree.joints['s1_joint'].upper == 1.5
+
+
+def test_an_expression_that_never_ends_is_stopped_and_ctrl_c_ends_it_at_once(tmp_path, monkeypatch):
+    import signal
+    import subprocess
+    import sys
+    import time
+    path = robot_with(tmp_path, '10 ** 10 ** 10', 'forever.urdf.xacro')
+    monkeypatch.setenv('ROBOT_AI_XACRO_SECONDS', '3')
+    command = [sys.executable, '-m', 'robot_ai.urdf_source', path]
+    t = time.monotonic()
+    done = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1 and 'took more than 3 s' in done.stderr and 'Traceback' not in done.stderr
+    assert time.monotonic() - t < 3 + 10
+    monkeypatch.setenv('ROBOT_AI_XACRO_SECONDS', '60')
+    run = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    time.sleep(2.0)
+    t = time.monotonic()
+    os.killpg(run.pid, signal.SIGINT)          # a terminal's Ctrl-C: the whole process group
+    run.communicate(timeout=30)
+    assert time.monotonic() - t < 5
+    time.sleep(0.5)
+    survivors = subprocess.run(['pgrep', '-g', str(run.pid)], capture_output=True, text=True).stdout.split()
+    assert survivors == []
+
+
+def test_an_expression_that_eats_memory_is_one_line(tmp_path):
+    with pytest.raises(XacroError) as caught:
+        expand(robot_with(tmp_path, "'x' * 10 ** 10", 'hungry.urdf.xacro'))
+    assert 'memory' in str(caught.value) and '\n' not in str(caught.value)
