@@ -419,6 +419,36 @@ class TestLaunch(unittest.TestCase):
         self.assertEqual(ours, [f'xacro: {arm}: xacro: package my_arm_description not found: put it on '
                                 f'ROS_PACKAGE_PATH'], text)
 
+    def test_a_model_path_with_quotes_and_sims_out_of_range(self):
+        """Issue 34: a model:= path holding an apostrophe (or a double quote) loads; cartpole_gym.launch's sims:= out
+        of range is one line."""
+        import shutil
+        import tempfile
+        folder = os.path.join(tempfile.mkdtemp(), "it's \"here\"")
+        os.makedirs(folder)
+        here = os.path.dirname(os.path.realpath(__file__))
+        for name in ('reach_arm7.urdf.xacro', 'reach_segment.xacro'):
+            shutil.copy(os.path.join(here, 'urdf', name), folder)
+        arm = os.path.join(folder, "o'brien's arm.urdf.xacro")
+        os.rename(os.path.join(folder, 'reach_arm7.urdf.xacro'), arm)
+        proc = launch([f'model:={arm}', 'xacro_args:=scale=2 tool=true'], launch_file='forward_kinematics.launch')
+        try:
+            deadline, xml = time.time() + 90, ''
+            while time.time() < deadline and 'reach_arm7' not in xml:
+                time.sleep(1.0)
+                xml = subprocess.run(['rosparam', 'get', '/robot_description'], env=proc.env, capture_output=True,
+                                     text=True, timeout=30).stdout
+            self.assertIn('reach_arm7', xml)
+            self.assertIn('name=\\"tool\\"', xml)
+        finally:
+            stop(proc)
+        for sims in ('0', '-3', '300', 'two'):
+            status, text = run_to_end([f'sims:={sims}'], launch_file='cartpole_gym.launch', timeout=60)
+            self.assertNotEqual(status, 0)
+            said = [l for l in text.splitlines() if 'sims:=' in l or 'rror' in l or 'Exception' in l]
+            self.assertEqual(said, [f'sims:={sims} must be a whole number from 1 to 64 (each sim is a process of '
+                                    f'about 40 MiB)'], text)
+
     def test_sliders_under_xvfb(self):
         """gui:=true: the sliders' window opens (Debian 12's joint_state_publisher_gui crashed) and joint_states
         flows from it."""

@@ -134,6 +134,7 @@ class KinematicTree:
         self.joints = joints                    # {name: Joint} but floating ones, insertion order = topological
         self.floating_joints = list(floating_joints)
         self._floating_child = {}               # floating joint -> its child link (from_urdf fills it)
+        self._floating_parent = {}              # floating joint -> its parent link
         self.warnings = []
         self.joint_order = list(joints)
         self.moving_joints = [n for n, j in joints.items() if j.moving]
@@ -211,6 +212,7 @@ class KinematicTree:
                                        velocity)
         tree = cls(robot.name, root, links, joints, floating)
         tree._floating_child = {j.name: j.child for j in robot.joints if j.name in floating}
+        tree._floating_parent = {j.name: j.parent for j in robot.joints if j.name in floating}
         tree._check_mimics()
         return tree
 
@@ -300,6 +302,10 @@ class KinematicTree:
     def static_transforms(self) -> dict[str, np.ndarray]:
         """{joint: 4x4} for the fixed (and planar) joints."""
         return {n: self.joints[n].transform(0.0) for n in self.static_joints}
+
+    def floating_links(self, name: str) -> tuple[str, str]:
+        """(parent, child) of the floating joint name."""
+        return self._floating_parent[name], self._floating_child[name]
 
     def floating_base(self) -> str | None:
         """The child of the floating joint that carries the most links (a humanoid's pelvis, a mobile base's

@@ -39,6 +39,21 @@ def view_frame(tree: KinematicTree) -> str:
     return tree.floating_base() or tree.root
 
 
+def floating_base_notes(tree: KinematicTree, fixed_frame: str) -> list[str]:
+    """What a user of a floating base sees in rviz and why: the RobotModel display's red status for the links above
+    the floating joint, which nothing places (localisation does on a real robot, not joint_states)."""
+    notes = []
+    for name in tree.floating_joints:
+        parent, child = tree.floating_links(name)
+        notes.append(f'{child} hangs from {parent} by the floating joint {name}: joint_states cannot place it, so '
+                     f'nothing publishes {parent} -> {child}. rviz shows the robot in {fixed_frame}, and its '
+                     f'RobotModel display turns red with "No transform from [{parent}] to [{fixed_frame}]" for the '
+                     f'links above it (they have no pose); the links below are drawn. On a real robot localisation '
+                     f'publishes it; here, to silence it: rosrun tf2_ros static_transform_publisher 0 0 0 0 0 0 '
+                     f'{parent} {child}')
+    return notes
+
+
 def marker_scale(tree: KinematicTree) -> float:
     """The TF display's axes, sized to the robot: the config's 0.6 for a robot of FULL_SIZE and more, smaller for
     a small one (on a 0.15 m gripper full-size axes hide it)."""
@@ -102,6 +117,8 @@ def main():
     path = os.path.join(folder, name)
     os.replace(tmp, path)
     rospy.loginfo(f'rviz: fixed frame {fixed_frame}, camera {distance} m from {focal} ({path})')
+    for note in floating_base_notes(tree, fixed_frame):
+        rospy.loginfo(note)
     rospy.signal_shutdown('rviz takes over')
     # rviz replaces this process: roslaunch's name and log arguments go to it, as if it were started directly
     ros_args = [a for a in sys.argv[1:] if ':=' in a and not a.startswith('_')]

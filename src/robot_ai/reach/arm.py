@@ -127,7 +127,7 @@ class Arm:
     def _chain(tree: KinematicTree, tip: str) -> tuple[str, list[str]]:
         """(base, joints from base to tip): up from the tip to the root, or to the child of a floating joint."""
         parent_joint = {j.child: name for name, j in tree.joints.items()}
-        floating_children = {tree._floating_child[n] for n in tree.floating_joints}
+        floating_children = {tree.floating_links(n)[1] for n in tree.floating_joints}
         chain, link = [], tip
         while link in parent_joint and link not in floating_children:
             name = parent_joint[link]
