@@ -4,7 +4,10 @@
 - gymnasium's CartPole-v1 in this process (one env, and SyncVectorEnv over N): what an agent gets without ROS;
 - a plain rospy ping-pong (a Float64 out, a JointState back from a bare echo node): one ROS round trip, the
   least a lockstep step can cost;
-- RosCartPoleEnv on one sim, and RosCartPoleVectorEnv over N sims (steps of all envs per second).
+- RosCartPoleEnv on one sim, and RosCartPoleVectorEnv over N sims (steps of all envs per second);
+- gymnasium's standard per-env vectorisers over gymnasium.make('robot_ai/RosCartPole-v1') with 4 sims (each env
+  leases one: SyncVectorEnv, as CleanRL builds it, and AsyncVectorEnv, spawned workers), beside the same
+  vectorisers over gymnasium's CartPole-v1 in this process.
 
 It starts its own master on a free port and cartpole_gym.launch sims:=N. Random actions; steps per second of wall
 time over --steps steps (after a warm-up).
@@ -115,6 +118,35 @@ def ros_env_rates(sims: int, steps: int) -> tuple[float, float]:
     return single, vector
 
 
+ROS_ENV = 'robot_ai.envs:robot_ai/RosCartPole-v1'
+
+
+def make_ros_env():
+    import gymnasium
+    return gymnasium.make(ROS_ENV, timeout=30.0)
+
+
+def make_cartpole():
+    import gymnasium
+    return gymnasium.make('CartPole-v1')
+
+
+def vectoriser_rates(n: int, steps: int) -> dict[str, float]:
+    """Steps per second (all envs) of SyncVectorEnv and AsyncVectorEnv (spawned workers) over n envs made one by
+    one, through ROS and in-process."""
+    import gymnasium
+    rng = np.random.default_rng(0)
+    out = {}
+    for name, make in (('ros', make_ros_env), ('gymnasium', make_cartpole)):
+        for kind in ('sync', 'async'):
+            vec = (gymnasium.vector.SyncVectorEnv([make] * n) if kind == 'sync' else
+                   gymnasium.vector.AsyncVectorEnv([make] * n, context='spawn'))
+            vec.reset(seed=0)
+            out[f'{name} {kind}'] = n * rate(lambda: vec.step(rng.integers(2, size=n)), steps // n)
+            vec.close()
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--sims', type=int, default=8, help='sims of the vector env (cartpole_gym.launch sims:=N)')
@@ -152,6 +184,10 @@ def main() -> int:
               f'({r1 / pp:.0%} of the ping-pong)')
         print(f'  RosCartPoleVectorEnv, {a.sims} sims:                      {rn:10,.0f} steps/s  '
               f'({rn / r1:.1f} x one env)')
+        v = vectoriser_rates(4, a.steps // 2)
+        for kind, name in (('sync', 'SyncVectorEnv '), ('async', 'AsyncVectorEnv')):
+            print(f'  {name} over gymnasium.make, 4 envs: through ROS {v[f"ros {kind}"]:8,.0f} steps/s, '
+                  f'in-process {v[f"gymnasium {kind}"]:8,.0f} ({v[f"gymnasium {kind}"] / v[f"ros {kind}"]:.1f} x)')
         return 0
     finally:
         for p in procs:
