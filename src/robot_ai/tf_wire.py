@@ -1,4 +1,4 @@
-"""ROS 1 wire format of sensor_msgs/JointState (read) and tf2_msgs/TFMessage (write), fast. No rospy.
+"""ROS 1 wire format of sensor_msgs/JointState (read) and tf2_msgs/TFMessage (write and read), fast. No rospy.
 
 genpy's generated (de)serialisers walk every field in Python; at 1 kHz that costs more CPU than the
 kinematics. Here a JointState's names section is parsed once and then recognised by a byte comparison,
@@ -80,6 +80,109 @@ class JointStateDecoder(object):
         except (struct.error, ValueError) as e:
             raise WireError('malformed JointState: %s' % e)
         return secs, nsecs, names, positions
+
+
+class JointStateEncoder:
+    """Writes serialised sensor_msgs/JointState for a fixed list of joint names: positions and velocities (no
+    efforts), stamped; the names' bytes are written once."""
+
+    def __init__(self, names):
+        self.count = len(names)
+        self._names = _U32.pack(len(names)) + b''.join(_string(n) for n in names)
+        self._array = _U32.pack(len(names))
+
+    def encode(self, seq: int, secs: int, nsecs: int, positions: np.ndarray, velocities: np.ndarray) -> bytes:
+        """Bytes of a JointState with an empty frame_id. seq: the publisher's count of its messages (rospy writes
+        it into the messages it serialises itself, not into these bytes)."""
+        return b''.join((_HEADER.pack(seq, secs, nsecs), _U32.pack(0), self._names,
+                         self._array, np.ascontiguousarray(positions, '<f8').tobytes(),
+                         self._array, np.ascontiguousarray(velocities, '<f8').tobytes(), _U32.pack(0)))
+
+
+def decode_float64_array(buf) -> np.ndarray:
+    """The data of a serialised std_msgs/Float64MultiArray (its layout skipped)."""
+    try:
+        (dims,) = _U32.unpack_from(buf, 0)
+        off = 4
+        for _ in range(dims):
+            (n,) = _U32.unpack_from(buf, off)
+            off += 4 + n + 8              # label, size, stride
+        off += 4                          # data_offset
+        (count,) = _U32.unpack_from(buf, off)
+        if off + 4 + 8 * count > len(buf):
+            raise WireError('the data runs past the end of the message')
+        return np.frombuffer(buf, '<f8', count, off + 4)
+    except struct.error as e:
+        raise WireError(f'malformed Float64MultiArray: {e}')
+
+
+def header_of(buf) -> tuple[int, int, int]:
+    """(seq, stamp secs, stamp nsecs) of a serialised message that starts with a std_msgs/Header."""
+    try:
+        return _HEADER.unpack_from(buf, 0)
+    except struct.error as e:
+        raise WireError(f'malformed header: {e}')
+
+
+_TRANSFORM = struct.Struct('<7d')
+
+
+def decode_tf(buf) -> list[tuple[int, int, str, str, tuple]]:
+    """The transforms of a serialised tf2_msgs/TFMessage: (stamp secs, stamp nsecs, parent frame, child frame,
+    (x, y, z, qx, qy, qz, qw)) each."""
+    out = []
+    try:
+        (count,) = _U32.unpack_from(buf, 0)
+        off = 4
+        for _ in range(count):
+            _, secs, nsecs = _HEADER.unpack_from(buf, off)
+            off += 12
+            frames = []
+            for _ in range(2):
+                (n,) = _U32.unpack_from(buf, off)
+                off += 4
+                if off + n > len(buf):
+                    raise WireError('a frame name runs past the end of the message')
+                frames.append(bytes(buf[off:off + n]).decode('utf-8', 'replace'))
+                off += n
+            out.append((secs, nsecs, frames[0], frames[1], _TRANSFORM.unpack_from(buf, off)))
+            off += 56
+    except struct.error as e:
+        raise WireError(f'malformed TFMessage: {e}')
+    return out
+
+
+class TFDecoder:
+    """decode_tf for a stream of messages that carry the same frames in the same order (a forward_kinematics node's):
+    the layout of the first is kept, and a next message of the same length whose frame names sit at the same places
+    is read by offsets; any other message is parsed in full."""
+
+    def __init__(self):
+        self._length = -1
+        self._names: list[tuple[int, bytes]] = []      # (offset, the name's bytes with their length) to compare
+        self._items: list[tuple[int, int, str, str]] = []   # (stamp offset, data offset, parent, child)
+
+    def decode(self, buf) -> list[tuple[int, int, str, str, tuple]]:
+        view = memoryview(buf)
+        if len(buf) == self._length and all(view[off:off + len(raw)] == raw for off, raw in self._names):
+            out = []
+            for stamp_at, data_at, parent, child in self._items:
+                secs, nsecs = _STAMP.unpack_from(buf, stamp_at)
+                out.append((secs, nsecs, parent, child, _TRANSFORM.unpack_from(buf, data_at)))
+            return out
+        out = decode_tf(buf)
+        names, items, off = [], [], 4
+        for secs, nsecs, parent, child, _ in out:
+            stamp_at = off + 4
+            off += 12
+            for name in (parent, child):
+                raw = _string(name)
+                names.append((off, raw))
+                off += len(raw)
+            items.append((stamp_at, off, parent, child))
+            off += 56
+        self._length, self._names, self._items = len(buf), names, items
+        return out
 
 
 class TFMessageEncoder(object):

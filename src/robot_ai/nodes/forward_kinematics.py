@@ -29,6 +29,8 @@ import ctypes
 import gc
 import threading
 
+import warnings
+
 import numpy as np
 import rospy
 from sensor_msgs.msg import JointState
@@ -86,7 +88,13 @@ class ForwardKinematicsNode:
         self.tf_prefix = self._tf_prefix()
         self.interval_ns = int(round(1e9 / max(self.publish_frequency, 1.0)))
 
-        self.tf_pub = rospy.Publisher('/tf', RawTFMessage, queue_size=100)
+        # with ~ignore_timestamp (an env's lockstep sim: every state's frames, awaited) /tf is published in the
+        # callback's thread, with no hand-off to rospy's queue thread; otherwise queued, so that a slow subscriber
+        # (rviz across a network) never holds the node
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')
+            self.tf_pub = rospy.Publisher('/tf', RawTFMessage, queue_size=None if self.ignore_timestamp else 100,
+                                          tcp_nodelay=self.ignore_timestamp)
         self.static_pub = rospy.Publisher('/tf_static', RawTFMessage, queue_size=100, latch=True)
         self.decoder = JointStateDecoder()
         self.tf_msg = RawTFMessage()

@@ -35,6 +35,23 @@ class ReachError(ValueError):
     """A robot, tip or setting a reach task cannot use; the message is one line that says what is wrong."""
 
 
+def joint_limits(joint) -> tuple[float, float, str]:
+    """(lower, upper, why they were assumed or '') of a moving kinematics.Joint: its URDF range; [-pi, pi] for a
+    continuous joint, or one whose URDF gives no range."""
+    if joint.type == 'continuous':
+        return -UNLIMITED, UNLIMITED, ''
+    lower, upper = joint.lower, joint.upper
+    if lower is None or upper is None or not (math.isfinite(lower) and math.isfinite(upper)) or upper <= lower:
+        return -UNLIMITED, UNLIMITED, (f'joint {joint.name!r} has no range in the URDF ({lower} to {upper}): taken '
+                                       f'within [-pi, pi]')
+    return float(lower), float(upper), ''
+
+
+def joint_velocity(joint) -> float:
+    """A moving joint's URDF velocity limit (rad/s or m/s), DEFAULT_VELOCITY where it gives none."""
+    return float(joint.velocity) if (joint.velocity or 0) > 0 else DEFAULT_VELOCITY
+
+
 def _listed(names: list[str], most: int = 12) -> str:
     shown = ', '.join(names[:most])
     return shown + (f' and {len(names) - most} more' if len(names) > most else '')
@@ -54,7 +71,7 @@ def _rotation_to_z(axis: np.ndarray) -> np.ndarray:
 class _Segment:
     """A moving joint of the chain, seen from the frame of the moving joint before it (after its motion): a
     constant rotation and translation to the joint's own frame, turned so that its axis is z; its value is
-    multiplier * q[source] + offset."""
+    multiplier * q[source] + offset. r and t: the same as tuples of floats, for the one-arm path."""
     name: str
     revolute: bool
     rotation: np.ndarray      # (3, 3)
@@ -62,6 +79,8 @@ class _Segment:
     source: int               # index in Arm.joints
     multiplier: float
     offset: float
+    r: tuple = ()             # rotation's rows as floats
+    t: tuple = ()             # translation as floats
 
 
 class Arm:
@@ -97,8 +116,7 @@ class Arm:
         self.lower = np.array([lo for lo, _ in limits])
         self.upper = np.array([hi for _, hi in limits])
         self.home = (self.lower + self.upper) / 2.0
-        self.velocity = np.array([tree.joints[n].velocity if (tree.joints[n].velocity or 0) > 0 else DEFAULT_VELOCITY
-                                  for n in self.joints], dtype=float)
+        self.velocity = np.array([joint_velocity(tree.joints[n]) for n in self.joints])
         self.revolute_joints = np.array([tree.joints[n].type != 'prismatic' for n in self.joints])
         self._build(tree, sources)
         first = self.chain.index(moving[0])
@@ -146,14 +164,10 @@ class Arm:
         return name, multiplier, offset
 
     def _limits(self, joint) -> tuple[float, float]:
-        if joint.type == 'continuous':
-            return -UNLIMITED, UNLIMITED
-        lower, upper = joint.lower, joint.upper
-        if lower is None or upper is None or not (math.isfinite(lower) and math.isfinite(upper)) or upper <= lower:
-            self.warnings.append(f'joint {joint.name!r} has no range in the URDF ({lower} to {upper}): taken within '
-                                 f'[-pi, pi]')
-            return -UNLIMITED, UNLIMITED
-        return float(lower), float(upper)
+        lower, upper, assumed = joint_limits(joint)
+        if assumed:
+            self.warnings.append(assumed)
+        return lower, upper
 
     def _build(self, tree: KinematicTree, sources: dict) -> None:
         """The chain as segments between moving joints (fixed joints folded in), each joint's axis turned onto z."""
@@ -167,11 +181,15 @@ class Arm:
                 continue
             turn = _rotation_to_z(j.axis)
             source, multiplier, offset = sources[name]
-            segments.append(_Segment(name, j.type != 'prismatic', rotation @ turn, translation, source, multiplier,
-                                     offset))
+            rot = rotation @ turn
+            segments.append(_Segment(name, j.type != 'prismatic', rot, translation, source, multiplier, offset,
+                                     tuple(tuple(float(v) for v in row) for row in rot),
+                                     tuple(float(v) for v in translation)))
             rotation, translation = turn.T, np.zeros(3)
         self._segments = segments
         self._tip_offset = translation        # the tip's origin in the last moving joint's (turned) frame
+        self._tip_t = tuple(float(v) for v in translation)
+        self._lower, self._upper = self.lower.tolist(), self.upper.tolist()
 
     # ----------------------------------------------------------------------------------- batched kinematics
     def forward(self, q_t: np.ndarray, with_axes: bool = True):
@@ -284,6 +302,98 @@ class Arm:
         q_t = np.ascontiguousarray(np.atleast_2d(np.asarray(q, dtype=float)).T)
         dx_t = np.ascontiguousarray(np.atleast_2d(np.asarray(dx, dtype=float)).T)
         return self.move_t(q_t, self.jacobian_t(*self.forward(q_t)), dx_t, damping).T.copy()
+
+    # ------------------------------------------------------------------------------------------------ one arm
+    # The same operations as forward, jacobian_t, damped_least_squares and move_t, in the same order, on plain
+    # floats: one arm's step costs a fifth of a batch of one's (numpy's overhead per call dominates there), and its
+    # numbers are the batch's bit for bit (IEEE operations, cos and sin from the same numpy loop).
+    def forward_one(self, q) -> tuple[list[float], list, list]:
+        """(tip, axes, origins) of one configuration q (n floats), as forward's column 0."""
+        values = []
+        for seg in self._segments:
+            v = q[seg.source]
+            if seg.multiplier != 1.0 or seg.offset != 0.0:
+                v = v * seg.multiplier + seg.offset
+            values.append(float(v))
+        revolute = [v for seg, v in zip(self._segments, values) if seg.revolute]
+        cosines, sines = np.cos(np.array(revolute)).tolist(), np.sin(np.array(revolute)).tolist()
+        c0, c1, c2 = [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]
+        p = [0.0, 0.0, 0.0]
+        axes, origins, k = [], [], 0
+        for seg, v in zip(self._segments, values):
+            t0, t1, t2 = seg.t
+            p = [p[i] + (c0[i] * t0 + c1[i] * t1 + c2[i] * t2) for i in range(3)]
+            r0, r1, r2 = seg.r
+            m0, m1, m2 = ([c0[i] * r0[j] + c1[i] * r1[j] + c2[i] * r2[j] for i in range(3)] for j in range(3))
+            axes.append(m2)
+            origins.append(p)
+            if seg.revolute:
+                c, s = cosines[k], sines[k]
+                k += 1
+                c0 = [m0[i] * c + m1[i] * s for i in range(3)]
+                c1 = [m1[i] * c - m0[i] * s for i in range(3)]
+                c2 = m2
+            else:
+                p = [p[i] + m2[i] * v for i in range(3)]
+                c0, c1, c2 = m0, m1, m2
+        t0, t1, t2 = self._tip_t
+        return [p[i] + (c0[i] * t0 + c1[i] * t1 + c2[i] * t2) for i in range(3)], axes, origins
+
+    def jacobian_one(self, tip: list, axes: list, origins: list) -> list[list[float]]:
+        """As jacobian_t's column 0: rows x, y, z of n floats."""
+        out = [[0.0] * self.n for _ in range(3)]
+        for seg, a, origin in zip(self._segments, axes, origins):
+            if seg.revolute:
+                d = [tip[i] - origin[i] for i in range(3)]
+                column = [a[(i + 1) % 3] * d[(i + 2) % 3] - a[(i + 2) % 3] * d[(i + 1) % 3] for i in range(3)]
+            else:
+                column = a
+            if seg.multiplier != 1.0:
+                column = [x * seg.multiplier for x in column]
+            for i in range(3):
+                out[i][seg.source] = out[i][seg.source] + column[i]
+        return out
+
+    @staticmethod
+    def damped_least_squares_one(jac: list, dx: list, damping: float) -> list[float]:
+        """As damped_least_squares for one arm: jac rows x, y, z of n floats, dx 3 floats."""
+        n = len(jac[0])
+        a = [[0.0] * 3 for _ in range(3)]
+        for i in range(3):
+            for j in range(3):
+                total = jac[i][0] * jac[j][0]
+                for k in range(1, n):
+                    total = total + jac[i][k] * jac[j][k]
+                a[i][j] = total
+        lam2 = damping * damping
+        for i in range(3):
+            a[i][i] = a[i][i] + lam2
+        cof = [[a[(i + 1) % 3][(j + 1) % 3] * a[(i + 2) % 3][(j + 2) % 3]
+                - a[(i + 1) % 3][(j + 2) % 3] * a[(i + 2) % 3][(j + 1) % 3] for j in range(3)] for i in range(3)]
+        det = a[0][0] * cof[0][0] + a[0][1] * cof[0][1] + a[0][2] * cof[0][2]
+        y = [(cof[i][0] * dx[0] + cof[i][1] * dx[1] + cof[i][2] * dx[2]) / det for i in range(3)]
+        return [jac[0][k] * y[0] + jac[1][k] * y[1] + jac[2][k] * y[2] for k in range(n)]
+
+    def move_one(self, q: list, jac: list, dx: list, damping: float, passes: int = CLAMP_PASSES) -> list[float]:
+        """As move_t for one arm."""
+        n, lower, upper = self.n, self._lower, self._upper
+        dq = self.damped_least_squares_one(jac, dx, damping)
+        locked, fixed = [False] * n, [0.0] * n
+        for _ in range(passes):
+            target = [q[k] + dq[k] for k in range(n)]
+            newly = [(target[k] < lower[k] or target[k] > upper[k]) and not locked[k] for k in range(n)]
+            if not any(newly):
+                break
+            locked = [locked[k] or newly[k] for k in range(n)]
+            fixed = [min(max(target[k], lower[k]), upper[k]) - q[k] if newly[k] else fixed[k] for k in range(n)]
+            keep = [0.0 if locked[k] else 1.0 for k in range(n)]
+            free = [[row[k] * keep[k] for k in range(n)] for row in jac]
+            done = [jac[i][0] * fixed[0] for i in range(3)]
+            for k in range(1, n):
+                done = [done[i] + jac[i][k] * fixed[k] for i in range(3)]
+            solved = self.damped_least_squares_one(free, [dx[i] - done[i] for i in range(3)], damping)
+            dq = [fixed[k] if locked[k] else solved[k] for k in range(n)]
+        return [min(max(q[k] + dq[k], lower[k]), upper[k]) for k in range(n)]
 
     # -------------------------------------------------------------------------------------------- the robot
     def positions(self, q) -> dict[str, float]:

@@ -25,6 +25,7 @@ bit for bit (autoreset next-step, reset(seed=s) seeds env i with s + i).
 """
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import gymnasium
@@ -37,7 +38,7 @@ from gymnasium.vector.utils import batch_space
 
 from robot_ai.reach.arm import Arm, ReachError
 from robot_ai.reach.model import Model, load_model
-from robot_ai.reach.task import DISTANCE_THRESHOLD, ReachTask, goal_distance
+from robot_ai.reach.task import DISTANCE_THRESHOLD, ReachTask, goal_distance, goal_distance_one
 
 CONTROLS = ('ee', 'joints')
 STARTS = ('home', 'random')
@@ -116,6 +117,21 @@ class ReachSetup:
             raise ValueError(f'an action must be finite numbers in [-1, 1], got {actions.tolist()[:4]}')
         return np.clip(actions, -1.0, 1.0)
 
+    def check_action_one(self, action) -> list[float]:
+        """One action as floats clipped to [-1, 1] (check_actions' numbers); ValueError as there."""
+        shape = getattr(action, 'shape', None)
+        if shape == self.action_space.shape and getattr(action, 'dtype', None) in (np.float32, np.float64):
+            values = [float(v) for v in action.tolist()]      # an agent's array: no copy to float64 first
+        else:
+            a = np.asarray(action, dtype=np.float64)
+            if a.shape != self.action_space.shape:
+                raise ValueError(f'an action is {self.action_space.shape[0]} numbers in [-1, 1], got shape '
+                                 f'{a.shape}')
+            values = a.tolist()
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f'an action must be finite numbers in [-1, 1], got {values[:4]}')
+        return [min(max(v, -1.0), 1.0) for v in values]
+
     def first_states(self, rngs: list) -> tuple[np.ndarray, np.ndarray]:
         """(goal configurations, start configurations), each (n, k), drawn from each env's np_random in turn."""
         goals, starts = [], []
@@ -136,6 +152,22 @@ class ReachSetup:
         if self.control == 'ee':
             return self.arm.move_t(q_t, jac_t, actions_t * self.ee_step, self.damping)
         return self.arm.clip(q_t + actions_t * JOINT_STEP)
+
+    # ------------------------------------------------------------------------------- one arm (plain floats)
+    def place_one(self, q: list) -> tuple[list, list | None]:
+        """(tip, Jacobian rows for ee control, else None) of one arm: place's numbers for a batch of one."""
+        tip, axes, origins = self.arm.forward_one(q)
+        return tip, (self.arm.jacobian_one(tip, axes, origins) if self.control == 'ee' else None)
+
+    def move_one(self, q: list, jac: list | None, a: list) -> list:
+        """move's numbers for a batch of one: a, the action's floats already clipped (check_action_one)."""
+        if self.control == 'ee':
+            return self.arm.move_one(q, jac, [v * self.ee_step for v in a], self.damping)
+        lower, upper = self.arm._lower, self.arm._upper
+        return [min(max(q[k] + a[k] * JOINT_STEP, lower[k]), upper[k]) for k in range(self.arm.n)]
+
+    def observation_one(self, q: list, tip: list, goal: list) -> dict:
+        return {'achieved_goal': np.array(tip), 'desired_goal': np.array(goal), 'observation': np.array(q + tip)}
 
     @staticmethod
     def observations(q_t: np.ndarray, tip_t: np.ndarray, goal_t: np.ndarray) -> dict:
@@ -176,36 +208,31 @@ class ReachEnv(gymnasium.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        goal_q, self._q = self.setup.first_states([self.np_random])
-        self._goal = self.setup.arm.forward(goal_q, with_axes=False)[0]
-        self._tip, self._jac = self.setup.place(self._q)
+        goal_q, start_q = self.setup.first_states([self.np_random])
+        self._goal = self.arm.forward_one(goal_q[:, 0].tolist())[0]
+        self._q = start_q[:, 0].tolist()
+        self._tip, self._jac = self.setup.place_one(self._q)
         if self._renderer is not None:
             self._renderer.new_episode()
-        return self._observation(), self._info()
+        return self.setup.observation_one(self._q, self._tip, self._goal), self._info()
 
     def step(self, action):
         if self._q is None:
             raise ResetNeeded('Cannot call env.step() before calling env.reset()')
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape != self.action_space.shape:
-            raise ValueError(f'an action is {self.action_space.shape[0]} numbers in [-1, 1], got shape {a.shape}')
-        a = self.setup.check_actions(a)
-        self._q = self.setup.move(self._q, self._jac, a[:, None])
-        self._tip, self._jac = self.setup.place(self._q)
-        info = self._info()
-        reward = float(self.task.reward_of(goal_distance(self._tip[:, 0], self._goal[:, 0])))
-        return self._observation(), reward, False, False, info
-
-    def _observation(self) -> dict:
-        return {k: v[0] for k, v in ReachSetup.observations(self._q, self._tip, self._goal).items()}
+        a = self.setup.check_action_one(action)
+        self._q = self.setup.move_one(self._q, self._jac, a)
+        self._tip, self._jac = self.setup.place_one(self._q)
+        distance = goal_distance_one(self._tip, self._goal)
+        return (self.setup.observation_one(self._q, self._tip, self._goal), self.task.reward_one(distance), False,
+                False, {'is_success': distance < self.task.distance_threshold})
 
     def _info(self) -> dict:
-        return {'is_success': bool(self.task.is_success(self._tip[:, 0], self._goal[:, 0]))}
+        return {'is_success': goal_distance_one(self._tip, self._goal) < self.task.distance_threshold}
 
     @property
     def joint_positions(self) -> np.ndarray:
         """The arm's joint positions (n,) now."""
-        return self._q[:, 0].copy()
+        return np.array(self._q)
 
     def render(self):
         if self.render_mode != 'rgb_array':
@@ -215,7 +242,7 @@ class ReachEnv(gymnasium.Env):
             self._renderer = ArmRenderer(self.arm, self.task.distance_threshold)
         if self._q is None:
             return self._renderer.draw(self.setup.home, None)
-        return self._renderer.draw(self._q[:, 0], self._goal[:, 0])
+        return self._renderer.draw(np.array(self._q), np.array(self._goal))
 
     def close(self):
         if self._renderer is not None:

@@ -7,6 +7,7 @@ success and -1 otherwise, the dense one minus the distance.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +23,12 @@ def goal_distance(achieved, desired) -> np.ndarray:
     batch gives each pair's distance bit for bit."""
     d = np.asarray(achieved, dtype=np.float64) - np.asarray(desired, dtype=np.float64)
     return np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1] + d[..., 2] * d[..., 2])
+
+
+def goal_distance_one(achieved: list, desired: list) -> float:
+    """goal_distance of one pair of 3 floats, the same operations in the same order (so the same number)."""
+    d0, d1, d2 = achieved[0] - desired[0], achieved[1] - desired[1], achieved[2] - desired[2]
+    return math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
 
 
 @dataclass(frozen=True)
@@ -41,6 +48,12 @@ class ReachTask:
     def goal_configuration(arm: Arm, rng: np.random.Generator) -> np.ndarray:
         """Joint positions (n,) uniform within the limits, whose tip is the goal."""
         return rng.uniform(arm.lower, arm.upper)
+
+    def reward_one(self, distance: float) -> float:
+        """reward_of for one distance."""
+        if self.reward_type == 'sparse':
+            return -1.0 if distance >= self.distance_threshold else 0.0
+        return -distance
 
     def reward_of(self, distance) -> np.ndarray:
         distance = np.asarray(distance, dtype=np.float64)

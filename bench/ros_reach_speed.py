@@ -1,0 +1,142 @@
+#!/usr/bin/env python3
+"""How fast an agent steps an arm of the ROS graph through robot_ai/RosReach-v0, beside what bounds it, in one run:
+
+- Reach-v0 in this process (one env): what an agent gets without ROS;
+- a plain rospy ping-pong (a Float64 out, a JointState back from a bare echo node): one ROS round trip;
+- the bare exchange the env makes (a command to a lockstep arm_sim, its joint_states to forward_kinematics, the
+  frames back to the reader): two hops, what a step cannot beat;
+- RosReach-v0 on one arm (steps per second), and its ratio to the ping-pong (target: at least 0.4).
+
+It starts its own master on a free port, reach_gym.launch sims:=1 (the package's UR5, or --model) and an echo node;
+random actions; steps per second of wall time over --steps steps after a warm-up. Run it alone, or beside busy loops
+to see a loaded machine.
+
+    python bench/ros_reach_speed.py [--steps 3000] [--model FILE]
+"""
+import argparse
+import os
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
+import warnings
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.realpath(__file__))
+sys.path.insert(0, HERE)
+from ros_env_speed import echo_node, free_port, ping_pong_rate, rate  # noqa: E402
+
+
+def bare_exchange_rate(steps: int) -> float:
+    """Commands to /arm_0's arm_sim, each answered by forward_kinematics' frames on /arm_0/tf."""
+    import rospy
+    from std_msgs.msg import Float64MultiArray
+    from tf2_msgs.msg import TFMessage
+    from robot_ai.tf_wire import raw_message_class
+    command_type, frames_type = raw_message_class(Float64MultiArray), raw_message_class(TFMessage)
+    got, count = threading.Condition(), [0]
+
+    def on_frames(msg):
+        with got:
+            count[0] += 1
+            got.notify()
+    joints = rospy.get_param('/arm_0/arm_sim/joints')
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        pub = rospy.Publisher('/arm_0/joint_group_position_controller/command', command_type, queue_size=None,
+                              tcp_nodelay=True)
+    sub = rospy.Subscriber('/arm_0/tf', frames_type, on_frames, tcp_nodelay=True)
+    deadline = time.time() + 60
+    while (pub.get_num_connections() == 0 or sub.get_num_connections() == 0) and time.time() < deadline:
+        time.sleep(0.05)
+    time.sleep(1.0)
+    data = command_type(struct.pack('<III', 0, 0, len(joints)) + np.zeros(len(joints)).tobytes())
+
+    def one():
+        with got:
+            seen = count[0]
+        pub.publish(data)
+        with got:
+            if not got.wait_for(lambda: count[0] > seen, 5.0):
+                raise RuntimeError('the arm_sim or forward_kinematics stopped answering')
+    result = rate(one, steps)
+    pub.unregister()
+    sub.unregister()
+    return result
+
+
+def env_rate(env, steps: int) -> float:
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1, 1, (64,) + env.action_space.shape).astype(np.float32)
+    env.reset(seed=0)
+    count = [0]
+
+    def one():
+        _, _, terminated, truncated, _ = env.step(actions[count[0] % 64])
+        count[0] += 1
+        if terminated or truncated:
+            env.reset()
+    return rate(one, steps)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
+    parser.add_argument('--steps', type=int, default=3000, help='steps measured in each case')
+    parser.add_argument('--model', default='', help='the arm (default: the package\'s UR5)')
+    a = parser.parse_args()
+    port = free_port()
+    env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{port}')
+    os.environ['ROS_MASTER_URI'] = env['ROS_MASTER_URI']
+    launch = ['roslaunch', '-p', str(port), 'robot_ai', 'reach_gym.launch', 'sims:=1']
+    if a.model:
+        launch.append(f'model:={os.path.abspath(a.model)}')
+    procs = [subprocess.Popen(launch, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              preexec_fn=os.setsid),
+             subprocess.Popen([sys.executable, os.path.join(HERE, 'ros_env_speed.py'), '--echo'], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid)]
+    try:
+        import gymnasium
+        import rosgraph
+        import rospy
+        import robot_ai.envs  # noqa: F401  (registers robot_ai/RosReach-v0)
+        import robot_ai.reach  # noqa: F401  (registers robot_ai/Reach-v0)
+        deadline = time.time() + 60
+        while not rosgraph.Master('/ros_reach_speed').is_online() and time.time() < deadline:
+            time.sleep(0.2)
+        rospy.init_node('ros_reach_speed', disable_signals=True)
+        rospy.wait_for_service('/arm_0/arm_sim/lease', 120)
+        print(f'reach env speed through ROS, {a.steps} steps a case, {os.cpu_count()} cores (load average '
+              f'{os.getloadavg()[0]:.2f})   [bench/ros_reach_speed.py, {time.strftime("%Y-%m-%d")}]')
+        model = os.path.abspath(a.model) if a.model else None
+        local = env_rate(gymnasium.make('robot_ai/Reach-v0', model=model), a.steps)
+        print(f'  Reach-v0 in-process, one env:                        {local:10,.0f} steps/s')
+        pp = ping_pong_rate(a.steps)
+        print(f'  rospy ping-pong (Float64 out, JointState back):      {pp:10,.0f} round trips/s  (reference)')
+        bare = bare_exchange_rate(a.steps)
+        print(f'  command -> arm_sim -> forward_kinematics -> reader:  {bare:10,.0f} exchanges/s  '
+              f'({bare / pp:.2f} of the ping-pong)')
+        ros = gymnasium.make('robot_ai/RosReach-v0', robot_ns='/arm_0', timeout=30.0)
+        through = env_rate(ros, a.steps)
+        ros.close()
+        print(f'  RosReach-v0, one arm:                                {through:10,.0f} steps/s  '
+              f'({through / pp:.2f} of the ping-pong; target 0.4)')
+        return 0
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGINT)
+        for p in procs:
+            try:
+                p.wait(20)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+
+
+if __name__ == '__main__':
+    if '--echo' in sys.argv:
+        echo_node()
+    else:
+        sys.exit(main())
