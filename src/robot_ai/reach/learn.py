@@ -193,9 +193,10 @@ def save(training: Training, path: str) -> str:
 def setup_of(policy: policies.Policy, **overrides) -> ReachSetup:
     """The reach setup a policy file names (its env_kwargs), with overrides (another model file, say)."""
     kwargs = {k: v for k, v in policy.metadata.get('env_kwargs', {}).items() if k in ENV_SETTINGS}
-    kwargs.update({k: v for k, v in overrides.items() if v is not None})
-    if 'model' in overrides or 'urdf' in overrides:      # another robot file: its own limits and sizes
-        kwargs = {k: v for k, v in kwargs.items() if k not in ('home', 'ee_step', 'damping')}
+    given = {k: v for k, v in overrides.items() if v is not None}
+    if 'model' in given or 'urdf' in given:      # another robot file (or text): its own limits and sizes
+        kwargs = {k: v for k, v in kwargs.items() if k not in ('model', 'xacro_args', 'home', 'ee_step', 'damping')}
+    kwargs.update(given)
     return ReachSetup(**kwargs)
 
 

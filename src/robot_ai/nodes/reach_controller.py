@@ -1,0 +1,259 @@
+"""reach_controller: a reach policy drives an arm of the ROS graph toward points clicked in rviz.
+
+Every 1/~rate seconds of ROS time it reads the arm's joints (joint_states) and its tip from /tf (the frames
+forward_kinematics or robot_state_publisher publishes), acts as the reach env would from where the arm stands (the
+same observation, the policy's action, the same damped least squares) and publishes ros_control's
+JointGroupPositionController command; arm_sim takes it, and so does a real arm's controller (remap the command
+topic to it, and give ~command_joints its joints). Goals come from rviz's Publish Point tool (/clicked_point) or
+~goal, in any frame tf knows; the goal is drawn as a marker and its distance published. It says `reached <goal> in
+<s> s (<d> m)` once the tip is within the policy's threshold, or `not reached: closest <d> m` when the distance has
+stopped shrinking (a goal outside the workspace). ~home takes the arm home and drops the goal.
+
+ROS Parameters
+    robot_description (str): the robot, searched up the namespaces and waited for.
+    ~policy (str, ""): a reach policy file (.npz, python -m robot_ai.reach train); empty: ARS trains on the robot
+        description at start (seconds) and says so. A bad file, or one of another robot or tip, ends the node with
+        one line.
+    ~tip (str, ""): the tip link; empty: the policy's, or the link below the most joints.
+    ~rate (float, 20): control steps per second of ROS time.
+    ~command_joints (list of str, the robot's active joints): the joints of the command, in its order (a real
+        controller's joints); those the arm does not move hold the positions joint_states reports.
+    ~stalled_after (float, 2.0): seconds without a millimetre of progress before a goal is called not reached.
+
+ROS Subscribers
+    joint_states (sensor_msgs/JointState): the arm's joints.
+    /clicked_point (geometry_msgs/PointStamped): a goal, from rviz's Publish Point tool.
+    ~goal (geometry_msgs/PointStamped): a goal.
+
+ROS Publishers
+    joint_group_position_controller/command (std_msgs/Float64MultiArray): positions of ~command_joints.
+    ~goal_marker (visualization_msgs/Marker, latched): the goal, a sphere of the threshold's size, in the base frame.
+    ~distance (std_msgs/Float64): the tip's distance to the goal, every step.
+
+ROS Services
+    ~home (std_srvs/Trigger): the arm to its home (the middle of each joint's range, the policy's), goal dropped.
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import rospy
+import tf2_ros
+from geometry_msgs.msg import PointStamped
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, Float64MultiArray
+from std_srvs.srv import Trigger, TriggerResponse
+from visualization_msgs.msg import Marker
+
+from robot_ai import ars
+from robot_ai.cartpole import policies
+from robot_ai.nodes.params import number_param, publish, quiet_on_shutdown, str_param
+from robot_ai.nodes.robot_description import wait_for_tree
+from robot_ai.reach import learn
+from robot_ai.reach.arm import ReachError
+from robot_ai.reach.env import ReachSetup
+from robot_ai.reach.task import goal_distance_one
+
+COMMAND_TOPIC = 'joint_group_position_controller/command'
+PROGRESS = 0.001          # m: less than this over ~stalled_after seconds is no progress
+
+
+def _rotate(q, v) -> list[float]:
+    """v rotated by the unit quaternion q (x, y, z, w)."""
+    x, y, z, w = q
+    tx, ty, tz = 2 * (y * v[2] - z * v[1]), 2 * (z * v[0] - x * v[2]), 2 * (x * v[1] - y * v[0])
+    return [v[0] + w * tx + (y * tz - z * ty), v[1] + w * ty + (z * tx - x * tz), v[2] + w * tz + (x * ty - y * tx)]
+
+
+class ReachController:
+
+    def __init__(self, tree, xml: str):
+        self.rate = number_param('~rate', 20.0, 'a positive number of steps per second', lambda v: 0 < v <= 1000)
+        self.stalled_after = number_param('~stalled_after', 2.0, 'a positive number of seconds',
+                                          lambda v: 0 < v <= 3600)
+        self.policy, self.setup = self._policy(xml, str_param('~policy', ''), str_param('~tip', ''))
+        arm = self.setup.arm
+        self.base, self.tip = arm.base, arm.tip
+        self.command_joints = rospy.get_param('~command_joints', list(tree.active_joints))
+        if not isinstance(self.command_joints, list) or not all(isinstance(n, str) for n in self.command_joints):
+            raise ValueError(f'~command_joints must be a list of joint names, got {self.command_joints!r}')
+        missing = [n for n in arm.joints if n not in self.command_joints]
+        if missing:
+            raise ValueError(f'~command_joints lacks {", ".join(missing)}, which the arm moves to reach')
+        self.slot = [self.command_joints.index(n) for n in arm.joints]
+        self.lock = threading.Lock()
+        self.joints: dict[str, float] = {}
+        self.goal: list[float] | None = None
+        self.goal_since = 0.0
+        self.best = float('inf')
+        self.improved_at = 0.0
+        self.said = False
+        self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(10))
+        self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
+        self.command_pub = rospy.Publisher(COMMAND_TOPIC, Float64MultiArray, queue_size=1, tcp_nodelay=True)
+        self.marker_pub = rospy.Publisher('~goal_marker', Marker, queue_size=1, latch=True)
+        self.distance_pub = rospy.Publisher('~distance', Float64, queue_size=1)
+        self.subs = [rospy.Subscriber('joint_states', JointState, self._on_joints, queue_size=1, tcp_nodelay=True),
+                     rospy.Subscriber('/clicked_point', PointStamped, self._on_goal, queue_size=1),
+                     rospy.Subscriber('~goal', PointStamped, self._on_goal, queue_size=1)]
+        self.services = [rospy.Service('~home', Trigger, self._on_home)]
+        self.timer = rospy.Timer(rospy.Duration(1.0 / self.rate), self._step)
+        rospy.loginfo(f'reach_controller ready: {arm.describe()}; {self.rate:g} steps/s; click a point in rviz '
+                      f'(Publish Point) or publish {rospy.resolve_name("~goal")}')
+
+    # ------------------------------------------------------------------------------------------------ the policy
+    @staticmethod
+    def _policy(xml: str, path: str, tip: str):
+        """(an object with act_batch(flat observations), the reach setup it acts in) of ~policy, or of an ARS run on
+        the robot description when it is empty."""
+        if path:
+            try:
+                policy = policies.load(path)
+                tip = tip or policy.metadata.get('env_kwargs', {}).get('tip') or None
+                setup = learn.setup_of(policy, urdf=xml, tip=tip)
+                note = learn.check_fits(policy, setup)
+            except (policies.PolicyError, ReachError) as e:
+                raise ValueError(f'~policy: {e}') from None
+            if note:
+                rospy.logwarn(note)
+            rospy.loginfo(f'reach_controller: {policy.describe()}')
+            return policy.actor, setup
+        try:
+            setup = ReachSetup(urdf=xml, tip=tip or None)
+        except ReachError as e:
+            raise ValueError(f'~tip: {e}') from None
+        rospy.loginfo(f'reach_controller: no ~policy: ARS learns to reach with {setup.arm.describe()} (seconds; '
+                      f'python -m robot_ai.reach train writes a file to give as ~policy instead)')
+        t = time.monotonic()
+        training = learn.train(dict(urdf=xml, tip=setup.arm.tip), seed=0, evaluate_episodes=1000)
+        rospy.loginfo(f'reach_controller: ARS reached {100 * training.held_out.success_rate:.1f} % of 1000 fresh '
+                      f'goals within {setup.task.distance_threshold:g} m after {time.monotonic() - t:.1f} s '
+                      f'({training.result.steps:,} steps)')
+        return training.policy, training.setup
+
+    # ------------------------------------------------------------------------------------------------ callbacks
+    def _on_joints(self, msg: JointState) -> None:
+        if len(msg.name) != len(msg.position):
+            rospy.logwarn_throttle(5.0, 'joint_states with as many names as positions skipped')
+            return
+        with self.lock:
+            self.joints.update(zip(msg.name, msg.position))
+
+    def _in_base(self, point: PointStamped) -> list[float] | None:
+        frame = point.header.frame_id.lstrip('/') or self.base
+        p = [point.point.x, point.point.y, point.point.z]
+        if frame == self.base:
+            return p
+        try:
+            t = self.tf_buffer.lookup_transform(self.base, frame, rospy.Time(0), rospy.Duration(1.0)).transform
+        except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as e:
+            rospy.logwarn(f'goal in {frame} ignored: no transform from {frame} to {self.base} ({e})')
+            return None
+        r = _rotate((t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w), p)
+        return [r[0] + t.translation.x, r[1] + t.translation.y, r[2] + t.translation.z]
+
+    def _on_goal(self, point: PointStamped) -> None:
+        goal = self._in_base(point)
+        if goal is None or not all(np.isfinite(goal)):
+            return
+        with self.lock:
+            self.goal, self.goal_since, self.best, self.said = goal, time.monotonic(), float('inf'), False
+            self.improved_at = self.goal_since
+        self._draw(goal)
+        rospy.loginfo(f'goal ({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f}) m in {self.base}')
+
+    def _draw(self, goal: list[float] | None) -> None:
+        marker = Marker(type=Marker.SPHERE, ns='reach_goal', id=0,
+                        action=Marker.ADD if goal is not None else Marker.DELETE)
+        marker.header.frame_id = self.base
+        marker.header.stamp = rospy.Time.now()
+        if goal is not None:
+            marker.pose.position.x, marker.pose.position.y, marker.pose.position.z = goal
+            marker.pose.orientation.w = 1.0
+            size = 2 * self.setup.task.distance_threshold
+            marker.scale.x = marker.scale.y = marker.scale.z = size
+            marker.color.r, marker.color.g, marker.color.b, marker.color.a = 0.1, 0.9, 0.1, 0.6
+        publish(self.marker_pub, marker)
+
+    def _on_home(self, req) -> TriggerResponse:
+        with self.lock:
+            self.goal = None
+            joints = dict(self.joints)
+        self._draw(None)
+        self._command(joints, self.setup.home.tolist())
+        return TriggerResponse(success=True, message=f'going home: {np.round(self.setup.home, 3).tolist()}')
+
+    # ------------------------------------------------------------------------------------------------ the loop
+    def _command(self, joints: dict, arm_positions: list[float]) -> None:
+        positions = [joints.get(n, 0.0) for n in self.command_joints]
+        for k, value in zip(self.slot, arm_positions):
+            positions[k] = value
+        publish(self.command_pub, Float64MultiArray(data=positions))
+
+    def _tip(self) -> list[float] | None:
+        try:
+            t = self.tf_buffer.lookup_transform(self.base, self.tip, rospy.Time(0)).transform.translation
+        except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as e:
+            rospy.logwarn_throttle(5.0, f'no transform {self.base} -> {self.tip} yet ({e}): is forward_kinematics '
+                                        f'(or robot_state_publisher) running?')
+            return None
+        return [t.x, t.y, t.z]
+
+    def _step(self, event) -> None:
+        with self.lock:
+            goal, joints = self.goal, dict(self.joints)
+        if goal is None:
+            return
+        arm = self.setup.arm
+        if not all(n in joints for n in arm.joints):
+            rospy.logwarn_throttle(5.0, f'joint_states does not report {", ".join(n for n in arm.joints if n not in joints)}'
+                                        f' yet')
+            return
+        tip = self._tip()
+        if tip is None:
+            return
+        q = [min(max(float(joints[n]), lo), hi) for n, lo, hi in zip(arm.joints, arm._lower, arm._upper)]
+        observation = self.setup.observation_one(q, tip, goal)
+        action = self.policy.act_batch(ars.flatten_batch(self.setup.observation_space,
+                                                        {k: v[None] for k, v in observation.items()}))[0]
+        a = self.setup.check_action_one(np.asarray(action, dtype=np.float64))
+        self._command(joints, self.setup.move_one(q, self.setup.place_one(q)[1], a))
+        distance = goal_distance_one(tip, goal)
+        publish(self.distance_pub, Float64(distance))
+        self._judge(goal, distance)
+
+    def _judge(self, goal: list[float], distance: float) -> None:
+        now = time.monotonic()
+        with self.lock:
+            if goal is not self.goal or self.said:
+                return
+            if distance < self.best - PROGRESS:
+                self.best, self.improved_at = distance, now
+            reached = distance < self.setup.task.distance_threshold
+            stalled = now - self.improved_at > self.stalled_after
+            if not (reached or stalled):
+                return
+            self.said = True
+            since = self.goal_since
+        where = f'({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f})'
+        if reached:
+            rospy.loginfo(f'reached {where} in {now - since:.2f} s ({distance:.3f} m)')
+        else:
+            rospy.loginfo(f'not reached: closest {min(self.best, distance):.3f} m to {where} (outside the '
+                          f'workspace, or behind a joint limit)')
+
+
+@quiet_on_shutdown
+def main():
+    rospy.init_node('reach_controller')
+    tree, key = wait_for_tree()
+    if tree is None:
+        return
+    try:
+        ReachController(tree, rospy.get_param(key))
+    except ValueError as e:
+        rospy.logfatal(f'reach_controller: bad parameter: {e}')
+        raise SystemExit(1)
+    rospy.spin()
