@@ -19,6 +19,8 @@ the next reset().
 """
 from __future__ import annotations
 
+import hashlib
+import re
 import struct
 import threading
 import time
@@ -56,8 +58,8 @@ class RosReachError(RosEnvError):
 
 
 def description_of(robot_ns: str, timeout: float) -> str:
-    """The robot_description of robot_ns (or of the first running arm_sim's namespace), read from the master
-    without starting a node."""
+    """The robot_description of robot_ns (or, without one, of the first running arm_sim's namespace in natural order:
+    in a graph of several robots, give robot_ns or model), read from the master without starting a node."""
     problem = master_answers(timeout)
     if problem:
         raise RosReachError(problem)
@@ -68,7 +70,7 @@ def description_of(robot_ns: str, timeout: float) -> str:
                 if name.endswith(f'/{SIM_NODE}/lease')]
         if not sims:
             raise RosReachError(f'no arm_sim runs, and no model= was given: start the sims first ({LAUNCH_HINT})')
-        ns = sorted(sims)[0]
+        ns = min(sims, key=lambda n: [int(t) if t.isdigit() else t for t in re.split(r'(\d+)', n)])
     try:
         key = rosgraph.Master(rosgraph.names.ns_join(ns, 'robot_ai_env')).searchParam('robot_description')
         xml = master.getParam(key)
@@ -78,6 +80,16 @@ def description_of(robot_ns: str, timeout: float) -> str:
     if not isinstance(xml, str):
         raise RosReachError(f'{ns}: robot_description holds {type(xml).__name__}, not a URDF')
     return xml
+
+
+def description_above(ns: str) -> str | None:
+    """robot_description of ns or the nearest namespace above it (as the nodes in ns find it), or None."""
+    parts = [p for p in ns.split('/') if p]
+    for k in range(len(parts), -1, -1):
+        key = '/' + '/'.join(parts[:k] + ['robot_description'])
+        if rospy.has_param(key):
+            return rospy.get_param(key)
+    return None
 
 
 def _rotate(q: tuple, v: tuple) -> tuple:
@@ -133,12 +145,17 @@ class ArmLink:
     def _fail(self, what: str) -> RosReachError:
         return RosReachError(f'{self.ns}: {what}')
 
-    @staticmethod
-    def _unusable(ns: str) -> str:
+    def _unusable(self, ns: str) -> str:
+        """Why the arm_sim in ns cannot serve this env ('' if it can): not in lockstep, or another robot."""
         param = f'{resolve(ns, SIM_NODE)}/lockstep'
         if rospy.get_param(param, False) is not True:
             return (f'is not in lockstep ({param} is not true): it moves on its own clock and an env needs one step '
                     f'per action; start it with lockstep true ({LAUNCH_HINT})')
+        xml = description_above(ns)
+        if xml is None:
+            return 'has no robot_description in its namespace or above'
+        if not isinstance(xml, str) or hashlib.sha256(xml.encode()).hexdigest() != self.setup.model.sha256:
+            return f'holds another robot than this env\'s {self.setup.model.tree.name} ({self.setup.model.name})'
         return ''
 
     def _connect(self) -> None:

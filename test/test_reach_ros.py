@@ -1,0 +1,273 @@
+#!/usr/bin/env python3
+"""Reach in the ROS graph: robot_ai/RosReach-v0 equals Reach-v0 (to 1e-9 m on every observation, identical
+rewards and successes) on the UR5, on the PR2 (mimic joints in its chain) and on a xacro arm; leases and faults;
+arm_sim's velocity limit and bad commands; reach_controller reaching points clicked in the root frame and in
+another frame, saying when it cannot, and going home."""
+import os
+import signal
+import subprocess
+import sys
+import time
+import unittest
+
+import gymnasium
+import numpy as np
+import rospy
+import rostest
+from geometry_msgs.msg import PointStamped
+from rosgraph_msgs.msg import Log
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, Float64MultiArray
+from std_srvs.srv import Trigger
+
+from robot_ai.envs import RosReachError  # the import registers robot_ai/RosReach-v0
+from robot_ai.reach import ReachSetup  # the import registers robot_ai/Reach-v0
+
+HERE = os.path.dirname(os.path.realpath(__file__))
+PR2 = os.path.realpath(os.path.join(HERE, '..', '..', 'shared', 'robots', 'pr2.urdf'))
+ARM7 = os.path.join(HERE, 'urdf', 'reach_arm7.urdf.xacro')
+
+
+class TestReachRos(unittest.TestCase):
+
+    @classmethod
+    def setUpClass(cls):
+        for ns in ('/arm_0', '/arm_1', '/pr2/arm_0', '/arm7/arm_0', '/controlled'):
+            rospy.wait_for_service(f'{ns}/arm_sim/lease', 180)
+        cls.log = []
+        cls.log_sub = rospy.Subscriber('/rosout', Log, lambda m: cls.log.append((m.name, m.msg)), queue_size=1000)
+        deadline = time.monotonic() + 240      # the controller trains ARS at its start (seconds)
+        while not rospy.get_published_topics() or not any(t == '/controlled/reach_controller/distance'
+                                                           for t, _ in rospy.get_published_topics()):
+            assert time.monotonic() < deadline, 'reach_controller never started'
+            time.sleep(0.5)
+
+    def setUp(self):
+        self.opened = []
+
+    def tearDown(self):
+        for env in self.opened:
+            env.close()
+
+    def ros(self, robot_ns='', **kwargs):
+        env = gymnasium.make('robot_ai/RosReach-v0', robot_ns=robot_ns, timeout=kwargs.pop('timeout', 10.0), **kwargs)
+        self.opened.append(env)
+        return env
+
+    # ------------------------------------------------------------------------------------ the env, against Reach-v0
+    def assert_same_as_reach_v0(self, ros, ref, episodes=3, reward_type='sparse'):
+        rng = np.random.default_rng(1)
+        ee_step = ref.unwrapped.setup.ee_step
+        worst, successes = 0.0, 0
+        for episode in range(episodes):
+            o1, i1 = ros.reset(seed=episode)
+            o2, i2 = ref.reset(seed=episode)
+            self.assertEqual(i1, i2)
+            for t in range(60):       # past the 50-step limit: the truncation too
+                if t % 2:     # a P-controller every other step: the arm reaches, clamps at limits, settles
+                    a = np.clip((o1['desired_goal'] - o1['achieved_goal']) / ee_step, -1, 1).astype(np.float32)
+                else:
+                    a = rng.uniform(-1, 1, ros.action_space.shape).astype(np.float32)
+                r1, r2 = ros.step(a), ref.step(a)
+                for k in o2:
+                    worst = max(worst, float(np.abs(r1[0][k] - r2[0][k]).max()))
+                    self.assertEqual(r1[0][k].dtype, r2[0][k].dtype)
+                if reward_type == 'sparse':
+                    self.assertEqual(r1[1], r2[1])
+                else:
+                    self.assertAlmostEqual(r1[1], r2[1], delta=1e-9)
+                self.assertEqual(r1[2:5], r2[2:5])
+                successes += r1[4]['is_success']
+                o1 = r1[0]
+                if r1[3]:
+                    break
+        self.assertLess(worst, 1e-9)
+        self.assertGreater(successes, 0)
+
+    def test_env_equals_reach_v0_on_the_ur5(self):
+        ros = self.ros('/arm_0')
+        self.assert_same_as_reach_v0(ros, gymnasium.make('robot_ai/Reach-v0'))
+        ros = self.ros('/arm_1', reward_type='dense')
+        self.assert_same_as_reach_v0(ros, gymnasium.make('robot_ai/Reach-v0', reward_type='dense'),
+                                     reward_type='dense')
+
+    def test_env_equals_reach_v0_on_a_robot_with_mimic_joints(self):
+        ros = self.ros('/pr2/arm_0')
+        arm = ros.unwrapped.arm
+        self.assertTrue(any(arm.tree.joints[n].mimic for n in arm.chain), arm.chain)
+        self.assert_same_as_reach_v0(ros, gymnasium.make('robot_ai/Reach-v0', model=PR2), episodes=2)
+
+    def test_env_equals_reach_v0_on_a_xacro_arm(self):
+        ros = self.ros('/arm7/arm_0')
+        self.assertEqual(ros.unwrapped.arm.tip, 'tool')
+        ref = gymnasium.make('robot_ai/Reach-v0', model=ARM7, xacro_args='scale:=2 tool:=true')
+        self.assert_same_as_reach_v0(ros, ref)
+
+    def test_envs_claim_free_arms_of_their_robot_and_a_held_one_is_an_error_naming_its_holder(self):
+        ur5 = ReachSetup().model.path
+        a, b = self.ros(model=ur5), self.ros(model=ur5)
+        a.reset(seed=0)
+        b.reset(seed=0)
+        held = sorted([a.unwrapped.sim_namespace, b.unwrapped.sim_namespace])
+        self.assertEqual(len(set(held)), 2)
+        setup = ReachSetup()
+        for env in (a, b):
+            self.assertEqual(env.unwrapped.arm.tree.name, setup.arm.tree.name)   # a UR5 arm, not the PR2
+        with self.assertRaises(RosReachError) as caught:
+            self.ros(held[0]).reset(seed=0)
+        self.assertIn('leased to', str(caught.exception))
+        self.assertIn(held[0], str(caught.exception))
+        with self.assertRaises(RosReachError) as caught:     # the PR2's arm holds another robot
+            self.ros('/pr2/arm_0', model=ReachSetup().model.path).reset(seed=0)
+        self.assertIn('another robot', str(caught.exception))
+
+    # -------------------------------------------------------------------------------------------------- faults
+    def test_no_sim_and_a_sim_not_in_lockstep_are_errors_naming_the_namespace(self):
+        t = time.monotonic()
+        with self.assertRaises(RosReachError) as caught:
+            self.ros('/nobody', model=ReachSetup().model.path, timeout=1.5).reset(seed=0)
+        self.assertLess(time.monotonic() - t, 1.5 + 5.0)
+        self.assertIn('/nobody', str(caught.exception))
+        self.assertIn('reach_gym.launch', str(caught.exception))
+        with self.assertRaises(RosReachError) as caught:
+            self.ros('/controlled').reset(seed=0)
+        self.assertIn('/controlled', str(caught.exception))
+        self.assertIn('lockstep', str(caught.exception))
+
+    def start_victim(self, with_fk=True):
+        """A lockstep arm_sim (and forward_kinematics) of the UR5 in /victim, as reach_gym.launch starts them."""
+        rospy.set_param('/victim/robot_description', rospy.get_param('/arm_0/robot_description'))
+        procs = [subprocess.Popen(['rosrun', 'robot_ai', 'arm_sim', '__ns:=/victim', '_lockstep:=true'],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid)]
+        if with_fk:
+            procs.append(subprocess.Popen(['rosrun', 'robot_ai', 'forward_kinematics', '__ns:=/victim',
+                                           '/tf:=/victim/tf', '/tf_static:=/victim/tf_static',
+                                           '_ignore_timestamp:=true'],
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid))
+        rospy.wait_for_service('/victim/arm_sim/lease', 120)
+        return procs
+
+    def stop(self, procs):
+        for p in procs:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
+
+    def test_a_sim_killed_mid_episode_raises_within_the_timeout_and_every_call_after_it_too(self):
+        procs = self.start_victim()
+        try:
+            env = self.ros('/victim', timeout=2.0)
+            deadline = time.monotonic() + 60
+            while True:
+                try:
+                    env.reset(seed=3)
+                    break
+                except RosReachError:
+                    self.assertLess(time.monotonic(), deadline)
+            for _ in range(5):
+                env.step(env.action_space.sample())
+            self.stop(procs[:1])
+            t = time.monotonic()
+            with self.assertRaises(RosReachError) as caught:
+                for _ in range(1000):
+                    env.step(env.action_space.sample())
+            self.assertLess(time.monotonic() - t, 2.0 + 5.0)
+            self.assertIn('/victim', str(caught.exception))
+            with self.assertRaises(RosReachError) as caught:
+                env.step(env.action_space.sample())
+            self.assertIn('call reset()', str(caught.exception))
+        finally:
+            self.stop(procs)
+
+    def test_no_forward_kinematics_is_an_error_that_says_so(self):
+        procs = self.start_victim(with_fk=False)
+        try:
+            with self.assertRaises(RosReachError) as caught:
+                self.ros('/victim', timeout=2.0).reset(seed=0)
+            self.assertIn('forward_kinematics', str(caught.exception))
+        finally:
+            self.stop(procs)
+
+    # ------------------------------------------------------------------------------------------------ the arm_sim
+    def test_arm_sim_moves_at_most_its_velocity_limits_and_ignores_bad_commands(self):
+        states = []
+        sub = rospy.Subscriber('/controlled/joint_states', JointState,
+                               lambda m: states.append((m.header.stamp.to_sec(), np.array(m.position))))
+        pub = rospy.Publisher('/controlled/joint_group_position_controller/command', Float64MultiArray,
+                              queue_size=10)
+        rospy.ServiceProxy('/controlled/reach_controller/home', Trigger)()     # no goal: the controller idles
+        try:
+            deadline = time.monotonic() + 30
+            while pub.get_num_connections() == 0 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            time.sleep(3.0)                       # home reached
+            start = states[-1][1]
+            target = np.clip(start + 2.0, -np.pi + 0.1, np.pi - 0.1)
+            states.clear()
+            pub.publish(Float64MultiArray(data=target.tolist()))
+            time.sleep(0.4)
+            moving = list(states)
+            limit = np.pi        # the UR5's URDF velocity limits
+            speeds = [np.abs(b - a).max() / (tb - ta) for (ta, a), (tb, b) in zip(moving, moving[1:]) if tb > ta]
+            self.assertGreater(len(speeds), 10)
+            self.assertLessEqual(max(speeds), limit * 1.05)
+            self.assertGreater(np.median(speeds), limit * 0.8)       # it moves at the limit, not slower
+            time.sleep(1.5)
+            np.testing.assert_allclose(states[-1][1], target, atol=1e-9)
+            for bad in ([float('nan')] * 6, [0.1] * 5, [float('inf')] + [0.0] * 5):
+                pub.publish(Float64MultiArray(data=bad))
+            time.sleep(0.5)
+            np.testing.assert_allclose(states[-1][1], target, atol=1e-9)     # ignored: the arm holds
+        finally:
+            sub.unregister()
+            pub.unregister()
+
+    # ------------------------------------------------------------------------------------------------ the controller
+    def wait_for_log(self, words, since, timeout=30.0):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            said = [m for n, m in self.log[since:] if n.endswith('reach_controller') and all(w in m for w in words)]
+            if said:
+                return said[0]
+            time.sleep(0.1)
+        self.fail(f'reach_controller never said {words}: {[m for n, m in self.log[since:]][-10:]}')
+
+    def test_controller_reaches_clicked_points_in_two_frames_says_when_it_cannot_and_goes_home(self):
+        clicks = rospy.Publisher('/clicked_point', PointStamped, queue_size=10)
+        distances = []
+        sub = rospy.Subscriber('/controlled/reach_controller/distance', Float64, lambda m: distances.append(m.data))
+        try:
+            deadline = time.monotonic() + 30
+            while clicks.get_num_connections() == 0 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            setup = ReachSetup()
+            goal = setup.arm.tip_positions(np.array([0.6, -1.2, 1.3, -0.4, 0.8, 0.0]))
+            for frame, point in (('base_link', goal), ('tool0', np.array([0.05, -0.1, 0.15]))):
+                since = len(self.log)
+                msg = PointStamped(point=type(PointStamped().point)(*point))
+                msg.header.frame_id = frame
+                clicks.publish(msg)
+                said = self.wait_for_log(['reached'], since)
+                self.assertTrue(said.startswith('reached ('), said)
+                self.assertLess(float(said.rsplit('(', 1)[1].split()[0]), 0.05)
+            since = len(self.log)
+            msg = PointStamped(point=type(PointStamped().point)(3.0, 0.0, 0.2))
+            msg.header.frame_id = 'base_link'
+            clicks.publish(msg)
+            said = self.wait_for_log(['not reached: closest'], since)
+            closest = float(said.split('closest ')[1].split()[0])
+            self.assertGreater(closest, 1.5)          # the UR5 reaches about 1 m: 3 m is 2 m out
+            self.assertLess(distances[-1], closest + 0.01)
+            answer = rospy.ServiceProxy('/controlled/reach_controller/home', Trigger)()
+            self.assertTrue(answer.success)
+            time.sleep(3.0)
+            joints = rospy.wait_for_message('/controlled/joint_states', JointState, 10)
+            np.testing.assert_allclose(joints.position, setup.home, atol=1e-6)
+        finally:
+            sub.unregister()
+            clicks.unregister()
+
+
+if __name__ == '__main__':
+    rospy.init_node('test_reach_ros')
+    rostest.rosrun('robot_ai', 'reach_ros', TestReachRos, sys.argv)
