@@ -14,9 +14,12 @@ ROS Parameters
     ~balance_steps (int, 1000): sim steps watched before the push (20 s of simulated time).
     ~push (float, 0.2): the push, rad/s added to the pole's angular velocity. The course's Q-learning agent
         recovers from 0.2 in 200 of 200 trials in gymnasium's physics, from +0.3 in about half (README).
+    ~reach_ns (str, /reach): where arm_sim and reach_controller run (reach.launch); "" = no reach.
+    ~reach_goals (int, 3): seeded goals (seed ~reach_seed, 0) the arm reaches through ROS, each from home.
 
-Exits 0 when the frames moved, the search balanced the pole, the Q-learning agents learned and the saved policy
-kept the cart-pole's pole up through the push, 1 otherwise.
+Exits 0 when the frames moved, the search balanced the pole, the Q-learning agents learned, the saved policy
+kept the cart-pole's pole up through the push, ARS learned to reach 95 % of fresh goals and the arm reached every
+seeded goal through ROS; 1 otherwise.
 """
 import math
 import os
@@ -173,6 +176,75 @@ def closed_loop(ns: str, policy_path: str, balance_steps: int, push: float) -> t
         ep_sub.unregister()
 
 
+def wait_home(ns: str, joints: list[str], home: list[float], timeout: float = 30.0) -> bool:
+    """Whether the arm's joints came within a milliradian of home within timeout seconds."""
+    deadline = time.time() + timeout
+    while time.time() < deadline and not rospy.is_shutdown():
+        msg = rospy.wait_for_message(f'{ns}/joint_states', JointState, timeout)
+        position = dict(zip(msg.name, msg.position))
+        if all(abs(position.get(n, 1e9) - h) < 1e-3 for n, h in zip(joints, home)):
+            return True
+        rospy.sleep(0.1)
+    return False
+
+
+def reach(ns: str, count: int, seed: int) -> tuple[list[str], list[str]]:
+    """The reach through ROS: ARS's figures from the controller, then count seeded goals, each from home: (summary
+    lines, the checks that failed)."""
+    import numpy as np
+    from geometry_msgs.msg import PointStamped
+    from std_msgs.msg import Float64
+    from robot_ai.reach import ReachSetup
+    controller = f'{ns}/reach_controller'
+    try:
+        wait_for_node_service(f'{controller}/home', 300)       # it learns with ARS before it serves
+    except rospy.ROSException as e:
+        return [f'  reach_controller not reached: {e}'], [f'reach_controller not reached: {e}']
+    info = rospy.get_param(f'{controller}/policy_info', '?')
+    rate = float(rospy.get_param(f'{controller}/success_rate', -1.0))
+    lines = [f'  {info}']
+    failed = [] if rate >= 0.95 else [f'ARS reached {100 * rate:.1f} % of fresh goals (95 % wanted)']
+    setup = ReachSetup(urdf=rospy.get_param(f'{ns}/robot_description'),
+                       tip=rospy.get_param(f'{controller}/tip', '') or None)
+    arm, threshold = setup.arm, setup.task.distance_threshold
+    goals = arm.tip_positions(np.random.default_rng(seed).uniform(arm.lower, arm.upper, (count, arm.n)))
+    distances = queue.Queue()
+    sub = rospy.Subscriber(f'{controller}/distance', Float64, lambda m: distances.put(m.data), queue_size=1000)
+    pub = rospy.Publisher(f'{controller}/goal', PointStamped, queue_size=1, latch=True)
+    home = rospy.ServiceProxy(f'{controller}/home', Trigger)
+    try:
+        for i, goal in enumerate(goals, 1):
+            home()
+            if not wait_home(ns, arm.joints, setup.home.tolist()):
+                failed.append(f'the arm did not come home before goal {i}')
+            while not distances.empty():
+                distances.get()
+            msg = PointStamped()
+            msg.header.frame_id, msg.header.stamp = arm.base, rospy.Time.now()
+            msg.point.x, msg.point.y, msg.point.z = (float(v) for v in goal)
+            pub.publish(msg)
+            t0, reached, closest = time.time(), None, float('inf')
+            while time.time() - t0 < 30 and reached is None and not rospy.is_shutdown():
+                try:
+                    d = distances.get(timeout=1.0)
+                except queue.Empty:
+                    continue
+                closest = min(closest, d)
+                if d < threshold:
+                    reached = time.time() - t0
+            where = f'goal {i} ({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f}) m in {arm.base}'
+            if reached is not None:
+                lines.append(f'  {where}: reached in {reached:.2f} s ({closest:.3f} m)')
+            else:
+                lines.append(f'  {where}: NOT reached, closest {closest:.3f} m')
+                failed.append(f'{where} not reached (closest {closest:.3f} m)')
+        home()
+    finally:
+        sub.unregister()
+        pub.unregister()
+    return lines, failed
+
+
 @quiet_on_shutdown
 def main():
     rospy.init_node('demo_client')
@@ -186,6 +258,9 @@ def main():
     cartpole_ns = str_param('~cartpole_ns', '/cartpole')
     balance_steps = int_param('~balance_steps', 1000)
     push = number_param('~push', 0.2, 'a number of rad/s', lambda v: True)
+    reach_ns = str_param('~reach_ns', '/reach')
+    reach_goals = int_param('~reach_goals', 3, 'a whole number from 1 to 100', lambda v: 1 <= v <= 100)
+    reach_seed = int_param('~reach_seed', 0, 'a whole number', lambda v: True)
     buf = tf2_ros.Buffer()
     tf2_ros.TransformListener(buf)
     failed = []                           # the checks that failed, with their figures
@@ -278,11 +353,18 @@ def main():
         else:
             lines.append('  no policy file to drive with')
             failed.append('cart-pole: no policy file to drive with')
+    if reach_ns:
+        lines.append(f'reach: ARS learns to reach on the demo\'s arm, then the arm reaches {reach_goals} seeded goals '
+                     f'through ROS (arm_sim, forward_kinematics, reach_controller), each from home')
+        reach_lines, reach_failed = reach(reach_ns.rstrip('/'), reach_goals, reach_seed)
+        lines += reach_lines
+        failed += [f'reach: {f}' for f in reach_failed]
     if failed:
         lines.append('verdict: FAILED - ' + '; '.join(failed))
     else:
         lines.append('verdict: OK - frames move, the search balanced the pole, the Q-learning agents learned'
-                     + (', the saved policy balanced the cart-pole robot' if cartpole_ns else ''))
+                     + (', the saved policy balanced the cart-pole robot' if cartpole_ns else '')
+                     + (f', the arm reached {reach_goals} of {reach_goals} goals through ROS' if reach_ns else ''))
     lines.append('=' * 72)
     print('\n'.join(lines))
     sys.stdout.flush()

@@ -32,6 +32,11 @@ ROS Publishers
 
 ROS Services
     ~home (std_srvs/Trigger): the arm to its home (the middle of each joint's range, the policy's), goal dropped.
+    ~load_policy (robot_ai/LoadPolicy): drive with another reach policy file of this robot and tip; a bad file, or
+        one of another robot or tip, changes nothing.
+
+Parameters it sets: ~policy_info (str): the policy that drives, in one line; ~success_rate (float): its success rate
+over fresh goals (held-out) as its file or its training says, -1 when unknown.
 """
 from __future__ import annotations
 
@@ -50,6 +55,7 @@ from visualization_msgs.msg import Marker
 from robot_ai import ars
 from robot_ai.cartpole import policies
 from robot_ai.nodes.params import number_param, publish, quiet_on_shutdown, str_param
+from robot_ai.srv import LoadPolicy, LoadPolicyResponse
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach import learn
 from robot_ai.reach.arm import ReachError
@@ -73,7 +79,8 @@ class ReachController:
         self.rate = number_param('~rate', 20.0, 'a positive number of steps per second', lambda v: 0 < v <= 1000)
         self.stalled_after = number_param('~stalled_after', 2.0, 'a positive number of seconds',
                                           lambda v: 0 < v <= 3600)
-        self.policy, self.setup = self._policy(xml, str_param('~policy', ''), str_param('~tip', ''))
+        self.policy, self.setup, info, success = self._policy(xml, str_param('~policy', ''), str_param('~tip', ''))
+        self._announce(info, success)
         arm = self.setup.arm
         self.base, self.tip = arm.base, arm.tip
         self.command_joints = rospy.get_param('~command_joints', list(tree.active_joints))
@@ -98,16 +105,23 @@ class ReachController:
         self.subs = [rospy.Subscriber('joint_states', JointState, self._on_joints, queue_size=1, tcp_nodelay=True),
                      rospy.Subscriber('/clicked_point', PointStamped, self._on_goal, queue_size=1),
                      rospy.Subscriber('~goal', PointStamped, self._on_goal, queue_size=1)]
-        self.services = [rospy.Service('~home', Trigger, self._on_home)]
+        self.services = [rospy.Service('~home', Trigger, self._on_home),
+                         rospy.Service('~load_policy', LoadPolicy, self._on_load_policy)]
         self.timer = rospy.Timer(rospy.Duration(1.0 / self.rate), self._step)
         rospy.loginfo(f'reach_controller ready: {arm.describe()}; {self.rate:g} steps/s; click a point in rviz '
                       f'(Publish Point) or publish {rospy.resolve_name("~goal")}')
 
     # ------------------------------------------------------------------------------------------------ the policy
     @staticmethod
+    def _announce(info: str, success: float | None) -> None:
+        rospy.set_param('~policy_info', info)
+        rospy.set_param('~success_rate', -1.0 if success is None else float(success))
+        rospy.loginfo(f'reach_controller: driving with {info}')
+
+    @staticmethod
     def _policy(xml: str, path: str, tip: str):
-        """(an object with act_batch(flat observations), the reach setup it acts in) of ~policy, or of an ARS run on
-        the robot description when it is empty."""
+        """(an object with act_batch(flat observations), the reach setup it acts in, a line on it, its success rate)
+        of ~policy, or of an ARS run on the robot description when it is empty."""
         if path:
             try:
                 policy = policies.load(path)
@@ -118,8 +132,7 @@ class ReachController:
                 raise ValueError(f'~policy: {e}') from None
             if note:
                 rospy.logwarn(note)
-            rospy.loginfo(f'reach_controller: {policy.describe()}')
-            return policy.actor, setup
+            return policy.actor, setup, policy.describe(), policy.metadata.get('success_rate')
         try:
             setup = ReachSetup(urdf=xml, tip=tip or None)
         except ReachError as e:
@@ -128,10 +141,10 @@ class ReachController:
                       f'python -m robot_ai.reach train writes a file to give as ~policy instead)')
         t = time.monotonic()
         training = learn.train(dict(urdf=xml, tip=setup.arm.tip), seed=0, evaluate_episodes=1000)
-        rospy.loginfo(f'reach_controller: ARS reached {100 * training.held_out.success_rate:.1f} % of 1000 fresh '
-                      f'goals within {setup.task.distance_threshold:g} m after {time.monotonic() - t:.1f} s '
-                      f'({training.result.steps:,} steps)')
-        return training.policy, training.setup
+        rate = training.held_out.success_rate
+        info = (f'ARS trained at start on {setup.model.tree.name}: {100 * rate:.1f} % of 1000 fresh goals within '
+                f'{setup.task.distance_threshold:g} m, {time.monotonic() - t:.1f} s, {training.result.steps:,} steps')
+        return training.policy, training.setup, info, rate
 
     # ------------------------------------------------------------------------------------------------ callbacks
     def _on_joints(self, msg: JointState) -> None:
@@ -177,6 +190,18 @@ class ReachController:
             marker.color.r, marker.color.g, marker.color.b, marker.color.a = 0.1, 0.9, 0.1, 0.6
         publish(self.marker_pub, marker)
 
+    def _on_load_policy(self, req) -> LoadPolicyResponse:
+        try:
+            policy = policies.load(req.path)
+            note = learn.check_fits(policy, self.setup)
+        except (policies.PolicyError, ReachError) as e:
+            return LoadPolicyResponse(success=False, message=f'{e}; still driving with the policy it had')
+        with self.lock:
+            self.policy = policy.actor
+        self._announce(policy.describe(), policy.metadata.get('success_rate'))
+        return LoadPolicyResponse(success=True, message=f'driving with {policy.describe()}' + (f' ({note})' if note
+                                                                                                  else ''))
+
     def _on_home(self, req) -> TriggerResponse:
         with self.lock:
             self.goal = None
@@ -203,7 +228,7 @@ class ReachController:
 
     def _step(self, event) -> None:
         with self.lock:
-            goal, joints = self.goal, dict(self.joints)
+            goal, joints, policy = self.goal, dict(self.joints), self.policy
         if goal is None:
             return
         arm = self.setup.arm
@@ -216,7 +241,7 @@ class ReachController:
             return
         q = [min(max(float(joints[n]), lo), hi) for n, lo, hi in zip(arm.joints, arm._lower, arm._upper)]
         observation = self.setup.observation_one(q, tip, goal)
-        action = self.policy.act_batch(ars.flatten_batch(self.setup.observation_space,
+        action = policy.act_batch(ars.flatten_batch(self.setup.observation_space,
                                                         {k: v[None] for k, v in observation.items()}))[0]
         a = self.setup.check_action_one(np.asarray(action, dtype=np.float64))
         self._command(joints, self.setup.move_one(q, self.setup.place_one(q)[1], a))
