@@ -628,6 +628,68 @@ class TestLaunch(unittest.TestCase):
         self.assertGreater(counts['pole_rows'], 60, f'the pole is not upright: {counts}')
         self.assertLess(counts['orange_top'], counts['blue_top'] - 50, f'the pole is not above the cart: {counts}')
 
+    def test_reach_in_rviz_a_clicked_point_is_reached(self):
+        """Issue 31: reach.launch with rviz under Xvfb; a user picks rviz's Publish Point tool and clicks on the arm
+        (rviz picks a point on what it draws): the point goes out on /clicked_point, reach_controller (ARS trained at
+        its start) drives the arm to it, and rviz draws the arm with the goal's green sphere at its tip."""
+        display, xvfb = start_xvfb('1280x1024')
+        proc = None
+        env = dict(os.environ, DISPLAY=display)
+        try:
+            proc = launch(['rviz:=true'], env, launch_file='reach.launch')
+            deadline = time.time() + 240      # ARS learns at the controller's start
+            while time.time() < deadline:
+                listed = subprocess.run(['rosservice', 'list'], env=proc.env, capture_output=True, text=True,
+                                        timeout=30).stdout
+                if '/reach_controller/home' in listed:
+                    break
+                self.assertIsNone(proc.poll())
+                time.sleep(1.0)
+            self.assertIn('/reach_controller/home', listed)
+            time.sleep(8.0)                   # rviz's window and the arm's model
+            clicked = subprocess.Popen(['rostopic', 'echo', '-n', '1', '/clicked_point'], env=proc.env,
+                                       stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            xdo = ['xdotool']
+            # the view (x 364-1007, y 63-690 on this screen): points around its middle until rviz finds the arm
+            spots = [(686 + dx, 400 + dy) for r in range(0, 200, 25) for dx, dy in
+                     ((-r, 0), (r, 0), (0, -r), (0, r), (-r, -r), (r, r), (-r, r), (r, -r))]
+            for x, y in spots:
+                subprocess.run(xdo + ['mousemove', '356', '42', 'click', '1'], env=env, timeout=10)   # Publish Point
+                subprocess.run(xdo + ['mousemove', str(x - 3), str(y)], env=env, timeout=10)
+                time.sleep(0.3)
+                subprocess.run(xdo + ['mousemove', str(x), str(y), 'click', '1'], env=env, timeout=10)
+                try:
+                    out, _ = clicked.communicate(timeout=1.5)
+                    break
+                except subprocess.TimeoutExpired:
+                    continue
+            else:
+                clicked.kill()
+                self.fail('no click on the arm published a point')
+            self.assertIn('frame_id: "base_link"', out)
+            deadline, distance = time.time() + 60, float('inf')
+            while time.time() < deadline and distance >= 0.05:
+                echo = subprocess.run(['rostopic', 'echo', '-n', '1', '/reach_controller/distance'], env=proc.env,
+                                      capture_output=True, text=True, timeout=30).stdout
+                if 'data:' in echo:
+                    distance = float(echo.split('data:')[1].split()[0])
+            self.assertLess(distance, 0.05, out)
+            time.sleep(2.0)
+            os.makedirs(ARTIFACTS, exist_ok=True)
+            path = os.path.join(ARTIFACTS, 'reach_rviz.png')
+            subprocess.run(['import', '-window', 'root', '-display', display, path], check=True, timeout=60)
+            img = np.asarray(Image.open(path).convert('RGB')).astype(int)[63:690, 364:1007]
+            r, g, b = img[..., 0], img[..., 1], img[..., 2]
+            green = int(((g > 150) & (r < 120) & (b < 120) & (g - r > 80)).sum())
+            orange = int(((r > 190) & (g > 70) & (g < 160) & (b < 70)).sum())
+            self.assertGreater(orange, 1500, 'the arm is not drawn')
+            self.assertGreater(green, 150, 'the goal\'s marker is not drawn')
+        finally:
+            if proc is not None:
+                stop(proc)
+            xvfb.kill()
+            xvfb.wait()
+
     def test_demo_rviz_shows_the_arm_and_the_cart_pole(self):
         """Issue 27: demo.launch rviz:=true showed the arm only, not the cart-pole the demo also drives: a second
         rviz window, to the right of the arm's (x 1030 on a screen wide enough), shows the cart-pole."""
