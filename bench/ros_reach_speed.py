@@ -5,7 +5,9 @@
 - a plain rospy ping-pong (a Float64 out, a JointState back from a bare echo node): one ROS round trip;
 - the bare exchange the env makes (a command to a lockstep arm_sim, its joint_states to forward_kinematics, the
   frames back to the reader): two hops, what a step cannot beat;
-- RosReach-v0 on one arm (steps per second), and its ratio to the ping-pong (target: at least 0.4).
+- RosReach-v0 on one arm (steps per second), and its ratio to the ping-pong (target: at least 0.4);
+- reach_controller's loop (reach.launch, 20 steps a second of ROS time) over --seconds of goals, quiet and with two
+  busy loops on the cores (started here): the intervals between its commands.
 
 It starts its own master on a free port, reach_gym.launch sims:=1 (the package's UR5, or --model) and an echo node;
 random actions; steps per second of wall time over --steps steps after a warm-up. Run it alone, or beside busy loops
@@ -82,10 +84,37 @@ def env_rate(env, steps: int) -> float:
     return rate(one, steps)
 
 
+def controller_intervals(seconds: float) -> np.ndarray:
+    """Seconds between reach_controller's commands while it chases a new goal every second."""
+    import rospy
+    from geometry_msgs.msg import PointStamped
+    from std_msgs.msg import Float64MultiArray
+    from robot_ai.reach import ReachSetup
+    stamps = []
+    sub = rospy.Subscriber('/joint_group_position_controller/command', Float64MultiArray,
+                           lambda m: stamps.append(time.monotonic()), queue_size=100)
+    pub = rospy.Publisher('/reach_controller/goal', PointStamped, queue_size=1)
+    time.sleep(1.0)
+    setup = ReachSetup()
+    rng = np.random.default_rng(0)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < seconds:
+        goal = setup.arm.tip_positions(rng.uniform(setup.arm.lower, setup.arm.upper))
+        msg = PointStamped()
+        msg.header.frame_id = setup.arm.base
+        msg.point.x, msg.point.y, msg.point.z = (float(v) for v in goal)
+        pub.publish(msg)
+        time.sleep(1.0)
+    sub.unregister()
+    pub.unregister()
+    return np.diff(np.array(stamps))
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--steps', type=int, default=3000, help='steps measured in each case')
     parser.add_argument('--model', default='', help='the arm (default: the package\'s UR5)')
+    parser.add_argument('--seconds', type=float, default=15.0, help='seconds of the controller\'s loop, each load')
     a = parser.parse_args()
     port = free_port()
     env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{port}')
@@ -98,11 +127,12 @@ def main() -> int:
              subprocess.Popen([sys.executable, os.path.join(HERE, 'ros_env_speed.py'), '--echo'], env=env,
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid)]
     try:
+        import importlib
         import gymnasium
         import rosgraph
         import rospy
-        import robot_ai.envs  # noqa: F401  (registers robot_ai/RosReach-v0)
-        import robot_ai.reach  # noqa: F401  (registers robot_ai/Reach-v0)
+        for module in ('robot_ai.envs', 'robot_ai.reach'):    # register robot_ai/RosReach-v0 and Reach-v0
+            importlib.import_module(module)
         deadline = time.time() + 60
         while not rosgraph.Master('/ros_reach_speed').is_online() and time.time() < deadline:
             time.sleep(0.2)
@@ -123,6 +153,22 @@ def main() -> int:
         ros.close()
         print(f'  RosReach-v0, one arm:                                {through:10,.0f} steps/s  '
               f'({through / pp:.2f} of the ping-pong; target 0.4)')
+        procs.append(subprocess.Popen(['roslaunch', '-p', str(port), 'robot_ai', 'reach.launch', 'rviz:=false'],
+                                      env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                      preexec_fn=os.setsid))
+        rospy.wait_for_service('/reach_controller/home', 300)
+        print('  reach_controller loop, 20 steps/s wanted: intervals between its commands (ms)')
+        for label, loops in (('quiet', 0), ('two busy loops', 2)):
+            busy = [subprocess.Popen([sys.executable, '-c', 'while True: pass']) for _ in range(loops)]
+            try:
+                gaps = controller_intervals(a.seconds) * 1000
+            finally:
+                for b in busy:
+                    b.kill()
+                    b.wait()
+            p50, p99, worst = np.percentile(gaps, 50), np.percentile(gaps, 99), gaps.max()
+            print(f'    {label:15s} {len(gaps) / a.seconds:5.1f} commands/s   p50 {p50:6.1f}   p99 {p99:6.1f}   '
+                  f'max {worst:6.1f}')
         return 0
     finally:
         for p in procs:
