@@ -11,7 +11,7 @@ import pytest
 
 ROOT = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..')
 LAUNCH = os.path.join(ROOT, 'launch')
-PARAM_CALL = re.compile(r"""(?:_param|get_param|has_param)\(\s*'~(\w+)'""")
+PARAM_CALL = re.compile(r"""(?:(?<!set)_param|get_param|has_param)\(\s*'~(\w+)'""")   # set_param: what a node says
 # read through search_param with robot_state_publisher's meaning: a launch file must not pin them
 SEARCHED = {'forward_kinematics': {'tf_prefix'}}
 

@@ -13,8 +13,8 @@ An env takes the sim's ~lease: while it holds it, commands and ~set_state from a
 
 ROS Parameters
     robot_description (str): the robot, searched up the namespaces and waited for.
-    ~joints (list of str, the robot's active joints): the joints the sim moves and publishes, in command order.
-    ~home (list of float or dict name -> float, the middle of each joint's range): where the arm starts.
+    ~joints (list of str, [] = the robot's active joints): the joints the sim moves and publishes, in command order.
+    ~home (list of float or dict name -> float, [] or {} = the middle of each joint's range): where the arm starts.
     ~rate (float, 100): ticks per second of ROS time (free-running).
     ~real_time_factor (float, 1.0): simulated seconds per second of ROS time.
     ~lockstep (bool, false): true = one step per command, reached at once (no clock, no velocity limit).
@@ -89,7 +89,7 @@ class ArmSim:
     @staticmethod
     def _joints_param(tree) -> list[str]:
         value = rospy.get_param('~joints', None)
-        if value is None:
+        if value is None or value == []:
             return list(tree.active_joints)
         if not isinstance(value, list) or not value or not all(isinstance(n, str) for n in value):
             raise ValueError(f'~joints must be a list of joint names, got {value!r}')
@@ -105,7 +105,7 @@ class ArmSim:
     def _home_param(self, tree) -> np.ndarray:
         home = (self.lower + self.upper) / 2.0
         value = rospy.get_param('~home', None)
-        if value is None:
+        if value is None or value == [] or value == {}:
             return home
         if isinstance(value, dict):
             unknown = sorted(set(value) - set(self.joints))
