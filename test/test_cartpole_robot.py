@@ -121,10 +121,19 @@ class TestCartPoleRobot(unittest.TestCase):
                 env.state = np.array(start, dtype=np.float64)
         self.assertGreater(steps, 30)
         self.assertGreater(pushes, 3)
-        # NaN, inf and forces beyond MAX_FORCE are ignored: no step, and the sim goes on with the next finite force
+        # NaN, inf and forces beyond MAX_FORCE are ignored: each still answers its state, a step with the last valid
+        # force held (so that a flood of them never stalls a lockstep sim), and the state stays gymnasium's
+        pub.publish(Float64(force_mag))
+        got = states.get(timeout=10)
+        env.step(1)
+        self.assertEqual(got, tuple(float(v) for v in env.state))
         for bad in (float('nan'), float('inf'), 1e308, -2e4):
             pub.publish(Float64(bad))
-        with self.assertRaises(queue.Empty):
+            got = states.get(timeout=10)
+            env.step(1)
+            self.assertEqual(got, tuple(float(v) for v in env.state), f'after a force of {bad}')
+            self.assertTrue(all(math.isfinite(v) for v in got))
+        with self.assertRaises(queue.Empty):      # one state per force: nothing more
             states.get(timeout=1.0)
         # pushes that would make theta_dot non-finite (two of 1e308 gave inf and nan) are refused
         for _ in range(2):
