@@ -2,7 +2,7 @@
 """The CartPole as a ROS robot (cartpole_robot.test): lockstep states equal gymnasium's CartPoleEnv bit for bit (a
 push and NaN forces included), forward_kinematics turns rail -> pole by exactly theta, the controller keeps the pole
 up (a minute at real time, episodes at real_time_factor 5 as long as ~evaluate's), disabled it lets the pole fall and
-the sim resets, a policy file drives it."""
+the sim resets, a policy file drives it, and so does an ONNX model."""
 import math
 import os
 import queue
@@ -24,7 +24,7 @@ from std_srvs.srv import SetBool, Trigger
 from robot_ai.cartpole import linear_search, policies, q_learning
 from robot_ai.cartpole.dynamics import CartPoleDynamics
 from robot_ai.msg import CartPoleEpisode
-from robot_ai.srv import PushPole
+from robot_ai.srv import LoadPolicy, PushPole
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from test_launch import free_port  # noqa: E402
@@ -234,6 +234,54 @@ class TestCartPoleRobot(unittest.TestCase):
         self.assertGreaterEqual(longest, 1000)
         self.assertFalse([m for m in ended[1:] if m.steps < 200], [(m.steps, m.reason) for m in ended])
         self.assertIn(b'q_learning policy from ' + path.encode(), controller.stdout.read())
+
+    def test_5b_an_onnx_model_drives_it_as_the_policy_it_encodes_and_bad_ones_are_refused(self):
+        """cartpole_controller with an ONNX model (the integer action stable-baselines3's PPO exports): each state
+        published on /onnx/joint_states is answered with the force of the linear policy the model encodes; a model
+        with a foreign operator is refused by ~load_policy and the node keeps driving."""
+        import onnx_models
+        weights = np.array([0.02, 0.35, 1.0, 0.55], np.float32)
+        folder = tempfile.mkdtemp()
+        path = onnx_models.save(onnx_models.cartpole_integer(weights), os.path.join(folder, 'ppo_like.onnx'))
+        bad = onnx_models.cartpole_integer(weights)
+        bad.graph.node.append(onnx_models.helper.make_node('Run', ['obs'], ['x'], domain='com.evil'))
+        bad.opset_import.append(onnx_models.helper.make_opsetid('com.evil', 1))
+        bad_path = onnx_models.save(bad, os.path.join(folder, 'custom.onnx'))
+        forces = queue.Queue()
+        force_sub = rospy.Subscriber('/onnx/cart_force', Float64, lambda m: forces.put(m.data), queue_size=100)
+        states = rospy.Publisher('/onnx/joint_states', JointState, queue_size=10)
+        controller = subprocess.Popen(['rosrun', 'robot_ai', 'cartpole_controller', '__ns:=/onnx',
+                                       f'_policy:={path}'], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        try:
+            rospy.wait_for_service('/onnx/cartpole_controller/load_policy', 60)
+            deadline = time.time() + 30
+            while states.get_num_connections() == 0 and time.time() < deadline:
+                time.sleep(0.05)
+            rng = np.random.default_rng(4)
+
+            def answers(n):
+                out = []
+                for x in rng.normal(size=(n, 4)) * [1.0, 1.0, 0.1, 1.0]:
+                    states.publish(JointState(name=['cart_slider', 'pole_hinge'], position=[x[0], x[2]],
+                                              velocity=[x[1], x[3]]))
+                    expected = 10.0 if float(np.float32(x).astype(np.float64) @ weights) > 0 else -10.0
+                    out.append((forces.get(timeout=10), expected))
+                return out
+            got = answers(300)
+            self.assertEqual([f for f, _ in got], [e for _, e in got])
+            self.assertEqual({f for f, _ in got}, {10.0, -10.0})
+            load = rospy.ServiceProxy('/onnx/cartpole_controller/load_policy', LoadPolicy)
+            answer = load(bad_path)
+            self.assertFalse(answer.success)
+            self.assertIn('outside the standard domains: com.evil', answer.message)
+            got = answers(50)
+            self.assertEqual([f for f, _ in got], [e for _, e in got])
+        finally:
+            force_sub.unregister()
+            states.unregister()
+            controller.send_signal(2)
+            controller.wait(15)
+        self.assertIn(b'cartpole_controller ready: ONNX policy from ' + path.encode(), controller.stdout.read())
 
     def test_6_lockstep_launch_starts_by_itself_and_extra_forces_do_not_circulate(self):
         """cartpole.launch lockstep:=true: the sim's start state came before the controller subscribed and each waited

@@ -2,7 +2,8 @@
 """Reach in the ROS graph: robot_ai/RosReach-v0 equals Reach-v0 (to 1e-9 m on every observation, identical
 rewards and successes) on the UR5, on the PR2 (mimic joints in its chain) and on a xacro arm; leases and faults;
 arm_sim's velocity limit and bad commands; reach_controller reaching points clicked in the root frame and in
-another frame, saying when it cannot, and going home."""
+another frame, saying when it cannot, and going home; an ONNX model loaded into it drives it, models of another env or
+with foreign operators are refused."""
 import os
 import signal
 import subprocess
@@ -266,6 +267,47 @@ class TestReachRos(unittest.TestCase):
         finally:
             sub.unregister()
             clicks.unregister()
+
+    def test_controller_takes_an_onnx_model_and_refuses_one_of_another_env_or_domain(self):
+        """~load_policy with an ONNX model of the P-controller (a Clip of a MatMul, as an exported actor): it drives
+        and reaches; a CartPole model and a model with a foreign operator are refused and the policy stays."""
+        import tempfile
+        import onnx_models
+        from robot_ai.reach import learn
+        from robot_ai.srv import LoadPolicy
+        setup = ReachSetup()
+        folder = tempfile.mkdtemp()
+        meta = dict(env_id='robot_ai/Reach-v0', env_kwargs=dict(tip=setup.arm.tip, control='ee'),
+                    robot=setup.model.tree.name, joints=list(setup.arm.joints))
+        good = onnx_models.save(onnx_models.linear_clip(learn.p_controller(setup).weights.T, meta),
+                                os.path.join(folder, 'p.onnx'))
+        cartpole = onnx_models.save(onnx_models.cartpole_scores(np.ones(4, np.float32)),
+                                    os.path.join(folder, 'cartpole.onnx'))
+        foreign = onnx_models.linear_clip(learn.p_controller(setup).weights.T, meta)
+        foreign.graph.node.append(onnx_models.helper.make_node('Run', ['obs'], ['x'], domain='com.evil'))
+        foreign.opset_import.append(onnx_models.helper.make_opsetid('com.evil', 1))
+        foreign = onnx_models.save(foreign, os.path.join(folder, 'foreign.onnx'))
+        load = rospy.ServiceProxy('/controlled/reach_controller/load_policy', LoadPolicy)
+        answer = load(good)
+        self.assertTrue(answer.success, answer.message)
+        self.assertTrue(rospy.get_param('/controlled/reach_controller/policy_info').startswith('ONNX policy from '))
+        for path, words in ((cartpole, 'acts in CartPole-v1, not a reach env'),
+                            (foreign, 'outside the standard domains: com.evil')):
+            answer = load(path)
+            self.assertFalse(answer.success)
+            self.assertIn(words, answer.message)
+        self.assertIn(good, rospy.get_param('/controlled/reach_controller/policy_info'))
+        goal = setup.arm.tip_positions(np.array([-0.5, -1.0, 1.0, -0.2, 0.5, 0.0]))
+        since = len(self.log)
+        msg = PointStamped(point=type(PointStamped().point)(*goal))
+        msg.header.frame_id = 'base_link'
+        goals = rospy.Publisher('/controlled/reach_controller/goal', PointStamped, queue_size=1, latch=True)
+        try:
+            goals.publish(msg)
+            said = self.wait_for_log(['reached'], since)
+            self.assertTrue(said.startswith('reached ('), said)
+        finally:
+            goals.unregister()
 
 
 if __name__ == '__main__':

@@ -72,6 +72,19 @@ def write_or_say(label: str, write) -> None:
         print(f'{label:<18}not written: {e}')
 
 
+def show_onnx(path: str, parser) -> int:
+    """`show` of an ONNX model: its metadata, producer, opset, inputs, outputs and operators (JSON)."""
+    import json
+    from robot_ai.cartpole.policies import PolicyError
+    from robot_ai.onnx_policy import read, summary
+    try:
+        file = read(path)
+    except PolicyError as e:
+        parser.error(str(e))
+    print(json.dumps(summary(file), indent=2))
+    return 0
+
+
 class Interrupted(Exception):
     """A SIGTERM or SIGHUP, raised where the run is, so that it ends through its finally clauses."""
 

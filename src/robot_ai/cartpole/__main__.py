@@ -18,7 +18,7 @@ import numpy as np
 from robot_ai.cartpole import artifacts, linear_search, policies, q_learning
 from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
-from robot_ai.cli import output_folder, positive_number, run_command, whole_number, write_or_say
+from robot_ai.cli import output_folder, positive_number, run_command, show_onnx, whole_number, write_or_say
 from robot_ai.text import counted
 
 
@@ -258,13 +258,15 @@ def run_q_learning(a, parser) -> int:
 def evaluate_parser(sub) -> None:
     p = sub.add_parser('evaluate', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                        help='play greedy episodes of a policy file and print the average',
-                       description='Play episodes with the policy of a file (either kind), start states from the '
-                       'seed, and print the average episode length.')
-    p.add_argument('policy', help='a policy file (.npz)')
+                       description='Play episodes with the policy of a file (either kind, or an ONNX model '
+                       'exported from another library), start states from the seed, and print the average episode '
+                       'length.')
+    p.add_argument('policy', help='a policy file (.npz) or an ONNX model (.onnx)')
     p.add_argument('--episodes', type=whole_number(1, q_learning.MAX_EVAL_EPISODES), default=100,
                    help=f'episodes (1 to {q_learning.MAX_EVAL_EPISODES})')
     p.add_argument('--seed', type=int, default=0, help='seed of the start states')
-    p.add_argument('--env-id', default='', choices=('',) + SUPPORTED_ENVS, help='"" = the policy\'s own env')
+    p.add_argument('--env-id', default='', choices=('',) + SUPPORTED_ENVS,
+                   help='"" = the policy\'s own env (an ONNX model\'s metadata robot_ai_env)')
     p.add_argument('--max-steps', type=int, default=0, help='step limit of an episode; 0 = the environment\'s own')
     p.add_argument('--video', action='store_true', help='also write an mp4 of one episode (its start state from '
                    'gymnasium\'s reset(seed)), as the searches do')
@@ -278,7 +280,7 @@ def evaluate_parser(sub) -> None:
 
 def run_evaluate(a, parser) -> int:
     try:
-        policy = policies.load(a.policy)
+        policy = policies.load_any(a.policy, a.env_id)
         dynamics = CartPoleDynamics.of(a.env_id or policy.env_id)
         max_steps = dynamics.resolve_max_steps(a.max_steps)
     except (policies.PolicyError, RequestError) as e:
@@ -315,12 +317,15 @@ def run_evaluate(a, parser) -> int:
 
 def show_parser(sub) -> None:
     p = sub.add_parser('show', help='print a policy file\'s metadata and arrays',
-                       description='Print the metadata of a policy file (JSON) and the shapes of its arrays.')
-    p.add_argument('policy', help='a policy file (.npz)')
+                       description='Print the metadata of a policy file (JSON) and the shapes of its arrays; of an '
+                       'ONNX model, its metadata, inputs, outputs and operators.')
+    p.add_argument('policy', help='a policy file (.npz) or an ONNX model (.onnx)')
     p.set_defaults(run=run_show)
 
 
 def run_show(a, parser) -> int:
+    if a.policy.strip().lower().endswith('.onnx'):
+        return show_onnx(a.policy, parser)
     try:
         policy = policies.load(a.policy)
     except policies.PolicyError as e:

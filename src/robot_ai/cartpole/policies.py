@@ -25,6 +25,7 @@ import os
 import stat
 import zipfile
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,6 +34,9 @@ from robot_ai.cartpole.artifacts import write_whole
 from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.cartpole.q_learning import Agent
+
+if TYPE_CHECKING:
+    from robot_ai.onnx_policy import OnnxPolicy
 
 FORMAT = 'robot_ai-policy/1'
 KINDS = ('linear', 'q_learning', 'ars_linear')
@@ -138,7 +142,10 @@ def load(path: str) -> Policy:
     if not str(path).strip():
         raise PolicyError('the path is empty: give a policy file (.npz), absolute or ~/...')
     path = os.path.abspath(os.path.expanduser(str(path)))
-    data = _read_regular_file(path)
+    if path.lower().endswith('.onnx'):
+        raise PolicyError(f'{path} is an ONNX model, not a policy file (.npz): ONNX policies drive the controllers '
+                          f'and are evaluated by `evaluate`; searches and trainings start from .npz files only')
+    data = read_regular_file(path)
     try:
         metadata, arrays = _read_archive(data)
         metadata = _metadata(metadata)
@@ -159,13 +166,31 @@ def load(path: str) -> Policy:
     return Policy(actor, metadata, path)
 
 
-def _read_regular_file(path: str) -> bytes:
-    """The bytes of a regular file of at most MAX_FILE_BYTES, opened without blocking and checked once open (a path
+def load_any(path: str, env_id: str = '') -> 'Policy | OnnxPolicy':
+    """A cart-pole policy of either format: a policy file (.npz, load) or an ONNX model (.onnx, exported from
+    another library: robot_ai.onnx_policy.load_cartpole, env_id naming its CartPole when its metadata does not).
+    Both act(state), push_right(observations), evaluate(...) and describe()."""
+    if str(path).strip().lower().endswith('.onnx'):
+        from robot_ai.onnx_policy import load_cartpole
+        return load_cartpole(path, env_id)
+    return load(path)
+
+
+def _size(n: int) -> str:
+    return f'{n / (1024 * 1024):.1f} MiB' if n >= 1024 * 1024 else f'{n:,} bytes'
+
+
+def _a(what: str) -> str:
+    return ('an ' if what[:1].lower() in 'aeio' or what.startswith('ONNX') else 'a ') + what
+
+
+def read_regular_file(path: str, max_bytes: int = MAX_FILE_BYTES, what: str = 'policy file') -> bytes:
+    """The bytes of a regular file of at most max_bytes, opened without blocking and checked once open (a path
     swapped for a FIFO or a device between a check and the open is refused, never waited on)."""
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError:
-        raise PolicyError(f'no policy file at {path}') from None
+        raise PolicyError(f'no {what} at {path}') from None
     except OSError as e:
         raise PolicyError(f'{path}: cannot open it: {e.strerror}') from None
     try:
@@ -173,10 +198,9 @@ def _read_regular_file(path: str) -> bytes:
         if not stat.S_ISREG(st.st_mode):
             raise PolicyError(f'{path} is not a file' if stat.S_ISDIR(st.st_mode) else
                               f'{path} is not a regular file (a FIFO, a device or a socket)')
-        if st.st_size > MAX_FILE_BYTES:
-            raise PolicyError(f'{path} is {st.st_size // (1024 * 1024)} MiB: too large for a policy file '
-                              f'(at most {MAX_FILE_BYTES // (1024 * 1024)} MiB)')
-        chunks, left = [], MAX_FILE_BYTES + 1
+        if st.st_size > max_bytes:
+            raise PolicyError(f'{path} is {_size(st.st_size)}: too large for {_a(what)} (at most {_size(max_bytes)})')
+        chunks, left = [], max_bytes + 1
         while left > 0:
             chunk = os.read(fd, min(left, 1 << 20))
             if not chunk:
@@ -184,7 +208,7 @@ def _read_regular_file(path: str) -> bytes:
             chunks.append(chunk)
             left -= len(chunk)
         if left <= 0:
-            raise PolicyError(f'{path} is too large for a policy file (at most {MAX_FILE_BYTES // (1024 * 1024)} MiB)')
+            raise PolicyError(f'{path} is too large for {_a(what)} (at most {_size(max_bytes)})')
         return b''.join(chunks)
     except OSError as e:
         raise PolicyError(f'{path}: cannot read it: {e.strerror}') from None

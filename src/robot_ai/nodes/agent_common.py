@@ -306,8 +306,14 @@ def policy_param(kind: str) -> Policy | None:
     return policy
 
 
-def load_of_kind(path: str, kind: str) -> Policy:
-    """policies.load(path), refusing a policy of another kind than `kind` ('' takes both; PolicyError, one line)."""
+def load_of_kind(path: str, kind: str, env_id: str = '') -> Policy:
+    """policies.load(path), refusing a policy of another kind than `kind` ('' takes both, and ONNX models:
+    policies.load_any, env_id naming the CartPole of one whose metadata does not; PolicyError, one line)."""
+    if not kind:
+        return policies.load_any(path, env_id)
+    if str(path).strip().lower().endswith('.onnx'):
+        raise PolicyError(f'{path} is an ONNX model: this node starts from and serves {kind} policy files (.npz); '
+                          f'an ONNX policy drives cartpole_controller (~policy, ~load_policy)')
     policy = policies.load(path)
     if kind and policy.kind != kind:
         other = 'cartpole_search' if policy.kind == 'linear' else 'cartpole_q_learning'
@@ -316,10 +322,10 @@ def load_of_kind(path: str, kind: str) -> Policy:
     return policy
 
 
-def answer_load(path: str, kind: str, install: Callable[[Policy], str]) -> LoadPolicyResponse:
+def answer_load(path: str, kind: str, install: Callable[[Policy], str], env_id: str = '') -> LoadPolicyResponse:
     """~load_policy: load the file and install(policy) it as the node's policy; a bad file changes nothing."""
     try:
-        policy = load_of_kind(path, kind)
+        policy = load_of_kind(path, kind, env_id)
     except PolicyError as e:
         rospy.logwarn(f'load_policy refused: {e}')
         return LoadPolicyResponse(success=False, message=f'{e}; the node keeps its policy')

@@ -5,9 +5,11 @@ It answers every cart-pole state (joint_states with cart_slider and pole_hinge) 
 and the pole falls on its own.
 
 ROS Parameters
-    ~policy (str, ""): a policy file (.npz) of either kind, written by a search, a training or the CLI. Empty: the
-        course's random search (100 x 100, CartPole-v1, seed 0) runs at start and its best weights drive. A bad file
-        ends the node with one line.
+    ~policy (str, ""): a policy file (.npz) of either kind, written by a search, a training or the CLI, or an ONNX
+        model (.onnx) exported from another library (stable-baselines3's PPO or DQN, say; see robot_ai.onnx_policy).
+        Empty: the course's random search (100 x 100, CartPole-v1, seed 0) runs at start and its best weights drive.
+        A bad file ends the node with one line.
+    ~env_id (str, ""): the CartPole (CartPole-v0 or CartPole-v1) an ONNX model plays when its metadata names none.
 
 ROS Subscribers
     joint_states (sensor_msgs/JointState): the cart-pole's state; messages without both joints are skipped.
@@ -17,7 +19,8 @@ ROS Publishers
 
 ROS Services
     ~enable (std_srvs/SetBool): switch the controller on (true) or off (false).
-    ~load_policy (robot_ai/LoadPolicy): drive with another policy file (either kind); a bad file changes nothing.
+    ~load_policy (robot_ai/LoadPolicy): drive with another policy file (either kind) or ONNX model; a bad file
+        changes nothing.
 """
 import time
 
@@ -52,9 +55,10 @@ class CartPoleController:
 
     def __init__(self):
         path = str_param('~policy', '')
+        self.env_id = str_param('~env_id', '')
         if path:
             try:
-                self.policy = policies.load(path)
+                self.policy = policies.load_any(path, self.env_id)
             except policies.PolicyError as e:
                 raise policies.PolicyError(f'~policy: {e}')
         else:
@@ -122,7 +126,7 @@ class CartPoleController:
         return f'driving with {policy.describe()}'
 
     def _on_load_policy(self, req):
-        return answer_load(req.path, '', self._install)
+        return answer_load(req.path, '', self._install, self.env_id)
 
 
 def main():

@@ -11,12 +11,13 @@ stopped shrinking (a goal outside the workspace). ~home takes the arm home and d
 
 ROS Parameters
     robot_description (str): the robot, searched up the namespaces and waited for.
-    ~policy (str, ""): a reach policy file (.npz, python -m robot_ai.reach train); empty: ARS trains on the robot
-        description at start (seconds) and says so. A bad file, or one of another robot or tip, ends the node with
-        one line.
+    ~policy (str, ""): a reach policy file (.npz, python -m robot_ai.reach train) or an ONNX model (.onnx) exported
+        from another library (examples/sb3_sac_her_reach_onnx.py; robot_ai.onnx_policy); empty: ARS trains on the
+        robot description at start (seconds) and says so. A bad file, or one of another robot or tip, ends the node
+        with one line.
     ~tip (str, ""): the tip link; empty: the policy's, or the link below the most joints.
     ~rate (float, 20): control steps per second of ROS time.
-    ~command_joints (list of str, the robot's active joints): the joints of the command, in its order (a real
+    ~command_joints (list of str, [] = the robot's active joints): the joints of the command, in its order (a real
         controller's joints); those the arm does not move hold the positions joint_states reports.
     ~stalled_after (float, 2.0): seconds without a millimetre of progress before a goal is called not reached.
 
@@ -32,8 +33,8 @@ ROS Publishers
 
 ROS Services
     ~home (std_srvs/Trigger): the arm to its home (the middle of each joint's range, the policy's), goal dropped.
-    ~load_policy (robot_ai/LoadPolicy): drive with another reach policy file of this robot and tip; a bad file, or
-        one of another robot or tip, changes nothing.
+    ~load_policy (robot_ai/LoadPolicy): drive with another reach policy file or ONNX model of this robot, tip and
+        control; a bad file, or one of another robot or tip, changes nothing.
 
 Parameters it sets: ~policy_info (str): the policy that drives, in one line; ~success_rate (float): its success rate
 over fresh goals (held-out) as its file or its training says, -1 when unknown.
@@ -83,7 +84,7 @@ class ReachController:
         self._announce(info, success)
         arm = self.setup.arm
         self.base, self.tip = arm.base, arm.tip
-        self.command_joints = rospy.get_param('~command_joints', list(tree.active_joints))
+        self.command_joints = rospy.get_param('~command_joints', []) or list(tree.active_joints)
         if not isinstance(self.command_joints, list) or not all(isinstance(n, str) for n in self.command_joints):
             raise ValueError(f'~command_joints must be a list of joint names, got {self.command_joints!r}')
         missing = [n for n in arm.joints if n not in self.command_joints]
@@ -115,7 +116,7 @@ class ReachController:
     @staticmethod
     def _announce(info: str, success: float | None) -> None:
         rospy.set_param('~policy_info', info)
-        rospy.set_param('~success_rate', -1.0 if success is None else float(success))
+        rospy.set_param('~success_rate', float(success) if isinstance(success, (int, float)) else -1.0)
         rospy.loginfo(f'reach_controller: driving with {info}')
 
     @staticmethod
@@ -124,10 +125,7 @@ class ReachController:
         of ~policy, or of an ARS run on the robot description when it is empty."""
         if path:
             try:
-                policy = policies.load(path)
-                tip = tip or policy.metadata.get('env_kwargs', {}).get('tip') or None
-                setup = learn.setup_of(policy, urdf=xml, tip=tip)
-                note = learn.check_fits(policy, setup)
+                policy, setup, note = learn.load(path, urdf=xml, tip=tip or None)
             except (policies.PolicyError, ReachError) as e:
                 raise ValueError(f'~policy: {e}') from None
             if note:
@@ -192,8 +190,7 @@ class ReachController:
 
     def _on_load_policy(self, req) -> LoadPolicyResponse:
         try:
-            policy = policies.load(req.path)
-            note = learn.check_fits(policy, self.setup)
+            policy, _, note = learn.load(req.path, self.setup)
         except (policies.PolicyError, ReachError) as e:
             return LoadPolicyResponse(success=False, message=f'{e}; still driving with the policy it had')
         with self.lock:

@@ -21,7 +21,8 @@ from dataclasses import replace
 
 from robot_ai import ars
 from robot_ai.cartpole import artifacts, policies
-from robot_ai.cli import fraction, output_folder, positive_number, run_command, whole_number, write_or_say
+from robot_ai.cli import (fraction, output_folder, positive_number, run_command, show_onnx, whole_number,
+                          write_or_say)
 from robot_ai.reach import learn
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import CONTROLS, STARTS, ReachSetup
@@ -156,7 +157,8 @@ def evaluate_parser(sub) -> None:
                        help='the success rate of a reach policy file over fresh goals',
                        description='Play a reach policy file on fresh goals of the arm it learned on (or of --model, '
                        'the same robot) and print its success rate beside the P-controller\'s.')
-    p.add_argument('policy', help='a reach policy file (.npz)')
+    p.add_argument('policy', help='a reach policy file (.npz), or an ONNX model (.onnx) exported from another library '
+                   '(examples/sb3_sac_her_reach_onnx.py)')
     add_robot(p, 'default: the file the policy learned on')
     p.add_argument('--episodes', type=whole_number(1, 10 ** 6), default=learn.HELD_OUT_EPISODES, help='fresh goals')
     p.add_argument('--seed', type=int, default=learn.HELD_OUT_SEED, help='seed of the first goal (goal i: seed + i)')
@@ -167,12 +169,7 @@ def evaluate_parser(sub) -> None:
 
 def run_evaluate(a, parser) -> int:
     try:
-        if a.model:
-            policy = policies.load(a.policy)
-            setup = learn.setup_of(policy, model=a.model, xacro_args=a.xacro_args or None)
-            note = learn.check_fits(policy, setup)
-        else:
-            policy, setup, note = learn.load(a.policy)
+        policy, setup, note = learn.load(a.policy, model=a.model or None, xacro_args=a.xacro_args or None)
     except (policies.PolicyError, ReachError) as e:
         parser.error(str(e))
     if note:
@@ -195,11 +192,13 @@ def run_evaluate(a, parser) -> int:
 def show_parser(sub) -> None:
     p = sub.add_parser('show', help='print a reach policy file\'s metadata and arrays',
                        description='Print the metadata of a policy file (JSON) and the shapes of its arrays.')
-    p.add_argument('policy', help='a policy file (.npz)')
+    p.add_argument('policy', help='a policy file (.npz) or an ONNX model (.onnx)')
     p.set_defaults(run=run_show)
 
 
 def run_show(a, parser) -> int:
+    if a.policy.strip().lower().endswith('.onnx'):
+        return show_onnx(a.policy, parser)
     try:
         policy = policies.load(a.policy)
     except policies.PolicyError as e:

@@ -28,6 +28,7 @@ import numpy as np
 
 from robot_ai import ars
 from robot_ai.cartpole import policies
+from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import ReachSetup, ReachVectorEnv
 from robot_ai.reach.task import goal_distance
 
@@ -192,55 +193,119 @@ def save(training: Training, path: str) -> str:
 
 def setup_of(policy: policies.Policy, **overrides) -> ReachSetup:
     """The reach setup a policy file names (its env_kwargs), with overrides (another model file, say)."""
-    kwargs = {k: v for k, v in policy.metadata.get('env_kwargs', {}).items() if k in ENV_SETTINGS}
-    given = {k: v for k, v in overrides.items() if v is not None}
-    if 'model' in given or 'urdf' in given:      # another robot file (or text): its own limits and sizes
-        kwargs = {k: v for k, v in kwargs.items() if k not in ('model', 'xacro_args', 'home', 'ee_step', 'damping')}
-    kwargs.update(given)
-    return ReachSetup(**kwargs)
+    return _setup_of_kwargs(policy.metadata.get('env_kwargs', {}), {k: v for k, v in overrides.items() if v is not None},
+                            policy.metadata.get('robot', ''))
 
 
-def check_fits(policy: policies.Policy, setup: ReachSetup) -> str:
-    """PolicyError (one line naming both) unless policy is a reach policy for setup's robot, tip, joints and spaces;
-    returns a note ('' or a warning to show) when only the URDF's text differs."""
+REACH_ENVS = (ENV_ID, 'robot_ai/RosReach-v0')
+
+
+def check_fits(policy, setup: ReachSetup) -> str:
+    """PolicyError (one line naming both) unless policy (a policy file's, or an ONNX model's) is a reach policy for
+    setup's robot, tip, joints and spaces; returns a note ('' or a warning to show) when only the URDF's text
+    differs, or when an ONNX model names no robot (its spaces fit, so it drives)."""
     m = policy.metadata
     where = policy.path or 'the policy'
-    if policy.kind != 'ars_linear' or m.get('env_id') != ENV_ID:
+    onnx = policy.kind == 'onnx'
+    if (onnx and m.get('env_id') not in REACH_ENVS) or (not onnx and (policy.kind != 'ars_linear'
+                                                                      or m.get('env_id') != ENV_ID)):
         raise policies.PolicyError(f'{where} is a {policy.kind} policy for {m.get("env_id")}, not a reach policy '
                                    f'({ENV_ID})')
     arm = setup.arm
     robot = setup.model.tree.name
-    learned = f'{m.get("robot") or "?"} ({m.get("model") or "?"}), tip {m.get("env_kwargs", {}).get("tip")}'
+    kwargs = m.get('env_kwargs', {})
+    learned = f'{m.get("robot") or "?"} ({m.get("model") or kwargs.get("model") or "?"}), tip {kwargs.get("tip")}'
     here = f'{robot} ({setup.model.name}), tip {arm.tip}'
-    if m.get('robot') != robot or m.get('env_kwargs', {}).get('tip') != arm.tip or m.get('joints') != arm.joints:
+    differs = [k for k, mine in (('robot', robot), ('joints', arm.joints)) if (k in m or not onnx) and m.get(k) != mine]
+    if (kwargs.get('tip') or not onnx) and kwargs.get('tip') != arm.tip:
+        differs.append('tip')
+    if differs:
         raise policies.PolicyError(f'{where} learned to reach with {learned} (joints {", ".join(m.get("joints", []))});'
                                    f' this arm is {here} (joints {", ".join(arm.joints)})')
-    control = m.get('env_kwargs', {}).get('control', 'ee')
+    control = kwargs.get('control', 'ee')
     if control != setup.control:
         raise policies.PolicyError(f'{where} acts with control={control}; this env has control={setup.control}')
-    actions, inputs = policy.actor.weights.shape
+    inputs, actions = policy_sizes(policy)
     if inputs != 9 + arm.n or actions != setup.action_space.shape[0]:
         raise policies.PolicyError(f'{where} maps {inputs} observations to {actions} actions; this env has '
                                    f'{9 + arm.n} and {setup.action_space.shape[0]}')
     if m.get('model_sha256') and m['model_sha256'] != setup.model.sha256:
         return (f'note: {setup.model.name} is not the URDF text {where} learned on ({m.get("model")}); same robot, '
                 f'tip and joints, so it drives it')
+    if onnx and 'robot' not in m:
+        return (f'note: {where} names no robot (its metadata robot_ai_env has none); its input and output fit '
+                f'{robot}\'s with tip {arm.tip}, so it drives it')
     return ''
 
 
-def load(path: str, setup: ReachSetup | None = None) -> tuple[policies.Policy, ReachSetup, str]:
-    """(the policy, its setup, a note) of a reach policy file: for setup's arm when given (refused in one line if it
-    is another robot or tip), else for the env its metadata names. PolicyError or ReachError: one line."""
+def policy_sizes(policy) -> tuple[int, int]:
+    """(observation size, action size) a reach policy takes and gives."""
+    if policy.kind == 'onnx':
+        from gymnasium import spaces
+        return int(spaces.flatdim(policy.observation_space)), int(np.prod(policy.action_space.shape))
+    actions, inputs = policy.actor.weights.shape
+    return inputs, actions
+
+
+def load(path: str, setup: ReachSetup | None = None, **overrides) -> tuple[policies.Policy, ReachSetup, str]:
+    """(the policy, its setup, a note) of a reach policy file (.npz) or ONNX model (.onnx): for setup's arm when
+    given (refused in one line if it is another robot or tip), else for the env its metadata names with overrides
+    (model=, xacro_args=, urdf=, tip=: setup_of). PolicyError or ReachError: one line."""
+    if str(path).strip().lower().endswith('.onnx'):
+        return _load_onnx(path, setup, overrides)
     policy = policies.load(path)
     if policy.kind != 'ars_linear':
         raise policies.PolicyError(f'{policy.path} is a {policy.kind} policy for {policy.env_id}, not a reach policy')
     if setup is None:
         model = policy.metadata.get('env_kwargs', {}).get('model')
-        if model and not os.path.exists(model):
+        if model and not os.path.exists(model) and not any(overrides.get(k) for k in ('model', 'urdf')):
             raise policies.PolicyError(f'{policy.path} learned on {model}, which is not there any more: give the '
                                        f'robot file with --model')
-        setup = setup_of(policy)
+        setup = setup_of(policy, **overrides)
     return policy, setup, check_fits(policy, setup)
+
+
+def _load_onnx(path: str, setup: ReachSetup | None, overrides: dict):
+    """load() of an ONNX model: its metadata's env (Reach-v0 when it names none; without a model, the env's default
+    robot, as gymnasium.make would make it), control from its metadata or else from its action size (3: ee,
+    otherwise joints), built against the setup's spaces."""
+    from robot_ai import onnx_policy
+    file = onnx_policy.read(path)
+    env_id = file.env_id or ENV_ID
+    if env_id not in REACH_ENVS:
+        raise policies.PolicyError(f'{file.path} acts in {env_id}, not a reach env ({", ".join(REACH_ENVS)})')
+    kwargs = file.env_kwargs
+    if 'control' not in kwargs and file.action_size() is not None:
+        kwargs['control'] = 'ee' if file.action_size() == 3 else 'joints'
+    if setup is None:
+        given = {k: v for k, v in overrides.items() if v is not None}
+        model = kwargs.get('model')
+        if model and not os.path.exists(model) and not any(given.get(k) for k in ('model', 'urdf')):
+            raise policies.PolicyError(f'{file.path} learned on {model}, which is not here: give the robot file '
+                                       f'with --model')
+        setup = _setup_of_kwargs(kwargs, given, file.info.get('robot', ''))
+    elif kwargs.get('control', 'ee') != setup.control:
+        raise policies.PolicyError(f'{file.path} acts with control={kwargs.get("control", "ee")}; this env has '
+                                   f'control={setup.control}')
+    policy = onnx_policy.build(file, env_id, kwargs, setup.observation_space, setup.action_space)
+    return policy, setup, check_fits(policy, setup)
+
+
+def _setup_of_kwargs(env_kwargs: dict, given: dict, learned_on: str = '') -> ReachSetup:
+    """The setup of a policy's env kwargs with the caller's overrides; a robot file without the policy's tip is a
+    PolicyError naming the robot the policy learned on (learned_on)."""
+    kwargs = {k: v for k, v in env_kwargs.items() if k in ENV_SETTINGS}
+    other_file = 'model' in given or 'urdf' in given
+    if other_file:      # another robot file (or text): its own limits and sizes
+        kwargs = {k: v for k, v in kwargs.items() if k not in ('model', 'xacro_args', 'home', 'ee_step', 'damping')}
+    kwargs.update(given)
+    try:
+        return ReachSetup(**kwargs)
+    except ReachError as e:
+        if other_file and learned_on and 'tip' in kwargs and 'tip' not in given and 'is not a link' in str(e):
+            raise policies.PolicyError(f'the policy learned to reach with {learned_on}, tip {kwargs["tip"]}, a link '
+                                       f'this robot does not have ({e})') from None
+        raise
 
 
 def record_video(policy, setup: ReachSetup, path: str, episodes: int = 3, seed: int = HELD_OUT_SEED) -> str:

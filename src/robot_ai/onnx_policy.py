@@ -1,0 +1,418 @@
+"""Policies exported by other libraries (.onnx), run with onnxruntime on the CPU. No rospy.
+
+stable-baselines3 trains with torch, which a robot's computer should not need; ONNX is how its policy travels
+(stable-baselines3's export guide: opset 14 or later; for SAC, the actor only). Here such a file drives the package's
+robots wherever a policy file is taken:
+
+    policy = load('ppo_cartpole.onnx')                        # the env from the file's metadata (robot_ai_env)
+    policy = load('sac_reach.onnx', env_id='robot_ai/Reach-v0', env_kwargs={'control': 'joints'})
+    policy.act(observation)          # one observation as the env gives it -> the action the env takes
+    policy.act_batch(flat)           # (M, obs) flattened observations -> (M,) integers or (M, act) floats
+
+The model: one float32 input of shape (batch, obs), the env's observation flattened as gymnasium.spaces.flatten does
+(a Dict in its key order: achieved_goal, desired_goal, observation); its first output is the action: for a Discrete
+env an integer (batch,) or (batch, 1), or one score per action (batch, n) whose argmax is taken; for a Box env
+(batch, act) floats, clipped to the action space. The env comes from the model's metadata (metadata_props key
+``robot_ai_env``: JSON ``{"env_id": ..., "env_kwargs": {...}}``) or from the caller, who wins.
+
+Checked before anything runs, each refusal a PolicyError of one line that says what is wrong: a regular file of at
+most MAX_BYTES; an ONNX model (protobuf); no tensor anywhere in it (initializers, attributes, subgraphs) stored as
+external data (a path written in a model file is never opened: the model is given to onnxruntime as bytes); operators
+of the standard domains only (ai.onnx, ai.onnx.ml), no local functions; onnx's checker; one input and outputs that
+fit the env's spaces (naming both shapes); a trial run on zero and random observations that neither fails nor answers
+NaN, infinities or actions outside the space. onnxruntime then runs it with one intra-op and one inter-op thread and
+no spinning, so that a controller never takes a core.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+from gymnasium import spaces
+
+from robot_ai import ars
+from robot_ai.cartpole.policies import PolicyError, read_regular_file
+
+MAX_BYTES = 64 * 1024 * 1024
+STANDARD_DOMAINS = ('', 'ai.onnx', 'ai.onnx.ml')
+METADATA_KEY = 'robot_ai_env'
+TRIAL_OBSERVATIONS = 16
+EXTENSION = '.onnx'
+
+
+def is_onnx_path(path: str) -> bool:
+    return str(path).lower().endswith(EXTENSION)
+
+
+@dataclass(eq=False)
+class OnnxPolicy:
+    """A checked ONNX model and the env it acts in (see the module's docstring)."""
+    path: str
+    env_id: str
+    env_kwargs: dict
+    observation_space: spaces.Space
+    action_space: spaces.Space
+    session: object
+    input_name: str
+    output_name: str
+    scores: bool                        # Discrete: the output is one score per action (argmax), not an integer
+    metadata: dict = field(default_factory=dict)
+
+    kind = 'onnx'
+
+    @property
+    def actor(self) -> OnnxPolicy:
+        """The object that acts (as a robot_ai policy file's Policy.actor)."""
+        return self
+
+    @property
+    def seed(self) -> int:
+        return int(self.metadata.get('seed', 0))
+
+    def _run(self, x: np.ndarray) -> np.ndarray:
+        return np.asarray(self.session.run([self.output_name], {self.input_name: x})[0])
+
+    def act_batch(self, x) -> np.ndarray:
+        """Actions of flattened observations x (M, obs): (M,) int64 for a Discrete env, (M, act) float64 clipped to a
+        Box env's bounds."""
+        out = self._run(np.ascontiguousarray(x, dtype=np.float32))
+        if isinstance(self.action_space, spaces.Discrete):
+            a = np.argmax(out.reshape(len(out), -1), axis=1) if self.scores else out.reshape(len(out)).astype(np.int64)
+            return a + int(self.action_space.start)
+        a = out.reshape(len(out), -1).astype(np.float64)
+        return np.minimum(np.maximum(a, self.action_space.low.reshape(-1)), self.action_space.high.reshape(-1))
+
+    def act(self, observation):
+        """The action of one observation as the env gives it (a Dict env's dict, or an array)."""
+        flat = spaces.flatten(self.observation_space, observation) if isinstance(self.observation_space, spaces.Dict) \
+            else np.asarray(observation, dtype=np.float32).reshape(-1)
+        a = self.act_batch(flat.reshape(1, -1))[0]
+        return int(a) if isinstance(self.action_space, spaces.Discrete) else a
+
+    # the CartPole agents' interface (robot_ai.cartpole.policies.Policy)
+    def push_right(self, observations: np.ndarray) -> np.ndarray:
+        """observations (4, n) float32 -> (n,) bool: the policy pushes right (action 1)."""
+        return self.act_batch(np.ascontiguousarray(observations.T)) == 1
+
+    def evaluate(self, dynamics, episodes: int, max_steps: int, seed: int) -> np.ndarray:
+        """Lengths (episodes,) of CartPole episodes, start states from rng_for(seed), as the package's policies."""
+        from robot_ai.cartpole.dynamics import rng_for, start_states
+        return dynamics.episode_lengths(start_states(rng_for(seed), 1, episodes), max_steps, policy=self.push_right)[0]
+
+    def describe(self) -> str:
+        m = self.metadata
+        parts = [self.env_id + (f' as {m["exported_for"]}' if m.get('exported_for') else '')]
+        if m.get('producer'):
+            parts.append(f'made by {m["producer"]}')
+        if isinstance(m.get('success_rate'), (int, float)):
+            parts.append(f'success rate {100 * m["success_rate"]:.1f} %')
+        if isinstance(m.get('mean_length'), (int, float)):
+            parts.append(f'average length {m["mean_length"]:.1f}')
+        return f'ONNX policy from {self.path} ({"; ".join(parts)})'
+
+
+# ------------------------------------------------------------------------------------------------------ checks
+def _tensors(graph):
+    """Every TensorProto of a graph and its subgraphs: initializers, sparse initializers, attributes' tensors."""
+    for t in graph.initializer:
+        yield t
+    for sparse in graph.sparse_initializer:
+        yield sparse.values
+        yield sparse.indices
+    for node in graph.node:
+        for attribute in node.attribute:
+            if attribute.HasField('t'):
+                yield attribute.t
+            yield from attribute.tensors
+            if attribute.HasField('sparse_tensor'):
+                yield attribute.sparse_tensor.values
+                yield attribute.sparse_tensor.indices
+            for sub in ([attribute.g] if attribute.HasField('g') else []) + list(attribute.graphs):
+                yield from _tensors(sub)
+
+
+def _nodes(graph):
+    for node in graph.node:
+        yield node
+        for attribute in node.attribute:
+            for sub in ([attribute.g] if attribute.HasField('g') else []) + list(attribute.graphs):
+                yield from _nodes(sub)
+
+
+def _dims(value_info) -> tuple[int, list]:
+    """(element type, dims: int or None for a symbolic one) of a graph input or output; (0, []) without a tensor type."""
+    t = value_info.type
+    if not t.HasField('tensor_type'):
+        return 0, []
+    shape = [d.dim_value if d.HasField('dim_value') else None for d in t.tensor_type.shape.dim]
+    return t.tensor_type.elem_type, shape
+
+
+def _shown(shape: list) -> str:
+    return '(' + ', '.join('batch' if d is None else str(d) for d in shape) + (',)' if len(shape) == 1 else ')')
+
+
+def _parse(data: bytes, where: str):
+    """The checked ModelProto of data (see the module's docstring), before onnxruntime sees it."""
+    import onnx
+    from google.protobuf.message import DecodeError
+    try:
+        model = onnx.ModelProto()
+        model.ParseFromString(data)
+    except (DecodeError, ValueError, RuntimeError):
+        raise PolicyError(f'{where} is not an ONNX model (not a protobuf ModelProto)') from None
+    if model.ir_version <= 0 or not model.opset_import or not model.graph.node:
+        raise PolicyError(f'{where} is not an ONNX model (no IR version, opset or graph)')
+    for tensor in _tensors(model.graph):
+        if tensor.data_location == onnx.TensorProto.EXTERNAL or len(tensor.external_data):
+            location = next((e.value for e in tensor.external_data if e.key == 'location'), '?')
+            raise PolicyError(f'{where} keeps tensor {tensor.name!r} in external data ({location!r}): a path written '
+                              f'in a model file is never opened; export it as one file')
+    domains = sorted({o.domain for o in model.opset_import} | {n.domain for n in _nodes(model.graph)})
+    unknown = [d for d in domains if d not in STANDARD_DOMAINS]
+    if unknown:
+        raise PolicyError(f'{where} uses operators outside the standard domains: {", ".join(unknown)} (only '
+                          f'ai.onnx and ai.onnx.ml run here)')
+    if len(model.functions):
+        raise PolicyError(f'{where} defines local functions ({model.functions[0].name}): only standard operators '
+                          f'run here')
+    try:
+        onnx.checker.check_model(model)
+    except Exception as e:       # onnx.checker.ValidationError, and whatever a malformed graph raises
+        raise PolicyError(f'{where} is not a valid ONNX model: {str(e).strip().splitlines()[0][:300]}') from None
+    return model
+
+
+def env_of(model) -> dict:
+    """The model's metadata robot_ai_env as a dict ({} without it): env_id, env_kwargs and whatever else the
+    exporter wrote there (robot, joints, success_rate, ...)."""
+    props = {p.key: p.value for p in model.metadata_props}
+    if METADATA_KEY not in props:
+        return {}
+    try:
+        value = json.loads(props[METADATA_KEY])
+        if not isinstance(value, dict) or not isinstance(value.get('env_id', ''), str) or \
+                not isinstance(value.get('env_kwargs') or {}, dict):
+            raise TypeError
+    except (ValueError, TypeError):
+        raise PolicyError(f'its metadata {METADATA_KEY} is not JSON {{"env_id": ..., "env_kwargs": {{...}}}}') \
+            from None
+    value['env_kwargs'] = value.get('env_kwargs') or {}
+    return value
+
+
+def spaces_of(env_id: str, env_kwargs: dict) -> tuple[spaces.Space, spaces.Space]:
+    """The observation and action spaces of an env: the package's CartPoles and reach tasks without making a ROS env,
+    any other registered env made and closed."""
+    from robot_ai.cartpole.dynamics import SUPPORTED_ENVS
+    if env_id in SUPPORTED_ENVS or env_id in ('robot_ai/RosCartPole-v0', 'robot_ai/RosCartPole-v1'):
+        return spaces.Box(-np.inf, np.inf, (4,), np.float32), spaces.Discrete(2)
+    if env_id in ('robot_ai/Reach-v0', 'robot_ai/RosReach-v0'):
+        from robot_ai.reach import ReachError, ReachSetup
+        keep = ('model', 'xacro_args', 'tip', 'control', 'urdf')
+        try:
+            setup = ReachSetup(**{k: v for k, v in env_kwargs.items() if k in keep})
+        except ReachError as e:
+            raise PolicyError(f'its env {env_id}: {e}') from None
+        return setup.observation_space, setup.action_space
+    import gymnasium
+    try:
+        env = gymnasium.make(env_id, **env_kwargs)
+    except Exception as e:       # an unknown id, bad kwargs: one line
+        raise PolicyError(f'its env {env_id} cannot be made: {str(e).splitlines()[0][:200]}') from None
+    try:
+        return env.observation_space, env.action_space
+    finally:
+        env.close()
+
+
+def _fit(model, where: str, observation_space, action_space) -> tuple[str, str, bool]:
+    """(input name, output name, whether a Discrete env's output is scores) once the model's input and first output
+    fit the spaces; PolicyError naming both shapes otherwise."""
+    import onnx
+    initializers = {t.name for t in model.graph.initializer}
+    inputs = [i for i in model.graph.input if i.name not in initializers]
+    d = int(spaces.flatdim(observation_space))
+    if len(inputs) != 1:
+        raise PolicyError(f'{where} has {len(inputs)} inputs ({", ".join(i.name for i in inputs)}); one is wanted: the '
+                          f'flattened observation, (batch, {d})')
+    elem, shape = _dims(inputs[0])
+    if elem != onnx.TensorProto.FLOAT or len(shape) != 2 or shape[1] not in (None, d):
+        kind = onnx.TensorProto.DataType.Name(elem) if elem else 'no tensor'
+        raise PolicyError(f'{where} takes {kind} {_shown(shape)} as {inputs[0].name!r}; the env\'s flattened '
+                          f'observation is float32 (batch, {d})')
+    output = model.graph.output[0]
+    elem, shape = _dims(output)
+    integer = elem in (onnx.TensorProto.INT64, onnx.TensorProto.INT32)
+    floating = elem in (onnx.TensorProto.FLOAT, onnx.TensorProto.DOUBLE)
+    if isinstance(action_space, spaces.Discrete):
+        n = int(action_space.n)
+        wanted = f'an integer action (batch,) or one score per action (batch, {n})'
+        fits = (integer and (len(shape) == 1 or (len(shape) == 2 and shape[1] in (None, 1)))) or \
+            (floating and len(shape) == 2 and shape[1] in (None, n))
+        scores = floating
+    elif isinstance(action_space, spaces.Box):
+        a = int(np.prod(action_space.shape))
+        wanted = f'float actions (batch, {a})'
+        fits = floating and len(shape) == 2 and shape[1] in (None, a)
+        scores = False
+    else:
+        raise PolicyError(f'the env\'s action space {action_space} is neither Discrete nor Box')
+    if not fits:
+        kind = onnx.TensorProto.DataType.Name(elem) if elem else 'no tensor'
+        raise PolicyError(f'{where}\'s first output {output.name!r} is {kind} {_shown(shape)}; the env takes {wanted}')
+    return inputs[0].name, output.name, scores
+
+
+def session_of(data: bytes):
+    """An onnxruntime session of the model's bytes on the CPU: one intra-op and one inter-op thread, no spinning."""
+    import onnxruntime
+    options = onnxruntime.SessionOptions()
+    options.intra_op_num_threads = 1
+    options.inter_op_num_threads = 1
+    options.execution_mode = onnxruntime.ExecutionMode.ORT_SEQUENTIAL
+    options.add_session_config_entry('session.intra_op.allow_spinning', '0')
+    options.add_session_config_entry('session.inter_op.allow_spinning', '0')
+    options.log_severity_level = 3
+    return onnxruntime.InferenceSession(data, options, providers=['CPUExecutionProvider'])
+
+
+def _trial(policy: OnnxPolicy, where: str) -> None:
+    """Run the model on zero and random observations: it must answer finite actions within the space."""
+    d = int(spaces.flatdim(policy.observation_space))
+    rng = np.random.default_rng(0)
+    x = np.concatenate((np.zeros((1, d)), rng.normal(size=(TRIAL_OBSERVATIONS - 1, d)))).astype(np.float32)
+    try:
+        out = policy._run(x)
+    except Exception as e:       # onnxruntime's errors: a model that fails on a well-formed observation
+        raise PolicyError(f'{where} fails on a {d}-number observation: {str(e).strip().splitlines()[0][:300]}') \
+            from None
+    if len(out) != len(x):
+        raise PolicyError(f'{where} answers {len(out)} actions for {len(x)} observations: its first dimension must '
+                          f'be the batch')
+    if out.dtype.kind == 'f' and not np.isfinite(out).all():
+        bad = int((~np.isfinite(out.reshape(len(out), -1))).any(axis=1).sum())
+        raise PolicyError(f'{where} answers NaN or infinite actions (on {bad} of {len(x)} trial observations)')
+    if isinstance(policy.action_space, spaces.Discrete) and not policy.scores:
+        n, start = int(policy.action_space.n), int(policy.action_space.start)
+        flat = out.reshape(len(out)) + start
+        if ((flat < start) | (flat >= start + n)).any():
+            raise PolicyError(f'{where} answers actions outside {start} to {start + n - 1}: '
+                              f'{sorted(set(flat.tolist()))[:5]}')
+
+
+@dataclass(eq=False)
+class OnnxFile:
+    """A checked ONNX model file before it meets an env: its path, bytes, ModelProto and metadata (env_of)."""
+    path: str
+    data: bytes
+    model: object
+    info: dict
+
+    @property
+    def env_id(self) -> str:
+        return self.info.get('env_id', '')
+
+    @property
+    def env_kwargs(self) -> dict:
+        return dict(self.info.get('env_kwargs', {}))
+
+    def action_size(self) -> int | None:
+        """The size of the first output's last dimension when fixed (a Box env's action size), else None."""
+        _, shape = _dims(self.model.graph.output[0])
+        return shape[-1] if len(shape) == 2 else None
+
+
+def read(path: str) -> OnnxFile:
+    """A checked ONNX model (the module's docstring: everything but the fit to an env and the trial run)."""
+    import os
+    if not str(path).strip():
+        raise PolicyError('the path is empty: give an ONNX file (.onnx), absolute or ~/...')
+    where = os.path.abspath(os.path.expanduser(str(path)))
+    data = read_regular_file(where, MAX_BYTES, 'ONNX file')
+    model = _parse(data, where)
+    try:
+        info = env_of(model)
+    except PolicyError as e:
+        raise PolicyError(f'{where}: {e}') from None
+    return OnnxFile(where, data, model, info)
+
+
+def build(file: OnnxFile, env_id: str, env_kwargs: dict, observation_space, action_space) -> OnnxPolicy:
+    """The policy of a read file acting in the env (env_id, env_kwargs) whose spaces are given: its input and
+    output fit them, onnxruntime takes it, and its trial run answers actions of the space."""
+    where, model = file.path, file.model
+    input_name, output_name, scores = _fit(model, where, observation_space, action_space)
+    try:
+        session = session_of(file.data)
+    except Exception as e:       # onnxruntime refusing what onnx's checker let through
+        raise PolicyError(f'{where}: onnxruntime cannot run it: {str(e).strip().splitlines()[0][:300]}') from None
+    metadata = {p.key: p.value for p in model.metadata_props if p.key != METADATA_KEY}
+    metadata.update(file.info)
+    metadata.update(env_id=env_id, env_kwargs=dict(env_kwargs), producer=' '.join(
+        v for v in (model.producer_name, model.producer_version) if v), opset=max(
+        (o.version for o in model.opset_import if o.domain in ('', 'ai.onnx')), default=0))
+    policy = OnnxPolicy(where, env_id, dict(env_kwargs), observation_space, action_space, session, input_name,
+                        output_name, scores, metadata)
+    _trial(policy, where)
+    return policy
+
+
+def load(path: str, env_id: str = '', env_kwargs: dict | None = None) -> OnnxPolicy:
+    """A checked ONNX policy (see the module's docstring). env_id and env_kwargs: the caller's env, which wins over
+    the model's metadata."""
+    file = read(path)
+    env_id = env_id or file.env_id
+    env_kwargs = dict(env_kwargs or file.env_kwargs)
+    if not env_id:
+        raise PolicyError(f'{file.path} names no env (its metadata has no {METADATA_KEY}): give one (--env-id)')
+    observation_space, action_space = spaces_of(env_id, env_kwargs)
+    return build(file, env_id, env_kwargs, observation_space, action_space)
+
+
+CARTPOLE_ENVS = {'CartPole-v0': 'CartPole-v0', 'CartPole-v1': 'CartPole-v1',
+                 'robot_ai/RosCartPole-v0': 'CartPole-v0', 'robot_ai/RosCartPole-v1': 'CartPole-v1'}
+
+
+def load_cartpole(path: str, env_id: str = '') -> OnnxPolicy:
+    """An ONNX policy of the cart-pole: env_id (or the file's metadata) must be a CartPole the package's dynamics
+    run (CartPole-v0/v1, or the ROS cart-pole's ids, which act as they do); its env_id is then that CartPole's."""
+    file = read(path)
+    given = env_id or file.env_id
+    if not given:
+        raise PolicyError(f'{file.path} names no env (its metadata has no {METADATA_KEY}): give the CartPole it '
+                          f'plays (--env-id or ~env_id: CartPole-v1)')
+    if given not in CARTPOLE_ENVS:
+        raise PolicyError(f'{file.path} acts in {given}, not a cart-pole ({", ".join(CARTPOLE_ENVS)})')
+    observation_space, action_space = spaces_of(CARTPOLE_ENVS[given], {})
+    policy = build(file, CARTPOLE_ENVS[given], {}, observation_space, action_space)
+    if given != policy.env_id:
+        policy.metadata['exported_for'] = given
+    return policy
+
+
+def summary(file: OnnxFile) -> dict:
+    """What `show` prints of an ONNX file: its metadata, producer, opset, inputs and outputs."""
+    import onnx
+    model = file.model
+
+    def tensors(values):
+        initializers = {t.name for t in model.graph.initializer}
+        out = {}
+        for v in values:
+            if v.name in initializers:
+                continue
+            elem, shape = _dims(v)
+            out[v.name] = f'{onnx.TensorProto.DataType.Name(elem) if elem else "?"} {_shown(shape)}'
+        return out
+    return dict(path=file.path, producer=' '.join(v for v in (model.producer_name, model.producer_version) if v),
+                opset={o.domain or 'ai.onnx': o.version for o in model.opset_import}, ir_version=model.ir_version,
+                metadata={**{p.key: p.value for p in model.metadata_props if p.key != METADATA_KEY}, **file.info},
+                inputs=tensors(model.graph.input), outputs=tensors(model.graph.output),
+                operators=sorted({n.op_type for n in _nodes(model.graph)}))
+
+
+def flatten_batch(observation_space, observations) -> np.ndarray:
+    """A batch of observations as the model takes them (float32 (M, obs)): ars.flatten_batch's order."""
+    return ars.flatten_batch(observation_space, observations).astype(np.float32)

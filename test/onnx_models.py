@@ -1,0 +1,73 @@
+"""Small ONNX models for the tests, built with onnx.helper (no torch): linear policies whose actions a numpy line
+reproduces, and broken or hostile files the loader must refuse."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import onnx
+from onnx import TensorProto, helper, numpy_helper
+
+OPSET = 17
+
+
+def model(nodes, inputs, outputs, initializers=(), env: dict | None = None, opset=OPSET, domains=()) -> onnx.ModelProto:
+    graph = helper.make_graph(nodes, 'policy', inputs, outputs, list(initializers))
+    opsets = [helper.make_opsetid('', opset)] + [helper.make_opsetid(d, 1) for d in domains]
+    m = helper.make_model(graph, opset_imports=opsets, producer_name='robot_ai tests')
+    m.ir_version = 8
+    if env is not None:
+        helper.set_model_props(m, {'robot_ai_env': json.dumps(env)})
+    return m
+
+
+def tensor(name, elem, shape):
+    return helper.make_tensor_value_info(name, elem, shape)
+
+
+def cartpole_scores(weights: np.ndarray, env=None) -> onnx.ModelProto:
+    """Scores (batch, 2) = (0, observation . weights): argmax pushes right exactly when the course's linear policy
+    does (weights . state > 0)."""
+    w = np.zeros((4, 2), np.float32)
+    w[:, 1] = weights
+    return model([helper.make_node('MatMul', ['obs', 'W'], ['scores'])], [tensor('obs', TensorProto.FLOAT, ['batch', 4])],
+                 [tensor('scores', TensorProto.FLOAT, ['batch', 2])], [numpy_helper.from_array(w, 'W')],
+                 env if env is not None else {'env_id': 'CartPole-v1'})
+
+
+def cartpole_integer(weights: np.ndarray, env=None) -> onnx.ModelProto:
+    """The same policy as an integer action (batch,) int64, as stable-baselines3's PPO exports it."""
+    w = np.zeros((4, 2), np.float32)
+    w[:, 1] = weights
+    nodes = [helper.make_node('MatMul', ['obs', 'W'], ['scores']),
+             helper.make_node('ArgMax', ['scores'], ['action'], axis=1, keepdims=0)]
+    return model(nodes, [tensor('obs', TensorProto.FLOAT, ['batch', 4])], [tensor('action', TensorProto.INT64, ['batch'])],
+                 [numpy_helper.from_array(w, 'W')], env if env is not None else {'env_id': 'CartPole-v1'})
+
+
+def linear_tanh(weights: np.ndarray, bias: np.ndarray, env=None) -> onnx.ModelProto:
+    """Box actions tanh(observation @ weights + bias): (batch, in) -> (batch, out)."""
+    n_in, n_out = weights.shape
+    nodes = [helper.make_node('MatMul', ['obs', 'W'], ['xw']), helper.make_node('Add', ['xw', 'b'], ['z']),
+             helper.make_node('Tanh', ['z'], ['action'])]
+    return model(nodes, [tensor('obs', TensorProto.FLOAT, ['batch', n_in])],
+                 [tensor('action', TensorProto.FLOAT, ['batch', n_out])],
+                 [numpy_helper.from_array(weights.astype(np.float32), 'W'),
+                  numpy_helper.from_array(bias.astype(np.float32), 'b')], env)
+
+
+def save(m: onnx.ModelProto, path: str) -> str:
+    with open(path, 'wb') as f:
+        f.write(m.SerializeToString())
+    return path
+
+
+def linear_clip(weights: np.ndarray, env=None) -> onnx.ModelProto:
+    """Box actions clip(observation @ weights, -1, 1): (batch, in) -> (batch, out)."""
+    n_in, n_out = weights.shape
+    nodes = [helper.make_node('MatMul', ['obs', 'W'], ['z']), helper.make_node('Clip', ['z', 'lo', 'hi'], ['action'])]
+    return model(nodes, [tensor('obs', TensorProto.FLOAT, ['batch', n_in])],
+                 [tensor('action', TensorProto.FLOAT, ['batch', n_out])],
+                 [numpy_helper.from_array(weights.astype(np.float32), 'W'),
+                  numpy_helper.from_array(np.array(-1, np.float32), 'lo'),
+                  numpy_helper.from_array(np.array(1, np.float32), 'hi')], env)
