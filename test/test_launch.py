@@ -366,11 +366,15 @@ class TestLaunch(unittest.TestCase):
             self.assertIn('verdict: OK', text, text[-3000:])
             self.assertIn('forward_kinematics: %s from /tf' % frames, text)
             self.assertIn('the end effector moves', text)
-            # issue 25: the Panda's meshes come from a package Debian does not ship: one line says so
+            # issue 25: the Panda's meshes come from a package Debian does not ship: one line says so, once for each
+            # robot_description that holds it (the demo's arm, and the reach part's arm in /reach)
             meshes = [l for l in text.splitlines() if 'is not found: rviz draws those links in red' in l]
-            self.assertEqual(len(meshes), 1 if 'panda' in args[0] else 0, meshes)
-            if meshes:
-                self.assertIn('put moveit_resources_panda_description on ROS_PACKAGE_PATH', meshes[0])
+            described = [l.split(': its meshes')[0].rsplit(' ', 1)[-1] for l in meshes]
+            self.assertEqual(len(described), len(set(described)), meshes)
+            self.assertEqual(sorted(described), ['/reach/robot_description', '/robot_description']
+                             if 'panda' in args[0] else [], meshes)
+            for line in meshes:
+                self.assertIn('put moveit_resources_panda_description on ROS_PACKAGE_PATH', line)
         # a package-relative model, as the README's table suggested, loads; a robot that does not exist says so
         bad = subprocess.run(['roslaunch', '--args', 'forward_kinematics', 'robot_ai', 'forward_kinematics.launch',
                               'model:=urdf/kuka_lwr_arm.urdf'], capture_output=True, text=True, timeout=60)
