@@ -19,7 +19,8 @@ APT_PACKAGES := ros-core-dev catkin catkin-lint ros-message-generation rosbash r
 	python3-sensor-msgs python3-geometry-msgs python3-std-msgs python3-std-srvs python3-visualization-msgs libstd-msgs-dev \
 	python3-actionlib python3-actionlib-msgs ros-actionlib-msgs libactionlib-msgs-dev \
 	ros-robot-state-publisher joint-state-publisher joint-state-publisher-gui rviz \
-	tf-tools tf2-tools liburdfdom-tools xvfb x11-utils xdotool iproute2 nftables imagemagick python3-venv python3-numpy
+	tf-tools tf2-tools liburdfdom-tools xvfb x11-utils xdotool iproute2 nftables imagemagick python3-venv python3-numpy \
+	bubblewrap util-linux
 
 # Everything a target runs sees the venv first on PATH (ROS nodes start with `#!/usr/bin/env python3`), the
 # workspace sourced, and caches kept inside the repository.
