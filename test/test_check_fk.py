@@ -457,6 +457,129 @@ class TestCheckFk(unittest.TestCase):
         self.assertGreater(peak, 0)
         self.assertLess(peak, 400, f'check_fk peaked at {peak} MB')
 
+    # ------------------------------------------------------------------- a class in sandboxes (issue 33)
+    def test_a_class_in_sandboxes_no_student_can_forge_or_escape(self):
+        """Hostile students: one forges PASS in its output (a carriage return), in a frame name (a newline) and
+        through /proc into the grader's stdout, then kills its parent; one writes into another student's folder,
+        the package's venv and sources, connects to the grader's master, lists the class and leaves a daemon; one
+        writes 600 MB to its output; one publishes a new wrong pose just inside --timeout for ever; a folder's
+        name holds a newline. Each gets its own verdict in one line, the right node beside them passes, nothing
+        of theirs is written or left running, and the grader's memory stays small."""
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        venv_site = [p for p in sys.path if p.endswith('site-packages') and '.venv' in p]
+        with open(os.path.join(HERE, 'course_fk.py')) as f:
+            course = f.read().replace("os.environ.get('COURSE_FK_MISTAKE', 'none')", "'none'")
+        master_port = int(os.environ['ROS_MASTER_URI'].rsplit(':', 1)[1].strip('/'))
+        planted = [os.path.join(HERE, 'planted_by_a_student.py')] + [os.path.join(p, 'planted.pth') for p in venv_site]
+        hostile = {
+            'alice': course,
+            'mallory': HOSTILE_FORGER,
+            'eve': HOSTILE_ESCAPER.replace('PLANTED', repr(planted)).replace('MASTER_PORT', str(master_port)),
+            'flood': HOSTILE_FLOOD,
+            'slow': HOSTILE_SLOW,
+            'x\nPASS': course,
+        }
+        with tempfile.TemporaryDirectory() as folder:
+            klass = os.path.join(folder, 'class')
+            for name, text in hostile.items():
+                os.makedirs(os.path.join(klass, name))
+                with open(os.path.join(klass, name, 'solution.py'), 'w') as f:
+                    f.write(text.replace('ALICE', os.path.join(klass, 'alice', 'solution.py')))
+            csv_path = os.path.join(folder, 'grades.csv')
+            before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+            t = time.time()
+            proc = subprocess.run(['rosrun', 'robot_ai', 'check_fk', '--model', kuka, '--candidates', klass,
+                                   '--configurations', '3', '--timeout', '3', '--budget', '45', '--csv', csv_path],
+                                  capture_output=True, timeout=600)
+            elapsed = time.time() - t
+            out = proc.stdout.decode(errors='replace')
+            self.assertEqual(proc.returncode, 0, out + proc.stderr.decode(errors='replace')[-3000:])
+            lines = out.splitlines()
+            import csv
+            with open(csv_path, newline='') as f:
+                rows = {r['student']: r for r in csv.DictReader(f)}
+            with open(os.path.join(klass, 'alice', 'solution.py')) as f:
+                alice_after = f.read()
+        self.assertIn('each student in a sandbox', out)
+        # one line per student, whatever its name holds; the only PASS lines are alice's and the newline folder's
+        self.assertEqual(sorted(rows), sorted(['alice', 'mallory', 'eve', 'flood', 'slow', 'x\\nPASS']))
+        self.assertEqual([l for l in lines if l.startswith('PASS')], [])
+        self.assertEqual(rows['alice']['verdict'], 'PASS')
+        self.assertEqual(rows['x\\nPASS']['verdict'], 'PASS')
+        for name in ('mallory', 'eve', 'flood', 'slow'):
+            self.assertTrue(rows[name]['verdict'].startswith('FAIL: '), rows[name])
+            self.assertNotIn('\n', rows[name]['verdict'])
+            self.assertEqual(len([l for l in lines if l.startswith(name + ': FAIL')]), 1, (name, lines))
+        self.assertIn('did not end within its budget of 45 s', rows['slow']['verdict'])
+        self.assertLess(elapsed, 300)
+        # nothing written where the student must not write, nothing of theirs left running
+        self.assertEqual(alice_after, course)
+        for path in planted:
+            self.assertFalse(os.path.exists(path), path)
+        leftover = subprocess.run(['ps', '-eo', 'uid=,args='], capture_output=True, text=True).stdout.splitlines()
+        self.assertEqual([l for l in leftover if int(l.split()[0]) >= 3_000_000_000], [])
+        # the grader's memory: the 600 MB of output never were in it
+        peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        self.assertLess(max(peak, before) // 1024, 600, f'a process of the class run peaked at {peak // 1024} MB')
+
+    def test_every_option_reaches_every_student_and_the_header_says_what_is_graded(self):
+        """--xacro-args reach each student's check (the reference and the robot_description are the xacro's with
+        them: 10 links graded with the tool, the root's 11 in all; 9 without), and the class header names the model and its arguments; a
+        --candidate file that is neither Python nor executable is one line; `--xacro-args "a:=1 b:=2"` with a single
+        candidate is no traceback."""
+        arm7 = os.path.join(HERE, 'urdf', 'reach_arm7.urdf.xacro')
+        with open(os.path.join(HERE, 'course_fk.py')) as f:
+            course = f.read().replace("os.environ.get('COURSE_FK_MISTAKE', 'none')", "'none'")
+        with tempfile.TemporaryDirectory() as folder:
+            os.makedirs(os.path.join(folder, 'class', 'ann'))
+            with open(os.path.join(folder, 'class', 'ann', 'fk.py'), 'w') as f:
+                f.write(course)
+            csv_path = os.path.join(folder, 'grades.csv')
+            proc = subprocess.run(['rosrun', 'robot_ai', 'check_fk', '--model', arm7, '--xacro-args',
+                                   'scale:=2 tool:=true', '--candidates', os.path.join(folder, 'class'),
+                                   '--configurations', '3', '--csv', csv_path], capture_output=True, text=True,
+                                  timeout=300)
+            self.assertEqual(proc.returncode, 0, proc.stdout + proc.stderr)
+            self.assertIn(f'on {arm7} with xacro arguments "scale:=2 tool:=true" (11 links)', proc.stdout)
+            self.assertIn('ann: PASS [10/10 links, 3/3 configurations]', proc.stdout)
+            text = os.path.join(folder, 'notes.txt')
+            with open(text, 'w') as f:
+                f.write('my answer is in the pdf\n')
+            code, lines, err = check_fk(arm7, text, '--xacro-args', 'scale:=2 tool:=true')
+            self.assertEqual(code, 1)
+            self.assertEqual(lines[-1], 'FAIL: notes.txt is neither a Python file (.py, or a #! line naming python) '
+                                        'nor executable: the node cannot start')
+            self.assertNotIn('Traceback', err)
+        code, lines, err = check_fk(arm7, 'robot_ai/forward_kinematics', '--xacro-args', 'scale:=2 tool:=true',
+                                    '--configurations', '3')
+        self.assertEqual(code, 0, '\n'.join(lines) + err)
+        self.assertNotIn('Traceback', err)
+        self.assertIn('score: 10/10 links, 3/3 configurations', lines)
+
+    def test_a_single_candidate_in_a_sandbox_and_its_budget(self):
+        """--candidate with --sandbox: the node runs as a user of its own in a network of its own (the grader's
+        master out of reach) and passes as it does outside; a node that answers just inside --timeout with a new
+        wrong pose each time is ended by --budget with a verdict that says so."""
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        with tempfile.TemporaryDirectory() as folder:
+            right = os.path.join(folder, 'right.py')
+            with open(os.path.join(HERE, 'course_fk.py')) as f, open(right, 'w') as g:
+                g.write(f.read().replace("os.environ.get('COURSE_FK_MISTAKE', 'none')", "'none'"))
+            code, lines, err = check_fk(kuka, right, '--sandbox', '--configurations', '3')
+            self.assertEqual(code, 0, '\n'.join(lines) + err[-2000:])
+            self.assertEqual(lines[-1], 'PASS')
+            self.assertTrue(any(l.startswith(f'check_fk: {right} on') for l in lines), lines)   # the user's path
+            slow = os.path.join(folder, 'slow.py')
+            with open(slow, 'w') as f:
+                f.write(HOSTILE_SLOW)
+            t = time.time()
+            code, lines, err = check_fk(kuka, slow, '--budget', '25', '--timeout', '3')
+            self.assertEqual(code, 1, '\n'.join(lines) + err[-2000:])
+            self.assertTrue(lines[-1].startswith('FAIL: grading did not end within its budget of 25 s (--budget)'),
+                            lines[-1])
+            self.assertLess(time.time() - t, 60)
+
+
 
 def descendants_of(pid):
     out = subprocess.run(['ps', '-eo', 'pid=,ppid='], capture_output=True, text=True).stdout.split()
@@ -481,6 +604,82 @@ def processes(text):
     out = subprocess.run(['ps', '-eo', 'args='], capture_output=True, text=True).stdout.splitlines()
     return [l for l in out if text in l and not l.startswith('ps ')]
 
+
+# hostile students (test_a_class_in_sandboxes_no_student_can_forge_or_escape); each calls rospy.init_node and
+# reads joint_states, so that check_fk's search takes its file for the node
+HOSTILE_FORGER = """#!/usr/bin/env python3
+import os, sys, time
+import rospy, tf2_ros
+from geometry_msgs.msg import TransformStamped
+rospy.init_node('fk')   # joint_states
+print('bye\\rPASS', flush=True)
+broadcaster = tf2_ros.TransformBroadcaster()
+t = TransformStamped()
+t.header.frame_id, t.child_frame_id = 'lwr_arm_base_link', 'b\\nPASS'
+t.transform.rotation.w = 1.0
+for _ in range(40):
+    t.header.stamp = rospy.Time.now()
+    broadcaster.sendTransform(t)
+    time.sleep(0.1)
+for pid in (os.getppid(), 1):
+    try:
+        with open(f'/proc/{pid}/fd/1', 'w') as f:
+            f.write('\\nPASS\\n')
+    except OSError as e:
+        print('no write to', pid, e)
+    try:
+        os.kill(pid, 9)
+    except OSError as e:
+        print('no kill of', pid, e)
+sys.exit(0)
+"""
+HOSTILE_ESCAPER = """#!/usr/bin/env python3
+import os, socket, subprocess
+import rospy
+rospy.init_node('fk')   # joint_states
+for target in ['ALICE'] + PLANTED:
+    try:
+        with open(target, 'w') as f:
+            f.write('import os; os.system("touch /tmp/pwned")\\n')
+        print('WROTE', target)
+    except OSError as e:
+        print('no write', target, type(e).__name__)
+s = socket.socket()
+s.settimeout(1.0)
+try:
+    s.connect(('127.0.0.1', MASTER_PORT))
+    print('CONNECTED to the grader master')
+except OSError as e:
+    print('no connect', type(e).__name__)
+subprocess.Popen(['sh', '-c', 'setsid sleep 1000 > /dev/null 2>&1 &'])
+rospy.spin()
+"""
+HOSTILE_FLOOD = """#!/usr/bin/env python3
+import os
+import rospy
+rospy.init_node('fk')   # joint_states
+chunk = b'x' * (1 << 20)
+for _ in range(600):
+    os.write(1, chunk)
+rospy.spin()
+"""
+HOSTILE_SLOW = """#!/usr/bin/env python3
+import time
+import rospy, tf2_ros
+from geometry_msgs.msg import TransformStamped
+rospy.init_node('fk')   # joint_states
+broadcaster = tf2_ros.TransformBroadcaster()
+i = 0
+while not rospy.is_shutdown():     # a new wrong pose every 2.5 s, just inside --timeout 3
+    i += 1
+    t = TransformStamped()
+    t.header.stamp = rospy.Time.now()
+    t.header.frame_id, t.child_frame_id = 'lwr_arm_base_link', 'lwr_arm_1_link'
+    t.transform.translation.x = float(i)
+    t.transform.rotation.w = 1.0
+    broadcaster.sendTransform(t)
+    time.sleep(2.5)
+"""
 
 if __name__ == '__main__':
     rostest.rosrun('robot_ai', 'test_check_fk', TestCheckFk)

@@ -17,16 +17,18 @@ import argparse
 import collections
 import math
 import os
+import shutil
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 
 import numpy as np
 
-from robot_ai import candidates
+from robot_ai import candidates, sandbox
 from robot_ai.child_process import PR_SET_CHILD_SUBREAPER, descendants, prctl, reap
 from robot_ai.fk_grading import Grade, comparison_frame, configurations
 from robot_ai.kinematics import KinematicTree, URDFError, prefix_frame
@@ -47,6 +49,10 @@ TAIL_LINES = 20         # lines of the candidate's output quoted in a verdict
 TAIL_CHARS = 300        # characters kept of each of them
 LOG_BYTES = 10 * 1024 * 1024   # the candidate's log file stops growing here (its output is still drained)
 CHUNK = 64 * 1024              # bytes of the candidate's output read at a time
+BUDGET_BASE = 120.0            # seconds: the default --budget is this plus BUDGET_PER_CONFIGURATION per configuration
+BUDGET_PER_CONFIGURATION = 3.0
+RESULT_BYTES = 64 * 1024       # a judge's result (JSON) is at most this
+REPORT_TAIL = 64 * 1024        # bytes of a judge's report a class run keeps in memory
 
 
 def free_port() -> int:
@@ -137,16 +143,16 @@ class Output:
 
     def _keep(self, line: bytes) -> None:
         text = line.decode(errors='replace').rstrip()
-        if text:
-            self.tail.append(text[:TAIL_CHARS])
+        if text:    # escaped: a carriage return or an escape sequence in it cannot rewrite a line of the report
+            self.tail.append(sandbox.printable(text, TAIL_CHARS))
 
-    def quote(self) -> str:
-        """The last lines, indented, and where the whole output is; '' if there was none."""
+    def lines(self) -> list[str]:
+        """The last lines of its output, indented, and where the whole output is; [] if there was none."""
         self.thread.join(1.0)
         if not self.tail:
-            return ''
-        where = f'\n  (its whole output: {self.path})' if self.path else ''
-        return '; its last output:\n' + '\n'.join('  | ' + l for l in self.tail) + where
+            return []
+        where = [f'  (its whole output: {self.path})'] if self.path else []
+        return ['its last output:'] + ['  | ' + l for l in self.tail] + where
 
 
 class TfTree:
@@ -164,13 +170,15 @@ class TfTree:
 
     @staticmethod
     def _name(frame: str) -> str:
-        return frame[1:] if frame.startswith('/') else frame
+        """A frame's name as the report shows it: escaped (a name holding a newline or a carriage return stays on
+        its line), so a frame with such characters is never one of the URDF's links."""
+        return sandbox.printable(frame[1:] if frame.startswith('/') else frame, MAX_NAME)
 
     def _check(self, msg) -> None:
         for t in msg.transforms:
-            child = self._name(t.child_frame_id)[:MAX_NAME]
+            child = self._name(t.child_frame_id)
             if len(self.frames) < MAX_FRAMES:   # a flood of ever-new names is counted, not kept
-                self.frames.update((self._name(t.header.frame_id)[:MAX_NAME], child))
+                self.frames.update((self._name(t.header.frame_id), child))
                 self.children.add(child)
             r, p = t.transform.rotation, t.transform.translation
             if not all(math.isfinite(v) for v in (r.x, r.y, r.z, r.w, p.x, p.y, p.z)):
@@ -227,9 +235,9 @@ def parse_args(argv):
     p.add_argument('--candidate', help='the node to grade: PACKAGE/TYPE (what rosrun takes) or a file (a student\'s '
                    'solution.py); a Python file runs with this Python whatever its #! line says')
     p.add_argument('--candidates', metavar='DIR', help='grade a class: the node in each folder of DIR (one folder per '
-                   'student), each in a roscore of its own, one line per student and a CSV')
+                   'student), each in a sandbox of its own (see --no-sandbox), one line per student and a CSV')
     p.add_argument('--csv', default='', help='with --candidates: where the CSV goes (default: check_fk_<DIR>.csv '
-                   'in the current folder)')
+                   'in the current folder); each student\'s report goes to a folder beside it')
     p.add_argument('--jobs', type=int, default=0, help='with --candidates: students graded at once (0: one per core)')
     p.add_argument('--expect', choices=('pass', 'fail'), default='pass',
                    help='the verdict that makes the exit status 0 (fail: a course\'s test that a wrong node is caught)')
@@ -237,7 +245,21 @@ def parse_args(argv):
     p.add_argument('--seed', type=int, default=0, help='seed of the random configurations')
     p.add_argument('--tolerance', type=float, default=1e-6, help='largest error allowed, in m and rad')
     p.add_argument('--timeout', type=float, default=5.0, help='seconds a configuration may take to appear on tf')
+    p.add_argument('--budget', type=float, default=0.0,
+                   help=f'wall-clock seconds one check may take, the candidate\'s start included, before it ends with '
+                   f'a verdict that says so; 0: {BUDGET_BASE:g} + {BUDGET_PER_CONFIGURATION:g} per configuration '
+                   f'(270 s for 50)')
+    p.add_argument('--sandbox', action='store_true', help='with --candidate: run it in a sandbox, as --candidates '
+                   'runs every student (root; bubblewrap and util-linux)')
+    p.add_argument('--no-sandbox', action='store_true', help='with --candidates: run the students as yourself, with '
+                   'your files and network (only for code you trust)')
     p.add_argument('--gtest_output', default='', help=argparse.SUPPRESS)  # rostest's: xml:<results file>
+    # a class run's judge: the check of one student, in a network namespace of its own, the student sandboxed
+    p.add_argument('--judge-uid', type=int, default=-1, help=argparse.SUPPRESS)
+    p.add_argument('--judge-folder', default='', help=argparse.SUPPRESS)
+    p.add_argument('--judge-hide', action='append', default=[], help=argparse.SUPPRESS)
+    p.add_argument('--result-fd', type=int, default=-1, help=argparse.SUPPRESS)
+    p.add_argument('--judge-shown', default='', help=argparse.SUPPRESS)   # the candidate as the user named it
     a = p.parse_args(argv)
     if (a.candidate is None) == (a.candidates is None):
         p.error('give one of --candidate (a node) and --candidates (a folder of student folders)')
@@ -253,6 +275,14 @@ def parse_args(argv):
     if not (0 < a.tolerance < math.inf and 0 < a.timeout <= MAX_TIMEOUT):   # NaN fails too
         p.error(f'--tolerance must be a positive number and --timeout one of at most {MAX_TIMEOUT:g} s, got '
                 f'{a.tolerance:g} and {a.timeout:g}')
+    if not 0 <= a.budget <= 24 * 3600:
+        p.error(f'--budget must be 0 (the default) to {24 * 3600} seconds, got {a.budget:g}')
+    if a.sandbox and a.candidates is not None:
+        p.error('--sandbox is for --candidate; --candidates sandboxes every student unless --no-sandbox')
+    if (a.sandbox or (a.candidates is not None and not a.no_sandbox)) and a.judge_uid < 0:
+        problem = sandbox.unavailable()
+        if problem:
+            p.error(problem)
     return a
 
 
@@ -314,25 +344,119 @@ def exit_status(verdict: str, expect: str) -> int:
     return 0 if verdict.startswith('PASS') == (expect == 'pass') else 1
 
 
+def result_of(lines: list[str], tree, status: int, seconds: float) -> dict:
+    """What a judge hands its class run (JSON on --result-fd): the verdict line, the score, the first wrong link,
+    the exit status; from this process's own report, never from text the candidate wrote."""
+    r = candidates.Result.of('', '\n'.join(lines), seconds, tree.links)
+    return dict(verdict=r.verdict, score=r.score, first_wrong_link=r.first_wrong_link, status=status,
+                seconds=round(seconds, 3))
+
+
+def finish(a, tree, lines: list[str], seconds: float) -> int:
+    """Print the report (every line escaped: one line each, whatever the candidate's names and output held), write
+    rostest's results file and a judge's result; the exit status."""
+    lines = [sandbox.printable(line, 2000, backslashes=False) for line in lines]
+    print('\n'.join(lines), flush=True)
+    status = exit_status(lines[-1], a.expect)
+    if a.gtest_output.startswith('xml:'):
+        write_junit(a.gtest_output[4:], a.judge_shown or a.candidate, lines, seconds, a.expect)
+    if a.result_fd >= 0:
+        import json
+        data = json.dumps(result_of(lines, tree, status, seconds)).encode()[:RESULT_BYTES]
+        try:
+            os.write(a.result_fd, data)
+            os.close(a.result_fd)
+        except OSError:
+            pass
+    return status
+
+
+def sandboxed(a) -> bool:
+    return a.judge_uid >= 0
+
+
+def reexec_in_namespaces(a, argv) -> int:
+    """--candidate with --sandbox: this check again as a judge in a network, PID and mount namespace of its own
+    (its own master, the candidate as a user of its own, a copy of its folder); its exit status."""
+    uid = sandbox.uid_for(os.getpid(), 0)
+    work = tempfile.mkdtemp(prefix='check_fk_sandbox_')
+    candidate, folder = a.candidate, ''
+    try:
+        if os.path.isfile(a.candidate):
+            source = os.path.abspath(a.candidate)
+            folder = os.path.join(work, 'student')
+            try:
+                sandbox.copy_folder(os.path.dirname(source), folder, uid)
+            except (sandbox.SandboxError, OSError) as e:   # ~/solution.py: its folder is a home, not a submission
+                shutil.rmtree(folder, ignore_errors=True)
+                os.mkdir(folder)
+                shutil.copy2(source, folder)
+                sandbox.copy_folder(folder, os.path.join(work, 'alone'), uid)
+                shutil.rmtree(folder)
+                os.rename(os.path.join(work, 'alone'), folder)
+                print(f'check_fk: the sandbox holds {sandbox.printable(os.path.basename(source))} alone: its folder '
+                      f'cannot be copied ({sandbox.printable(str(e))})', flush=True)
+            candidate = os.path.join(folder, os.path.basename(source))
+        words = []
+        skip = False
+        for w in argv:                     # the candidate's path is the copy's
+            if skip:
+                words.append(candidate)
+                skip = False
+            elif w == '--candidate':
+                words.append(w)
+                skip = True
+            elif w.startswith('--candidate='):
+                words.append(f'--candidate={candidate}')
+            elif w != '--sandbox':
+                words.append(w)
+        cmd = sandbox.judge_prefix() + [sys.executable, '-c', JUDGE] + words + [
+            '--judge-uid', str(uid), '--judge-folder', folder, '--judge-hide', work, '--judge-shown', a.candidate]
+        proc = subprocess.Popen(cmd, env=judge_env())
+        try:
+            return proc.wait()
+        except BaseException:
+            proc.kill()
+            proc.wait()
+            raise
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+JUDGE = 'import sys; from robot_ai.nodes.check_fk import main; sys.exit(main(sys.argv[1:]))'
+
+
+def judge_env() -> dict:
+    """A judge's environment: ROS on loopback (its network namespace has nothing else)."""
+    env = {k: v for k, v in os.environ.items() if k not in ('ROS_IP', 'ROS_HOSTNAME', 'ROS_MASTER_URI')}
+    env.update(ROS_HOSTNAME='127.0.0.1', ROS_MASTER_URI='http://127.0.0.1:11311')
+    return env
+
+
 def main(argv=None) -> int:
     import rospy
     # ROS's special arguments (rostest's __name:=, __log:=) are not check_fk's; rospy.myargv would also drop every
     # word with := in it, xacro's name:=value arguments included
-    a = parse_args([w for w in sys.argv[1:] if not w.startswith('__')] if argv is None else argv)
+    argv = [w for w in sys.argv[1:] if not w.startswith('__')] if argv is None else argv
+    a = parse_args(argv)
     try:
         xml, tree = read_model(a.model, a.xacro_args)
     except ValueError as e:
         print(f'check_fk: {e}', file=sys.stderr)
         return 2
+    if a.sandbox and not sandboxed(a):
+        return reexec_in_namespaces(a, argv)
     command, source = candidate_command(a.candidate) if a.candidate is not None else ([], None)
-    if source is not None and candidates.is_python(source):
-        verdict = candidates.syntax_verdict(source)
-        if verdict is not None:       # a Python 2 file: a verdict, not the node's traceback
-            print(f'check_fk: {a.candidate} on {a.model}')
-            print(verdict)
-            if a.gtest_output.startswith('xml:'):
-                write_junit(a.gtest_output[4:], a.candidate, [verdict], 0.0, a.expect)
-            return exit_status(verdict, a.expect)
+    if source is not None:
+        verdict = None
+        if candidates.is_python(source):
+            verdict = candidates.syntax_verdict(source)        # a Python 2 file: a verdict, not the node's traceback
+        elif not os.access(source, os.X_OK):
+            verdict = (f'FAIL: {sandbox.printable(os.path.basename(source))} is neither a Python file (.py, or a #! '
+                       f'line naming python) nor executable: the node cannot start')
+        if verdict is not None:
+            print(f'check_fk: {sandbox.printable(a.judge_shown or a.candidate)} on {a.model}')
+            return finish(a, tree, [verdict], 0.0)
     # Ctrl-C, SIGTERM (what `timeout` sends) and SIGHUP (the terminal closed) end the grade and clean up; a second
     # signal while it cleans up is ignored, so that the clean-up always finishes. As a child subreaper, check_fk
     # inherits every process the candidate leaves behind (a double fork into a session of its own included).
@@ -347,37 +471,47 @@ def main(argv=None) -> int:
         signal.signal(sig, on_signal)
     if a.candidates is not None:
         try:
-            return grade_class(a, tree)
+            return grade_class(a, tree, argv)
         finally:
             stopping.append('clean-up')
     prctl(PR_SET_CHILD_SUBREAPER, 1)
     core = proc = None
     own_global = False
+    env = None
+    budget_end = time.monotonic() + budget_of(a)
     try:
+        if sandboxed(a):
+            sandbox.loopback_up()          # this judge's own network namespace: loopback, and its master on it
         core = start_master()
         wait_for_master(core)
         from sensor_msgs.msg import JointState
-        rospy.init_node('check_fk', anonymous=True, disable_signals=True)
+        rospy.init_node('check_fk', anonymous=True, disable_signals=True,
+                        argv=[sys.argv[0]] + [w for w in sys.argv[1:] if w.startswith('__') and ':=' in w])
         ns = f'/check_fk_{os.getpid()}'
         rospy.set_param(ns + '/robot_description', xml)
         if not rospy.has_param('/robot_description'):  # for nodes that read the absolute name
             rospy.set_param('/robot_description', xml)
             own_global = True
         candidate = TfTree(ns)
-        proc = subprocess.Popen(command + ['__name:=candidate', f'__ns:={ns}',
-                                           f'/joint_states:={ns}/joint_states', f'/tf:={ns}/candidate/tf',
-                                           f'/tf_static:={ns}/candidate/tf_static'],
-                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=os.setsid)
-        output = Output(proc.stdout, log_path(a.candidate.strip('/').replace(os.sep, '_')))
+        remaps = ['__name:=candidate', f'__ns:={ns}', f'/joint_states:={ns}/joint_states',
+                  f'/tf:={ns}/candidate/tf', f'/tf_static:={ns}/candidate/tf_static']
+        if sandboxed(a):
+            folder = a.judge_folder or tempfile.mkdtemp(prefix='check_fk_empty_')
+            inside = [('/student' + w[len(folder):]) if folder and w.startswith(folder.rstrip('/') + '/') else w
+                      for w in command]
+            command, env = sandbox.candidate_command(inside, a.judge_uid, folder, sandbox.Limits(
+                cpu_seconds=int(budget_of(a)) + 60), a.judge_hide)
+            env['ROS_MASTER_URI'] = os.environ['ROS_MASTER_URI']
+            env['ROS_HOSTNAME'] = '127.0.0.1'
+        proc = subprocess.Popen(command + remaps, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, preexec_fn=os.setsid, env=env)
+        output = Output(proc.stdout, log_path((a.judge_shown or a.candidate).strip('/').replace(os.sep, '_')))
         pub = rospy.Publisher(ns + '/joint_states', JointState, queue_size=10)
         t0 = time.time()
-        print(f'check_fk: {a.candidate} on {a.model} ({len(tree.links)} links, {len(tree.active_joints)} driven '
-              f'joints), {a.configurations} configurations')
-        lines, _ = grade(tree, a, candidate, proc, output, pub, JointState)
-        print('\n'.join(lines[:-1] + [f'(graded in {time.time() - t0:.1f} s)', lines[-1]]))
-        if a.gtest_output.startswith('xml:'):
-            write_junit(a.gtest_output[4:], a.candidate, lines, time.time() - t0, a.expect)
-        return exit_status(lines[-1], a.expect)
+        print(f'check_fk: {sandbox.printable(a.judge_shown or a.candidate)} on {a.model} ({len(tree.links)} links, '
+              f'{len(tree.active_joints)} driven joints), {a.configurations} configurations', flush=True)
+        lines, _ = grade(tree, a, candidate, proc, output, pub, JointState, budget_end)
+        return finish(a, tree, lines[:-1] + [f'(graded in {time.time() - t0:.1f} s)', lines[-1]], time.time() - t0)
     finally:
         stopping.append('clean-up')
         stop(proc)
@@ -395,80 +529,218 @@ def main(argv=None) -> int:
         end_descendants()
 
 
-def grade_class(a, tree) -> int:
-    """--candidates DIR: the node in each student folder of DIR graded by a check_fk of its own (its own roscore,
-    its own process group), --jobs at a time; one line per student as each ends, then the CSV. A student's crash
-    or hang is that student's verdict: the others go on. 0 once every student has a line."""
+class Reader:
+    """A judge's stdout, drained by a thread: its last REPORT_TAIL bytes kept, the whole (up to LOG_BYTES) written to
+    a report file."""
+
+    def __init__(self, stream, path: str):
+        self.tail = b''
+        self.path = path
+        self.thread = threading.Thread(target=self._drain, args=(stream,), daemon=True)
+        self.thread.start()
+
+    def _drain(self, stream) -> None:
+        written = 0
+        try:
+            report = open(self.path, 'wb')
+        except OSError:
+            report, self.path = None, ''
+        while True:
+            try:
+                chunk = os.read(stream.fileno(), CHUNK)
+            except OSError:
+                break
+            if not chunk:
+                break
+            self.tail = (self.tail + chunk)[-REPORT_TAIL:]
+            if report is not None and written < LOG_BYTES:
+                report.write(chunk[:LOG_BYTES - written])
+                written += len(chunk)
+        if report is not None:
+            report.close()
+
+    def last_lines(self, n: int = 3) -> str:
+        self.thread.join(5.0)
+        lines = self.tail.decode(errors='replace').strip().splitlines()[-n:]
+        return ' | '.join(sandbox.printable(line, 200) for line in lines)
+
+
+def read_result(fd: int) -> dict | None:
+    """A judge's result from the read end of its pipe (at most RESULT_BYTES), None when there is none or it is not
+    the JSON a judge writes."""
+    import json
+    data = b''
+    try:
+        while len(data) <= RESULT_BYTES:
+            chunk = os.read(fd, RESULT_BYTES)
+            if not chunk:
+                break
+            data += chunk
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
+    try:
+        result = json.loads(data.decode())
+    except ValueError:
+        return None
+    if not isinstance(result, dict) or not all(isinstance(result.get(k), str) for k in
+                                               ('verdict', 'score', 'first_wrong_link')):
+        return None
+    return result
+
+
+def grade_class(a, tree, argv) -> int:
+    """--candidates DIR: the node in each student folder of DIR graded by a judge of its own (a check_fk in a network,
+    PID and mount namespace of its own, its own roscore; the student's node in a sandbox: see robot_ai.sandbox),
+    --jobs at a time; one line per student as each ends, then the CSV. A student's verdict is the judge's result and
+    exit status, which the student's code cannot write; a crash, a hang or an escape attempt is that student's
+    verdict and the others go on. A signal stops the run: the CSV holds the students graded, and the rest are named.
+    0 once every student has a line."""
     import concurrent.futures
     import csv
+    import shutil
     folder = os.path.abspath(a.candidates)
     students = sorted(d for d in os.listdir(folder) if os.path.isdir(os.path.join(folder, d)) and d[0] != '.')
     if not students:
         print(f'check_fk: {folder} has no student folders', file=sys.stderr)
         return 2
     jobs = a.jobs or os.cpu_count() or 1
-    limit = 120.0 + a.configurations * (a.timeout + 2.0) * 2   # a hang is cut here; each wait has its own timeout
+    budget = budget_of(a)
+    limit = budget + 60.0             # a judge that has not ended by then is killed with its namespaces
+    path = a.csv or f'check_fk_{os.path.basename(folder)}.csv'
+    reports = os.path.splitext(os.path.abspath(path))[0] + '_reports'
+    os.makedirs(reports, exist_ok=True)
+    for old in os.listdir(reports):        # an earlier run's reports: this run's numbering may differ
+        if old[:3].isdigit() and old[3:4] == '_' and old.endswith('.txt'):
+            os.remove(os.path.join(reports, old))
+    work = tempfile.mkdtemp(prefix='check_fk_class_')
+    os.chmod(work, 0o711)
     running, lock = {}, threading.Lock()
-    print(f'check_fk: {len(students)} students in {folder} on {a.model}, {a.configurations} configurations, '
-          f'{jobs} at a time')
+    on_model = f'{a.model}' + (f' with xacro arguments "{a.xacro_args}"' if a.xacro_args else '')
+    limits = sandbox.Limits(cpu_seconds=int(budget) + 60)
+    print(f'check_fk: {len(students)} students in {sandbox.printable(folder)} on {on_model} ({len(tree.links)} '
+          f'links), {a.configurations} configurations (seed {a.seed}, tolerance {a.tolerance:g}, timeout '
+          f'{a.timeout:g} s), at most {budget:g} s each, {jobs} at a time')
+    if a.no_sandbox:
+        print('check_fk: NOT sandboxed (--no-sandbox): every student runs as you, with your files and network')
+    else:
+        print(f'check_fk: each student in a sandbox: a user of its own, a copy of its folder, a network of its own, '
+              f'{limits.describe()}')
+    print(f'check_fk: reports in {reports}', flush=True)
+    options = ['--model', a.model, '--xacro-args', a.xacro_args, '--configurations', str(a.configurations),
+               '--seed', str(a.seed), '--tolerance', repr(a.tolerance), '--timeout', repr(a.timeout),
+               '--budget', repr(budget), '--expect', 'pass']
+    stopping_class = []
 
-    def one(student: str) -> candidates.Result:
-        node = candidates.find_node(os.path.join(folder, student))
+    def one(index: int, student: str) -> candidates.Result:
+        shown = sandbox.printable(student)
+        original = os.path.join(folder, student)
+        node = candidates.find_node(original)
         if node is None:
-            return candidates.Result(student, 'FAIL: no node found (no Python file that calls rospy.init_node)',
+            return candidates.Result(shown, 'FAIL: no node found (no Python file that calls rospy.init_node)',
                                      '', '', 0.0)
-        cmd = [sys.executable, '-c', 'import sys; from robot_ai.nodes.check_fk import main; '
-               'sys.exit(main(sys.argv[1:]))', '--model', a.model, '--candidate', node,
-               '--configurations', str(a.configurations), '--seed', str(a.seed), '--tolerance', repr(a.tolerance),
-               '--timeout', repr(a.timeout)]
-        env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{free_port()}')   # none runs there: its own
         t = time.time()
-        with lock:
-            if stopping_class:
-                return candidates.Result(student, 'not graded (check_fk was stopped)', '', '', 0.0)
-            proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                    stdin=subprocess.DEVNULL, start_new_session=True)
-            running[student] = proc
+        cmd, env, copy = [sys.executable, '-c', JUDGE] + options, None, ''
+        if a.no_sandbox:
+            env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{free_port()}')   # none runs there: its own
+            cmd += ['--candidate', node]
+        else:
+            uid = sandbox.uid_for(os.getpid(), index)
+            copy = os.path.join(work, str(index))
+            try:
+                sandbox.copy_folder(original, copy, uid)
+            except (sandbox.SandboxError, OSError) as e:
+                return candidates.Result(shown, f'FAIL: its folder cannot be graded: {sandbox.printable(str(e))}',
+                                         '', '', 0.0)
+            cmd = sandbox.judge_prefix() + cmd + [
+                '--candidate', os.path.join(copy, os.path.relpath(node, original)), '--judge-uid', str(uid),
+                '--judge-folder', copy, '--judge-hide', folder, '--judge-hide', reports, '--judge-hide', work]
+            env = judge_env()
+        read_end, write_end = os.pipe()
         try:
-            out, _ = proc.communicate(timeout=limit)
-            text = out.decode(errors='replace')
+            with lock:
+                if stopping_class:
+                    return None
+                proc = subprocess.Popen(cmd + ['--result-fd', str(write_end)], env=env, stdout=subprocess.PIPE,
+                                        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True,
+                                        pass_fds=(write_end,))
+                running[student] = proc
+        finally:
+            os.close(write_end)
+        reader = Reader(proc.stdout, os.path.join(reports, f'{index:03d}_{_file_name(student)}.txt'))
+        try:
+            proc.wait(timeout=limit)
+            timed_out = False
         except subprocess.TimeoutExpired:
-            stop(proc, timeout=15)
-            text = f'FAIL: grading did not end within {limit:.0f} s'
+            _signal_group(proc.pid, signal.SIGKILL)       # unshare, and with it the judge's namespaces
+            proc.wait()
+            timed_out = True
         finally:
             with lock:
                 running.pop(student, None)
-        if not any(line.startswith(('PASS', 'FAIL')) for line in text.splitlines()):
-            tail = ' | '.join(text.strip().splitlines()[-3:])[:300]
-            text += f'\nFAIL: check_fk ended with status {proc.returncode} and no verdict: {tail}'
-        return candidates.Result.of(student, text, time.time() - t, tree.links)
+        result = read_result(read_end)
+        if copy:
+            shutil.rmtree(copy, ignore_errors=True)
+        seconds = time.time() - t
+        if stopping_class and (result is None or proc.returncode < 0):
+            return None
+        if timed_out:
+            verdict = f'FAIL: grading did not end within {limit:.0f} s (its budget and a minute): ended'
+            return candidates.Result(shown, verdict, '', '', seconds)
+        if result is None:
+            return candidates.Result(shown, f'FAIL: check_fk ended with status {proc.returncode} and no result: '
+                                     f'{reader.last_lines()}', '', '', seconds)
+        verdict = sandbox.printable(result['verdict'], 600, backslashes=False)
+        if verdict.startswith('PASS') != (proc.returncode == 0):
+            verdict = f'FAIL: check_fk said {verdict[:200]} but ended with status {proc.returncode}'
+        return candidates.Result(shown, verdict, sandbox.printable(result['score'], 100, backslashes=False),
+                                 sandbox.printable(result['first_wrong_link'], MAX_NAME, backslashes=False), seconds)
 
-    stopping_class = []
     results = {}
     pool = concurrent.futures.ThreadPoolExecutor(max_workers=jobs)
+    stopped = None
     try:
-        futures = {pool.submit(one, student): student for student in students}
+        futures = {pool.submit(one, i, student): student for i, student in enumerate(students)}
         for future in concurrent.futures.as_completed(futures):
             result = future.result()
-            results[result.student] = result
-            print(result.line(), flush=True)
-    finally:   # also on a signal: the students being graded are stopped (their check_fk cleans up), none starts
+            if result is not None:
+                results[futures[future]] = result
+                print(result.line(), flush=True)
+    except BaseException as e:   # a signal: the students being graded are stopped, none starts, the CSV is written
+        stopped = e
+    finally:
         with lock:
             stopping_class.append(True)
             left = list(running.values())
         for proc in left:
-            stop(proc, timeout=15)
+            _signal_group(proc.pid, signal.SIGKILL)
         pool.shutdown(wait=True, cancel_futures=True)
-    path = a.csv or f'check_fk_{os.path.basename(folder)}.csv'
-    with open(path, 'w', newline='') as f:
-        w = csv.writer(f)
-        w.writerow(['student', 'verdict', 'score', 'first_wrong_link', 'seconds'])
-        for student in students:
-            r = results[student]
-            w.writerow([r.student, r.verdict, r.score, r.first_wrong_link, f'{r.seconds:.1f}'])
-    passed = sum(results[s].verdict.startswith('PASS') for s in students)
+        shutil.rmtree(work, ignore_errors=True)
+        with open(path, 'w', newline='') as f:
+            w = csv.writer(f)
+            w.writerow(['student', 'verdict', 'score', 'first_wrong_link', 'seconds'])
+            for student in students:
+                r = results.get(student)
+                if r is None:
+                    w.writerow([sandbox.printable(student), 'not graded (check_fk was stopped)', '', '', ''])
+                else:
+                    w.writerow([r.student, r.verdict, r.score, r.first_wrong_link, f'{r.seconds:.1f}'])
+    passed = sum(r.verdict.startswith('PASS') for r in results.values())
+    if stopped is not None:
+        rest = [sandbox.printable(s) for s in students if s not in results]
+        print(f'check_fk: stopped: {len(results)} of {len(students)} graded ({passed} PASS); CSV: '
+              f'{os.path.abspath(path)}; not graded: {", ".join(rest)}', flush=True)
+        if isinstance(stopped, SystemExit):
+            return stopped.code if isinstance(stopped.code, int) else 1
+        raise stopped
     print(f'{passed} of {len(students)} PASS; CSV: {os.path.abspath(path)}')
     return 0
+
+
+def _file_name(student: str) -> str:
+    """A report file's name for a student folder's name: letters, digits, '.', '-' and '_' kept."""
+    return ''.join(c if c.isalnum() or c in '.-_' else '_' for c in student)[:80] or 'student'
 
 
 def end_descendants(keep=None) -> None:
@@ -575,16 +847,30 @@ def registered(node: str) -> bool:
         return False
 
 
-def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
-    """Drive the candidate through the configurations; (report lines, exit status)."""
+def budget_of(a) -> float:
+    """--budget, or its default for the run's configurations (0 given)."""
+    return a.budget or BUDGET_BASE + BUDGET_PER_CONFIGURATION * a.configurations
+
+
+def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState, budget_end: float = math.inf):
+    """Drive the candidate through the configurations until budget_end (time.monotonic()); (report lines, exit
+    status)."""
     names = {link: tf_name(link) for link in tree.links}     # URDF link -> the frame tf2 keeps
     link_of = {f: link for link, f in names.items()}
+    done = [0]       # configurations graded
+
+    def over():
+        return time.monotonic() > budget_end
 
     def dead():
-        return proc.poll() is not None
+        return proc.poll() is not None or over()
 
     def died():
-        return f'FAIL: the candidate node exited with status {proc.returncode}{output.quote()}'
+        """The lines that end a grade stopped early: the candidate's output, then the verdict."""
+        if over():
+            return output.lines() + [f'FAIL: grading did not end within its budget of {budget_of(a):g} s (--budget): '
+                                     f'{done[0]} of {a.configurations} configurations graded']
+        return output.lines() + [f'FAIL: the candidate node exited with status {proc.returncode}']
 
     if len(tree.links) == 1:
         return [f'{tree.root} is a single link with no joint: there is no transform to publish or to grade',
@@ -624,16 +910,17 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
                 if unchanged >= STABLE and time.monotonic() > start + 1.0:
                     break
             if dead():
-                return [died()], 1
+                return died(), 1
             if not candidate.frames:
-                return [f'FAIL: the candidate published nothing on /tf or /tf_static within {a.timeout:g} s of '
-                        f'the first joint_states{output.quote()}'], 1
+                return output.lines() + [f'FAIL: the candidate published nothing on /tf or /tf_static within '
+                                         f'{a.timeout:g} s of the first joint_states'], 1
             ours = {link_of[f] for f in candidate.frames if f in link_of}
             if not ours and len(candidate.frames) > 1:
                 others = sorted(candidate.frames)
-                return [f'FAIL: the candidate publishes frames the URDF does not have ({", ".join(others[:5])}'
-                        f'{", ..." if len(others) > 5 else ""}) and none of its {len(tree.links)} links: is it written '
-                        f'for another robot? This one\'s root is {tree.root}{output.quote()}'], 1
+                return output.lines() + [
+                    f'FAIL: the candidate publishes frames the URDF does not have ({", ".join(others[:5])}'
+                    f'{", ..." if len(others) > 5 else ""}) and none of its {len(tree.links)} links: is it written for '
+                    f'another robot? This one\'s root is {tree.root}'], 1
             frame, note = comparison_frame(tree, {link_of.get(f, f) for f in candidate.frames},
                                            candidate.parentless())
             result = Grade(tree, None if frame is None else link_of.get(frame, frame), a.tolerance, note)
@@ -647,11 +934,12 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState):
         got = settle(candidate, frame_name, graded, q, previous, changes, pub, JointState, a.timeout, dead,
                      moving=bool(tree.active_joints))
         if dead():
-            return result.report()[:-1] + [died()], 1
+            return result.report()[:-1] + died(), 1
         if candidate.non_finite:
             result.problems.append(f'the candidate published a non-finite (NaN or inf) transform for '
                                    f'{candidate.non_finite[0]}')
             return result.report(), 1
         previous = got
         result.add(k, q, reference, got)
+        done[0] = k + 1
     return result.report(), 0 if result.verdict() == 'PASS' else 1
