@@ -2,7 +2,7 @@
 #   make demo   build, then run the headless demo (roslaunch robot_ai demo.launch)
 #   make test   build, then unit tests (pytest) and rostest tests, one summary, non-zero on any failure
 #   make build  Debian packages + .venv + .catkin_ws (catkin_make); a second run with nothing changed is quick
-#   make bench  the benchmarks in bench/, figures beside the reference's
+#   make bench  the benchmarks in bench/, figures beside the reference's, kept in output/bench.txt
 #   make clean  remove .venv, .catkin_ws and outputs
 SHELL := /bin/bash
 .SHELLFLAGS := -e -o pipefail -c  # not -u: ROS's setup.bash reads unset variables
@@ -86,17 +86,19 @@ demo: build
 	@# roslaunch exits 0 when its required client ends, whatever the client's status: the verdict decides
 	@grep -q '^verdict: OK' $(OUT)/demo.log
 
-# The README's figures first, then today's; the scripts' stderr (ROS's own log lines, warnings) goes to a log file
+# The last recorded figures (docs/benchmarks.md) first, then today's; the scripts' stderr (ROS's own log lines, warnings) goes to a log file
 # so that the tables hold only figures.
 bench: build
 	mkdir -p $(OUT)
-	@python3 $(ROOT)/bench/readme_figures.py
-	@echo "load average at start: $$(cut -d' ' -f1-3 /proc/loadavg)"
-	@for b in fk_load search_speed q_learning_speed cartpole_loop ros_env_speed reach_speed reach_ars ros_reach_speed policy_latency; do \
-	  $(RUN) python $(ROOT)/bench/$$b.py 2>>$(OUT)/bench-stderr.log \
-	    || { echo "bench/$$b.py failed; its stderr: $(OUT)/bench-stderr.log"; tail -n 20 $(OUT)/bench-stderr.log; exit 1; }; \
-	done
-	@echo "load average at end: $$(cut -d' ' -f1-3 /proc/loadavg)   (ROS log lines and warnings: $(OUT)/bench-stderr.log)"
+	@{ python3 $(ROOT)/bench/last_figures.py; \
+	  echo "load average at start: $$(cut -d' ' -f1-3 /proc/loadavg)"; \
+	  for b in fk_load search_speed q_learning_speed cartpole_loop ros_env_speed reach_speed reach_ars ros_reach_speed policy_latency; do \
+	    $(RUN) python $(ROOT)/bench/$$b.py 2>>$(OUT)/bench-stderr.log \
+	      || { echo "bench/$$b.py failed; its stderr: $(OUT)/bench-stderr.log"; tail -n 20 $(OUT)/bench-stderr.log; exit 1; }; \
+	  done; \
+	  echo "load average at end: $$(cut -d' ' -f1-3 /proc/loadavg)   (ROS log lines and warnings: $(OUT)/bench-stderr.log)"; \
+	} | tee $(OUT)/bench.txt
+	@echo "this run's figures: $(OUT)/bench.txt (copy them to docs/benchmarks.md's 'Figures of' block)"
 
 clean:
 	rm -rf $(WS) $(VENV) $(OUT)

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""make bench as it runs each script: stdout (the table) holds no ROS log line, and readme_figures.py prints the
-README's figures. The search benchmark runs small (--skip-large --calls 1): its output format is what is checked."""
+"""make bench as it runs each script: stdout (the table) holds no ROS log line, and last_figures.py prints the
+last recorded figures (docs/benchmarks.md). The search benchmark runs small (--skip-large --calls 1): its output format is what is checked."""
 import os
 import re
 import subprocess
@@ -23,10 +23,10 @@ class TestBenchOutput(unittest.TestCase):
         self.assertTrue(any(l.startswith('~random_search service, round trip') for l in lines), proc.stdout)
         self.assertEqual([l for l in lines if LOG_LINE.search(l)], [])
 
-    def test_readme_figures_come_first(self):
-        out = subprocess.run([sys.executable, os.path.join(ROOT, 'bench', 'readme_figures.py')], capture_output=True,
+    def test_last_figures_come_first(self):
+        out = subprocess.run([sys.executable, os.path.join(ROOT, 'bench', 'last_figures.py')], capture_output=True,
                              text=True, timeout=60).stdout
-        self.assertRegex(out.splitlines()[1], r'^README: Figures of \d{4}-\d\d-\d\d')
+        self.assertRegex(out.splitlines()[1], r'^last recorded \(docs/benchmarks.md\): Figures of \d{4}-\d\d-\d\d')
         self.assertIn('CPU ratio forward_kinematics / robot_state_publisher', out)
         self.assertIn('today (', out)
 
