@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """stable-baselines3's PPO trains on the ROS cart-pole through robot_ai.envs, and saves its model.
 
-Start the sims first (one per env), then run this in a venv that has stable-baselines3 (see the README: torch is
+Start the sims first (one per env), then run this in a venv that has stable-baselines3 (see docs/install.md: torch is
 gigabytes, so it is not a dependency of robot_ai):
 
     roslaunch robot_ai cartpole_gym.launch sims:=8

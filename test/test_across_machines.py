@@ -7,12 +7,12 @@ Host A runs `cartpole.launch` (master, rosout, the sim, forward_kinematics, the 
 trusted machine, host C an untrusted one; A is joined to each by a veth pair. Every packet stays inside the
 namespaces this test makes. Needs root (ip netns), as CI has.
 
-- The README's "Across machines" steps: with ROS_IP set on A and B, B echoes A's frames with tf_echo and calls
+- docs/network.md's "Across machines" steps: with ROS_IP set on A and B, B echoes A's frames with tf_echo and calls
   A's services; C, which nobody set up, reaches A's master too (ROS 1 has no authentication).
-- The README's firewall for that case (nftables on A: new connections only from loopback and B): B still works,
+- docs/network.md's firewall for that case (nftables on A: new connections only from loopback and B): B still works,
   C reaches nothing.
 - Loopback mode (ROS_HOSTNAME=localhost, as make demo): from B the master and the rospy nodes refuse
-  connections, but Debian's roscpp rosout answers XML-RPC (getPid; its `shutdown` would answer too). The README's
+  connections, but Debian's roscpp rosout answers XML-RPC (getPid; its `shutdown` would answer too). docs/network.md's
   loopback firewall (no new connection from any other interface) closes it, and the graph on A still works.
 """
 import ast
@@ -83,7 +83,7 @@ def nft(ns, rules):
     assert proc.returncode == 0, proc.stderr
 
 
-# The README's rules, word for word (README "Security: ROS 1 on a network"); across machines, the other ROS
+# docs/network.md's rules, word for word ("A network you do not trust"); across machines, the other ROS
 # machines are admitted before the last line.
 LOOPBACK_ONLY_RULES = '''
 table inet ros_guard {

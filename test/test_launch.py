@@ -375,7 +375,7 @@ class TestLaunch(unittest.TestCase):
                              if 'panda' in args[0] else [], meshes)
             for line in meshes:
                 self.assertIn('put moveit_resources_panda_description on ROS_PACKAGE_PATH', line)
-        # a package-relative model, as the README's table suggested, loads; a robot that does not exist says so
+        # a package-relative model, as docs/launch.md says, loads; a robot that does not exist says so
         bad = subprocess.run(['roslaunch', '--args', 'forward_kinematics', 'robot_ai', 'forward_kinematics.launch',
                               'model:=urdf/kuka_lwr_arm.urdf'], capture_output=True, text=True, timeout=60)
         self.assertEqual(bad.returncode, 0, bad.stdout + bad.stderr)

@@ -1,4 +1,4 @@
-"""`python -m robot_ai.cartpole` from the venv with nothing sourced, as the README shows it."""
+"""`python -m robot_ai.cartpole` from the venv with nothing sourced, as docs/cli.md shows it."""
 import csv
 import os
 import re

@@ -7,7 +7,7 @@ from robot_ai.cartpole.linear_search import act, evaluate, random_search, resolv
 
 
 def test_course_experiment_pinned_bit_for_bit():
-    """The 100 x 100 seed-0 search of the README: these numbers must never move."""
+    """The 100 x 100 seed-0 search of docs/nodes/cartpole_search.md: these numbers must never move."""
     search = resolve()
     res = random_search(search.dynamics, search.iterations, search.episodes, search.max_steps, 0,
                         search.final_episodes)

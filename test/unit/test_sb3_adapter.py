@@ -2,7 +2,7 @@
 neither): a stand-in for stable_baselines3.common.vec_env.VecEnv with its constructor, then the adapter over
 ReachVectorEnv checked against SyncVectorEnv-stepped gymnasium envs as stable-baselines3's DummyVecEnv steps them
 (reset in the same step, terminal_observation, TimeLimit.truncated, is_success, compute_reward for HER). The real
-stable-baselines3 run is in the README's figures (PPO and SAC + HER, by hand in a venv of its own)."""
+stable-baselines3 run is on docs/benchmarks.md (PPO and SAC + HER, by hand in a venv of its own)."""
 import sys
 import types
 

@@ -13,7 +13,7 @@ ROS Parameters
     ~cartpole_ns (str, /cartpole): where cartpole_sim and cartpole_controller run; "" = no closed loop.
     ~balance_steps (int, 1000): sim steps watched before the push (20 s of simulated time).
     ~push (float, 0.2): the push, rad/s added to the pole's angular velocity. The course's Q-learning agent
-        recovers from 0.2 in 200 of 200 trials in gymnasium's physics, from +0.3 in about half (README).
+        recovers from 0.2 in 200 of 200 trials in gymnasium's physics, from +0.3 in about half.
     ~reach_ns (str, /reach): where arm_sim and reach_controller run (reach.launch); "" = no reach.
     ~reach_goals (int, 3): seeded goals (seed ~reach_seed, 0) the arm reaches through ROS, each from home.
 
