@@ -389,27 +389,14 @@ def reexec_in_namespaces(a, argv) -> int:
                 sandbox.copy_folder(os.path.dirname(source), folder, uid)
             except (sandbox.SandboxError, OSError) as e:   # ~/solution.py: its folder is a home, not a submission
                 shutil.rmtree(folder, ignore_errors=True)
-                os.mkdir(folder)
-                shutil.copy2(source, folder)
-                sandbox.copy_folder(folder, os.path.join(work, 'alone'), uid)
-                shutil.rmtree(folder)
-                os.rename(os.path.join(work, 'alone'), folder)
+                alone = os.path.join(work, 'alone')
+                os.mkdir(alone)
+                shutil.copy2(source, alone)
+                sandbox.copy_folder(alone, folder, uid)
                 print(f'check_fk: the sandbox holds {sandbox.printable(os.path.basename(source))} alone: its folder '
                       f'cannot be copied ({sandbox.printable(str(e))})', flush=True)
             candidate = os.path.join(folder, os.path.basename(source))
-        words = []
-        skip = False
-        for w in argv:                     # the candidate's path is the copy's
-            if skip:
-                words.append(candidate)
-                skip = False
-            elif w == '--candidate':
-                words.append(w)
-                skip = True
-            elif w.startswith('--candidate='):
-                words.append(f'--candidate={candidate}')
-            elif w != '--sandbox':
-                words.append(w)
+        words = argv + ['--candidate', candidate]   # the last --candidate is argparse's: the copy
         cmd = sandbox.judge_prefix() + [sys.executable, '-c', JUDGE] + words + [
             '--judge-uid', str(uid), '--judge-folder', folder, '--judge-hide', work, '--judge-shown', a.candidate]
         proc = subprocess.Popen(cmd, env=judge_env())
