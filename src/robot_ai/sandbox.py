@@ -8,7 +8,7 @@ privileges, resource limits). No rospy.
     loopback_up()                               # inside it: its loopback interface up (its own master listens there)
     argv, env = candidate_command(command, uid, '/tmp/copy', Limits(), hide=[class_folder])
 
-What the candidate gets (see docs/check_fk.md for what is isolated and what is not):
+What the candidate gets (see docs/nodes/check_fk.md for what is isolated and what is not):
 - a uid and gid of its own (neither the grader's nor another candidate's: `uid_for`), no supplementary groups, no
   capabilities, no_new_privs;
 - its folder at /student (a copy the grader made, read-only), a tmpfs of Limits.tmp_bytes at /tmp that is also its
@@ -194,13 +194,16 @@ def candidate_command(command: list[str], uid: int, folder: str, limits: Limits,
     mounted read-only at /student, which is its working directory; paths in command under folder are the caller's
     to translate (/student/...)."""
     env = os.environ if env is None else env
-    argv = [tool('bwrap')]
+    # /tmp first, a tmpfs of its own writable by the candidate's uid (bwrap makes it as root), so that the paths
+    # bound below stay visible when they lie under /tmp (a checkout in /tmp/ci/...: its venv, its workspace)
+    argv = [tool('bwrap'), '--proc', '/proc', '--dev', '/dev', '--size', str(limits.tmp_bytes), '--perms', '1777',
+            '--tmpfs', '/tmp']
     for path in SYSTEM:
         if os.path.islink(path):
             argv += ['--symlink', os.readlink(path), path]
         elif os.path.isdir(path):
             argv += ['--ro-bind', path, path]
-    made = set()
+    made = {'/tmp'}
     for path in visible_paths(env):
         # the folders above it are bwrap's, made 0700 unless asked: the candidate's uid must pass through them
         parent = os.path.dirname(path)
@@ -213,9 +216,8 @@ def candidate_command(command: list[str], uid: int, folder: str, limits: Limits,
         if os.path.isdir(real) and any(real == p or real.startswith(p.rstrip('/') + '/')
                                        for p in visible_paths(env) + list(SYSTEM)):
             argv += ['--tmpfs', real]
-    # /tmp, HOME and ROS_HOME: a tmpfs of its own, writable by the candidate's uid (bwrap makes them as root)
-    argv += ['--proc', '/proc', '--dev', '/dev', '--size', str(limits.tmp_bytes), '--perms', '1777', '--tmpfs', '/tmp',
-             '--perms', '0777', '--dir', '/tmp/home', '--perms', '0777', '--dir', '/tmp/ros',
+    # HOME and ROS_HOME in /tmp
+    argv += ['--perms', '0777', '--dir', '/tmp/home', '--perms', '0777', '--dir', '/tmp/ros',
              '--perms', '0777', '--dir', '/tmp/ros/log',
              '--ro-bind', folder, '/student', '--chdir', '/student',
              '--unshare-pid', '--unshare-ipc', '--unshare-uts', '--unshare-cgroup-try', '--hostname', 'candidate',
