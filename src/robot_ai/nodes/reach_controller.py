@@ -7,7 +7,8 @@ JointGroupPositionController command; arm_sim takes it, and so does a real arm's
 topic to it, and give ~command_joints its joints). Goals come from rviz's Publish Point tool (/clicked_point) or
 ~goal, in any frame tf knows; the goal is drawn as a marker and its distance published. It says `reached <goal> in
 <s> s (<d> m)` once the tip is within the policy's threshold, or `not reached: closest <d> m` when the distance has
-stopped shrinking (a goal outside the workspace). ~home takes the arm home and drops the goal.
+stopped shrinking (a goal outside the workspace), and then holds the arm where it stands until the next goal. ~home
+takes the arm home and drops the goal.
 
 ROS Parameters
     robot_description (str): the robot, searched up the namespaces and waited for.
@@ -96,8 +97,10 @@ class ReachController:
         self.goal: list[float] | None = None
         self.goal_since = 0.0
         self.best = float('inf')
+        self.best_q: list[float] | None = None    # the arm's joints when it was closest to the goal
         self.improved_at = 0.0
         self.said = False
+        self.holding = False                      # a goal said not reached: the arm holds at its closest
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(10))
         self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
         self.command_pub = rospy.Publisher(COMMAND_TOPIC, Float64MultiArray, queue_size=1, tcp_nodelay=True)
@@ -171,6 +174,7 @@ class ReachController:
             return
         with self.lock:
             self.goal, self.goal_since, self.best, self.said = goal, time.monotonic(), float('inf'), False
+            self.best_q, self.holding = None, False
             self.improved_at = self.goal_since
         self._draw(goal)
         rospy.loginfo(f'goal ({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f}) m in {self.base}')
@@ -226,6 +230,7 @@ class ReachController:
     def _step(self, event) -> None:
         with self.lock:
             goal, joints, policy = self.goal, dict(self.joints), self.policy
+            holding = self.holding
         if goal is None:
             return
         arm = self.setup.arm
@@ -237,34 +242,40 @@ class ReachController:
         if tip is None:
             return
         q = [min(max(float(joints[n]), lo), hi) for n, lo, hi in zip(arm.joints, arm._lower, arm._upper)]
+        distance = goal_distance_one(tip, goal)
+        publish(self.distance_pub, Float64(distance))
+        if holding:
+            return
         observation = self.setup.observation_one(q, tip, goal)
         action = policy.act_batch(ars.flatten_batch(self.setup.observation_space,
                                                         {k: v[None] for k, v in observation.items()}))[0]
         a = self.setup.check_action_one(np.asarray(action, dtype=np.float64))
-        self._command(joints, self.setup.move_one(q, self.setup.place_one(q)[1], a))
-        distance = goal_distance_one(tip, goal)
-        publish(self.distance_pub, Float64(distance))
-        self._judge(goal, distance)
+        hold = self._judge(goal, distance, q)
+        self._command(joints, hold if hold is not None else self.setup.move_one(q, self.setup.place_one(q)[1], a))
 
-    def _judge(self, goal: list[float], distance: float) -> None:
+    def _judge(self, goal: list[float], distance: float, q: list[float]) -> list[float] | None:
+        """Says reached or not reached once per goal; after not reached, the joints to hold (the arm's closest
+        configuration: at the edge of its workspace a policy would otherwise jitter), else None."""
         now = time.monotonic()
         with self.lock:
             if goal is not self.goal or self.said:
-                return
-            if distance < self.best - PROGRESS:
-                self.best, self.improved_at = distance, now
+                return None
+            if distance < self.best - PROGRESS or self.best_q is None:
+                self.best, self.best_q, self.improved_at = min(distance, self.best), q, now
             reached = distance < self.setup.task.distance_threshold
             stalled = now - self.improved_at > self.stalled_after
             if not (reached or stalled):
-                return
+                return None
             self.said = True
-            since = self.goal_since
+            self.holding = not reached
+            since, hold = self.goal_since, self.best_q
         where = f'({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f})'
         if reached:
             rospy.loginfo(f'reached {where} in {now - since:.2f} s ({distance:.3f} m)')
-        else:
-            rospy.loginfo(f'not reached: closest {min(self.best, distance):.3f} m to {where} (outside the '
-                          f'workspace, or behind a joint limit)')
+            return None
+        rospy.loginfo(f'not reached: closest {min(self.best, distance):.3f} m to {where} (outside the '
+                      f'workspace, or behind a joint limit); holding there')
+        return hold
 
 
 @quiet_on_shutdown
