@@ -132,11 +132,11 @@ def ended_output(proc, timeout=60):
     except subprocess.TimeoutExpired:   # Debian's roslaunch can hang in that same race: its bug, not the package's
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait(30)
-    uri = proc.env['ROS_MASTER_URI'].encode()
+    uri = proc.env['ROS_MASTER_URI'].encode().rstrip(b'/')
     for pid in filter(str.isdigit, os.listdir('/proc')):
         try:
-            with open(f'/proc/{pid}/environ', 'rb') as f:
-                mine = b'ROS_MASTER_URI=' + uri in f.read().split(b'\0')
+            with open(f'/proc/{pid}/environ', 'rb') as f:     # roslaunch gives its nodes the URI with a '/'
+                mine = any(v.rstrip(b'/') == b'ROS_MASTER_URI=' + uri for v in f.read().split(b'\0'))
             with open(f'/proc/{pid}/cmdline', 'rb') as f:
                 mine = mine or b'-p\0' + uri.rsplit(b':', 1)[1] + b'\0' in f.read()
             if mine and int(pid) != os.getpid():
