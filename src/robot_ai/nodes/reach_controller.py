@@ -206,9 +206,8 @@ class ReachController:
     def _on_home(self, req) -> TriggerResponse:
         with self.lock:
             self.goal = None
-            joints = dict(self.joints)
+            self._command(dict(self.joints), self.setup.home.tolist())
         self._draw(None)
-        self._command(joints, self.setup.home.tolist())
         return TriggerResponse(success=True, message=f'going home: {np.round(self.setup.home, 3).tolist()}')
 
     # ------------------------------------------------------------------------------------------------ the loop
@@ -250,8 +249,16 @@ class ReachController:
         action = policy.act_batch(ars.flatten_batch(self.setup.observation_space,
                                                         {k: v[None] for k, v in observation.items()}))[0]
         a = self.setup.check_action_one(np.asarray(action, dtype=np.float64))
-        hold = self._judge(goal, distance, q)
-        self._command(joints, hold if hold is not None else self.setup.move_one(q, self.setup.place_one(q)[1], a))
+        target = self.setup.move_one(q, self.setup.place_one(q)[1], a)
+        with self.lock:                  # a ~home or a new goal that came meanwhile wins: no stale command after it
+            if goal is not self.goal:
+                return
+            self._command(joints, target)
+        hold = self._judge(goal, distance, q)     # after the command: whoever hears 'reached' acts after it
+        if hold is not None:
+            with self.lock:
+                if goal is self.goal:
+                    self._command(joints, hold)
 
     def _judge(self, goal: list[float], distance: float, q: list[float]) -> list[float] | None:
         """Says reached or not reached once per goal; after not reached, the joints to hold (the arm's closest
