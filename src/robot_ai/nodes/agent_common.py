@@ -203,22 +203,6 @@ class PlotProcess:
             self.proc.wait()
 
 
-def quiet_status_on_shutdown(server) -> None:
-    """Stop a SimpleActionServer's status timer before rospy closes its topics: actionlib's timer checks
-    rospy.is_shutdown() and then publishes, so a Ctrl-C between the two printed a traceback ('publish() to a closed
-    topic') from its thread."""
-    timer = getattr(getattr(server, 'action_server', None), 'status_timer', None)
-    if timer is None:
-        return
-
-    def stop(reason: str = '') -> None:
-        timer.shutdown()
-        if timer is not threading.current_thread():
-            timer.join(1.0)
-
-    rospy.core.add_preshutdown_hook(stop)
-
-
 def stopped(proc: subprocess.Popen) -> bool:
     """Whether a child is stopped (SIGSTOP, a Ctrl-Z): it will not finish anything before it is continued."""
     stat = process_stat(proc.pid)

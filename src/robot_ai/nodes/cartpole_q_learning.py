@@ -44,7 +44,7 @@ from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.q_learning import Agent
 from robot_ai.msg import QLearningAction, QLearningFeedback, QLearningProgress, QLearningResult
 from robot_ai.nodes.agent_common import (CancelledRun, PlotProcess, agent_settings, answer, answer_goal, answer_load,
-                                         load_of_kind, policy_param, quiet_status_on_shutdown, write_files)
+                                         load_of_kind, policy_param, write_files)
 from robot_ai.nodes.params import run_node
 from robot_ai.srv import (Act, ActResponse, EvaluateAgent, EvaluateAgentResponse, LoadPolicy, QLearning,
                           QLearningResponse)
@@ -79,7 +79,6 @@ class CartPoleQLearningNode:
                          rospy.Service('~load_policy', LoadPolicy, self._on_load_policy)]
         self.action = actionlib.SimpleActionServer('~training', QLearningAction, self._on_goal, auto_start=False)
         self.action.start()
-        quiet_status_on_shutdown(self.action)
         rospy.loginfo(f'cartpole_q_learning ready: defaults {self.defaults}, artifacts in {self.output_dir}')
 
     # ------------------------------------------------------------------------------------- the training

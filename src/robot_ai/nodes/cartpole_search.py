@@ -40,7 +40,7 @@ from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchResult, SearchProgress
 from robot_ai.nodes.agent_common import (CancelledRun, PlotProcess, agent_settings, answer, answer_goal, answer_load,
-                                         policy_param, quiet_status_on_shutdown, write_files)
+                                         policy_param, write_files)
 from robot_ai.nodes.params import run_node
 from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, LoadPolicy, RandomSearch,
                           RandomSearchResponse)
@@ -73,7 +73,6 @@ class CartPoleSearchNode:
                          rospy.Service('~load_policy', LoadPolicy, self._on_load_policy)]
         self.action = actionlib.SimpleActionServer('~search', RandomSearchAction, self._on_goal, auto_start=False)
         self.action.start()
-        quiet_status_on_shutdown(self.action)
         rospy.loginfo(f'cartpole_search ready: defaults {self.defaults}, artifacts in {self.output_dir}')
 
     # ------------------------------------------------------------------------------------- the search
