@@ -344,7 +344,8 @@ def answer(work: Callable, response_class, what: str):
     except RequestError as e:
         return response_class(success=False, message=str(e))
     except Exception as e:
-        if rospy.is_shutdown():     # a publish to a topic the shutdown closed: the shutdown's doing, not an error
+        if rospy.core.is_shutdown_requested():   # a publish to a topic the shutdown closed (rospy closes them before
+            # is_shutdown() turns true): the shutdown's doing, not an error
             return response_class(success=False, message='cancelled: the node is shutting down')
         rospy.logerr(f'{what} failed: {e}')
         return response_class(success=False, message=f'{what} failed: {e}')
@@ -360,7 +361,7 @@ def answer_goal(server, work: Callable, result_class, what: str, cancelled: Call
         server.set_aborted(result_class(success=False, message=str(e)), str(e))
         return
     except Exception as e:
-        if rospy.is_shutdown():     # as in answer(): the goal ends with the node, quietly
+        if rospy.core.is_shutdown_requested():   # as in answer(): the goal ends with the node, quietly
             return
         rospy.logerr(f'{what} failed: {e}')
         server.set_aborted(result_class(success=False, message=f'{what} failed: {e}'))
