@@ -7,8 +7,8 @@ JointGroupPositionController command; arm_sim takes it, and so does a real arm's
 topic to it, and give ~command_joints its joints). Goals come from rviz's Publish Point tool (/clicked_point) or
 ~goal, in any frame tf knows; the goal is drawn as a marker and its distance published. It says `reached <goal> in
 <s> s (<d> m)` once the tip is within the policy's threshold, or `not reached: closest <d> m` when the distance has
-stopped shrinking (a goal outside the workspace), and then holds the arm where it stands until the next goal. ~home
-takes the arm home and drops the goal.
+stopped shrinking (a goal outside the workspace), and then takes the arm back to the closest configuration it found
+and holds it until the next goal. ~home takes the arm home and drops the goal.
 
 ROS Parameters
     robot_description (str): the robot, searched up the namespaces and waited for.
