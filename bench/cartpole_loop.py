@@ -97,7 +97,8 @@ def latency(ns: str, states: int) -> np.ndarray:
 
 def q_policy_file(folder: str) -> str:
     """The course's Q-learning agent (500 episodes of CartPole-v0, seed 0), saved as a policy file."""
-    from robot_ai.cartpole import policies, q_learning
+    from robot_ai import policies
+    from robot_ai.cartpole import q_learning
     training = q_learning.resolve()
     result = q_learning.train(training, 0)
     return policies.save(os.path.join(folder, 'q_agent.npz'), result.agents[0], 'CartPole-v0', 0,

@@ -3,7 +3,7 @@
 the controllers ask) and the memory loading it adds, for
 
 - the package's .npz policies (the CartPole's linear policy, the UR5's ARS reach policy): numpy;
-- ONNX models through robot_ai.onnx_policy (onnxruntime, one thread): stable-baselines3's default shapes, built with
+- ONNX models through robot_ai.policies.onnx (onnxruntime, one thread): stable-baselines3's default shapes, built with
   onnx.helper so that no torch is needed: PPO's CartPole MLP (4-64-64-2, tanh) and SAC's reach actor on the UR5
   (15-256-256-3, ReLU, tanh), plus the SAC actor with rl-baselines3-zoo's two layers of 64;
 - the reference: the same SAC actor in torch, model.predict as stable-baselines3 runs it, where torch and
@@ -30,9 +30,10 @@ sys.path.insert(0, os.path.join(HERE, '..', 'src'))
 import onnx  # noqa: E402
 from onnx import TensorProto, helper, numpy_helper  # noqa: E402
 
-from robot_ai import onnx_policy  # noqa: E402
-from robot_ai.cartpole import linear_search, policies  # noqa: E402
-from robot_ai.reach import ReachSetup, learn  # noqa: E402
+from robot_ai import policies  # noqa: E402
+from robot_ai.cartpole import linear_search, policy_kinds  # noqa: E402
+from robot_ai.policies import onnx as onnx_policy  # noqa: E402
+from robot_ai.reach import ReachSetup, learn, policy_files  # noqa: E402
 
 
 def rss_mib() -> float:
@@ -124,7 +125,7 @@ def main() -> int:
         with open(path, 'wb') as f:
             f.write(mlp(sizes, hidden, out, env, integer).SerializeToString())
         before = rss_mib()
-        policy = policies.load_any(path) if integer else learn.load(path)[0]
+        policy = policy_kinds.load(path) if integer else policy_files.load(path)[0]
         row(name, policy.act, obs, before)
 
     before = rss_mib()           # torch's own footprint counts: it is what the robot would carry

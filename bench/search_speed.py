@@ -71,12 +71,12 @@ print('%.1f %.1f %.2f' % (time.time() - t, resource.getrusage(resource.RUSAGE_SE
 VIDEO = """
 import resource, time
 import numpy as np
-from robot_ai.cartpole import artifacts
+from robot_ai.cartpole import outputs
 from robot_ai.cartpole.linear_search import act
 w = np.array([-0.1707, 0.4690, 0.4223, 0.8641])
 before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 t = time.time()
-path, steps = artifacts.record_video('CartPole-v1', lambda obs: act(w, obs), 500, 0, '%s')
+path, steps = outputs.record_video('CartPole-v1', lambda obs: act(w, obs), 500, 0, '%s')
 print('%%.1f %%.0f %%.0f %%d' %% (time.time() - t, before / 1024.0,
                              resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, steps))
 """

@@ -27,7 +27,7 @@ import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.env_util import make_vec_env
 
-from robot_ai import onnx_policy
+from robot_ai.policies import onnx as onnx_policy
 
 
 class OnnxablePolicy(torch.nn.Module):

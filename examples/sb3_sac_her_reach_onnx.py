@@ -38,8 +38,8 @@ import torch
 from gymnasium import spaces
 from stable_baselines3 import SAC, HerReplayBuffer
 
-from robot_ai import onnx_policy
-from robot_ai.reach import learn          # registers robot_ai/Reach-v0
+from robot_ai.policies import onnx as onnx_policy
+from robot_ai.reach import learn, policy_files          # registers robot_ai/Reach-v0
 
 
 class FlatActor(torch.nn.Module):
@@ -101,11 +101,11 @@ def main() -> int:
     exported = onnx.load(a.output)
     env_kwargs = dict(model=setup.model.path, tip=setup.arm.tip, control=setup.control)
     onnx.helper.set_model_props(exported, {onnx_policy.METADATA_KEY: json.dumps(dict(
-        env_id=learn.ENV_ID, env_kwargs=env_kwargs, robot=setup.model.tree.name, joints=list(setup.arm.joints),
+        env_id=policy_files.ENV_ID, env_kwargs=env_kwargs, robot=setup.model.tree.name, joints=list(setup.arm.joints),
         success_rate=rate, algorithm='SAC + HER (stable-baselines3)', steps=a.steps))})
     onnx.save(exported, a.output)
 
-    policy, _, note = learn.load(a.output, setup)
+    policy, _, note = policy_files.load(a.output, setup)
     rng = np.random.default_rng(a.seed)
     n, arm = setup.arm.n, setup.arm          # flattened: achieved goal, desired goal, joints, tip
     flat = np.concatenate((rng.uniform(-1, 1, (10_000, 6)), rng.uniform(arm.lower, arm.upper, (10_000, n)),

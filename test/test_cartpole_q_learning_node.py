@@ -14,7 +14,9 @@ import rospy
 import rostest
 from actionlib_msgs.msg import GoalStatus
 
-from robot_ai.cartpole import policies, q_learning
+from robot_ai import policies
+
+from robot_ai.cartpole import q_learning
 from robot_ai.cartpole.dynamics import CartPoleDynamics
 from robot_ai.msg import QLearningAction, QLearningGoal, QLearningProgress
 from robot_ai.srv import Act, EvaluateAgent, LoadPolicy, QLearning

@@ -21,7 +21,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, Trigger
 
-from robot_ai.cartpole import linear_search, policies, q_learning
+from robot_ai import policies
+
+from robot_ai.cartpole import linear_search, q_learning
 from robot_ai.cartpole.dynamics import CartPoleDynamics
 from robot_ai.msg import CartPoleEpisode
 from robot_ai.srv import LoadPolicy, PushPole

@@ -216,7 +216,7 @@ class TestCartPoleSearchNode(unittest.TestCase):
 
     def test_7_leftovers_removed_and_links_not_followed(self):
         """Issue 12: kill -9 during a video left its temporary files; a planted link led a plot outside."""
-        from robot_ai.cartpole.artifacts import TEMP_PREFIX
+        from robot_ai.artifacts import TEMP_PREFIX
         dead = os.path.join(self.output_dir, '%s999999999_x.mp4' % TEMP_PREFIX)
         alive = os.path.join(self.output_dir, '%s%d_x.mp4' % (TEMP_PREFIX, os.getpid()))
         for path in (dead, alive):

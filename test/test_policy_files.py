@@ -15,7 +15,7 @@ import rospy
 import rostest
 from actionlib_msgs.msg import GoalStatus
 
-from robot_ai.cartpole import policies
+from robot_ai import policies
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.msg import QLearningAction, QLearningGoal, RandomSearchAction, RandomSearchGoal
 from robot_ai.srv import Act, EvaluateAgent, EvaluatePolicy, LoadPolicy, QLearning, RandomSearch

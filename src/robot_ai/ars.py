@@ -35,6 +35,10 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
+from robot_ai.policies import Kind, PolicyError, register_kind
+from robot_ai.policies.envs import flat_size, flatten_batch
+from robot_ai.policies.npz import MAX_LIST, MAX_TEXT, plain, shown
+
 MIN_STD = 1e-6          # coordinates that hardly vary are divided by 1 instead (they carry no information)
 
 
@@ -76,25 +80,6 @@ class ARSSettings:
 
     def as_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
-
-
-def flat_size(space: spaces.Space) -> int:
-    return int(spaces.flatdim(space))
-
-
-def flatten_batch(space: spaces.Space, obs) -> np.ndarray:
-    """A vector env's batch of observations (M, ...) -> (M, flatdim) float64, each row gymnasium.spaces.flatten's."""
-    if isinstance(space, spaces.Dict):
-        return np.concatenate([flatten_batch(sub, obs[key]) for key, sub in space.spaces.items()], axis=1)
-    if isinstance(space, spaces.Box):
-        a = np.asarray(obs, dtype=np.float64)
-        return a.reshape(a.shape[0], -1)
-    if isinstance(space, spaces.Discrete):
-        a = np.asarray(obs, dtype=np.int64) - space.start
-        out = np.zeros((a.shape[0], int(space.n)))
-        out[np.arange(a.shape[0]), a] = 1.0
-        return out
-    raise ARSError(f'ARS takes Box, Discrete and Dict observations, not {type(space).__name__}')
 
 
 @dataclass(frozen=True, eq=False)
@@ -369,3 +354,75 @@ def _renormalise(weights, bias, old_mean, old_std, new_mean, new_std):
     if bias is None:
         return new_weights, None
     return new_weights, bias + shift
+
+
+def history_log(result, settings) -> tuple[list, list]:
+    """(header, rows) of an ARS run's CSV log: one row per iteration."""
+    header = ['iteration', 'steps', 'episodes', 'seconds', 'rollout_return', 'eval_return', 'success_rate',
+              'final_metric']
+    per_iteration = 2 * settings.directions * settings.episodes + settings.eval_episodes
+    return header, [[h.iteration, h.steps, h.iteration * per_iteration, f'{h.elapsed:.3f}', repr(h.rollout_return),
+                     repr(h.eval_return), repr(h.success_rate), repr(h.final_metric)] for h in result.history]
+
+
+
+# ------------------------------------------------------------------------------------------------- policy files
+MAX_ACTIONS = 64                     # an arm's joints (joint control) or a tip's 3 coordinates
+MAX_INPUTS = 1024                    # an arm's joints + 9
+
+
+def _shapes(key_shape: tuple | None, names: set) -> dict:
+    if key_shape is None:
+        raise PolicyError('an ars_linear policy holds weights (actions, observations): this file does not')
+    if len(key_shape) != 2 or not (1 <= key_shape[0] <= MAX_ACTIONS and 1 <= key_shape[1] <= MAX_INPUTS):
+        raise PolicyError(f'weights must have shape (actions, observations), at most ({MAX_ACTIONS}, '
+                          f'{MAX_INPUTS}), got {shown(key_shape)}')
+    a, d = key_shape
+    want = {'weights': ((a, d), np.float64), 'obs_mean': ((d,), np.float64), 'obs_std': ((d,), np.float64)}
+    if 'bias' in names:
+        want['bias'] = ((a,), np.float64)
+    return want
+
+
+def _arrays(actor: LinearPolicy) -> dict:
+    arrays = dict(weights=actor.weights, obs_mean=actor.obs_mean, obs_std=actor.obs_std)
+    if actor.bias is not None:
+        arrays['bias'] = actor.bias
+    return {k: np.asarray(v, dtype=np.float64) for k, v in arrays.items()}
+
+
+def _build(arrays: dict) -> LinearPolicy:
+    a = arrays['weights'].shape[0]
+    return LinearPolicy(arrays['weights'], arrays['obs_mean'], arrays['obs_std'], arrays.get('bias'),
+                        low=-np.ones(a), high=np.ones(a))
+
+
+def _check_metadata(metadata: dict) -> None:
+    """An ars_linear policy's env: env_id a short text, env_kwargs short names to plain values, joints names."""
+    env_id = metadata.get('env_id')
+    if not isinstance(env_id, str) or not 0 < len(env_id) <= 200:
+        raise PolicyError(f'env_id is {shown(env_id)}, not the id of an env')
+    kwargs = metadata.setdefault('env_kwargs', {})
+    if not isinstance(kwargs, dict) or not all(isinstance(k, str) and len(k) <= 100 and plain(v)
+                                               for k, v in kwargs.items()):
+        raise PolicyError('env_kwargs must map short names to numbers, short texts, true/false, null or lists of them')
+    joints = metadata.setdefault('joints', [])
+    if not isinstance(joints, list) or len(joints) > MAX_LIST or not all(isinstance(j, str) and len(j) <= MAX_TEXT
+                                                                         for j in joints):
+        raise PolicyError('joints must be a list of joint names')
+    for name in ('robot', 'model', 'model_sha256'):
+        value = metadata.setdefault(name, '')
+        if not isinstance(value, str) or len(value) > MAX_TEXT:
+            raise PolicyError(f'{name} must be text of at most {MAX_TEXT} characters')
+
+
+def _check_values(arrays: dict) -> None:
+    if not (arrays['obs_std'] > 0).all():
+        raise PolicyError('obs_std must hold positive numbers: a policy divides by them')
+
+
+# Kind ars_linear: ARS's linear policy for any env with a Box(-1, 1) action (the reach task): weights (act, obs),
+# obs_mean and obs_std (obs,), an optional bias (act,); its metadata names the env it acts in (env_id, env_kwargs)
+# and, for a reach policy, the robot, its file and the joints in order (robot_ai.reach.policy_files checks them).
+register_kind(Kind('ars_linear', 'weights', _shapes, _build, _arrays, check_metadata=_check_metadata,
+                   check_values=_check_values))

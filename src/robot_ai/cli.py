@@ -12,7 +12,7 @@ import os
 import signal
 import sys
 
-from robot_ai.cartpole import artifacts
+from robot_ai import artifacts
 
 
 def whole_number(low: int, high: int):
@@ -72,16 +72,26 @@ def write_or_say(label: str, write) -> None:
         print(f'{label:<18}not written: {e}')
 
 
-def show_onnx(path: str, parser) -> int:
-    """`show` of an ONNX model: its metadata, producer, opset, inputs, outputs and operators (JSON)."""
+def show_policy(path: str, parser) -> int:
+    """`show` of a policy file (its metadata as JSON, then its arrays, the values of small ones) or of an ONNX model
+    (its metadata, producer, opset, inputs, outputs and operators, as JSON)."""
     import json
-    from robot_ai.cartpole.policies import PolicyError
-    from robot_ai.onnx_policy import read, summary
+
+    import numpy as np
+
+    from robot_ai import policies
+    from robot_ai.policies import npz, onnx
     try:
-        file = read(path)
-    except PolicyError as e:
+        if policies.is_onnx_path(path):
+            print(json.dumps(onnx.summary(onnx.read(path)), indent=2))
+            return 0
+        policy = npz.load(path)
+    except policies.PolicyError as e:
         parser.error(str(e))
-    print(json.dumps(summary(file), indent=2))
+    print(json.dumps(policy.metadata, indent=2))
+    for name, array in policies.arrays_of(policy.actor).items():
+        value = f' = {np.array2string(array, precision=6)}' if array.size <= 4 else ''
+        print(f'{name}: {array.dtype} {array.shape}{value}')
     return 0
 
 

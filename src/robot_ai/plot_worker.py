@@ -3,7 +3,7 @@
 The nodes hand plots to it instead of drawing them in a thread: matplotlib holds the GIL for tens of
 milliseconds, which a thread in the node would take from the service answering a request.
 
-    line = {"path": "/abs/file.png", "job": <a plot job of robot_ai.cartpole.artifacts>}
+    line = {"path": "/abs/file.png", "job": <a plot job of robot_ai.artifacts>}
 
 For every line it prints ``written <path>`` on stdout, or ``failed <path>: <reason>`` on stderr, and goes on
 with the next. It ends quietly, with status 0, at the end of its input, on SIGINT or SIGTERM, and when the node
@@ -29,7 +29,7 @@ def main() -> int:
     try:
         from robot_ai.child_process import die_with_parent
         die_with_parent(signal.SIGTERM)  # started by a node (child_process.spawn): end with it, however it ends
-        from robot_ai.cartpole.artifacts import write_plot
+        from robot_ai.artifacts import write_plot
         for line in sys.stdin:
             path = '?'
             try:

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from robot_ai import ars
-from robot_ai.cartpole import linear_search, policies
+from robot_ai import policies
+from robot_ai.cartpole import linear_search
 from robot_ai.cartpole.dynamics import CartPoleDynamics
 
 

@@ -1,10 +1,12 @@
-"""robot_ai.cartpole.artifacts: the output folder, names, plots and videos."""
+"""robot_ai.artifacts and robot_ai.cartpole.outputs: the output folder, names, plots and videos."""
 import os
 
 import numpy as np
 from PIL import Image
 
-from robot_ai.cartpole import artifacts
+from robot_ai import artifacts
+
+from robot_ai.cartpole import outputs
 from robot_ai.cartpole.dynamics import CartPoleDynamics
 from robot_ai.cartpole.linear_search import act, random_search
 
@@ -27,7 +29,7 @@ def test_stems_are_new_and_keep_the_seed_as_given(tmp_path):
 
 def test_search_plot_reads_well(tmp_path):
     res = random_search(CartPoleDynamics.of('CartPole-v1'), 20, 5, seed=1, final_episodes=5)
-    job = artifacts.search_plot_job(res)
+    job = outputs.search_plot_job(res)
     best = job['series'][1]
     assert best['style'] == 'step' and best['y'] == list(np.maximum.accumulate(res.avg_lengths))
     assert job['integer_x'] and [h['y'] for h in job['hlines']] == [res.baseline_avg_length, 500]
@@ -51,7 +53,7 @@ def test_plot_is_whole_or_absent(tmp_path):
 
 def test_video(tmp_path):
     w = np.array([0.1, 0.5, 1.0, 0.9])
-    path, steps = artifacts.record_video('CartPole-v1', lambda obs: act(w, obs), 40, 1, str(tmp_path / 'best.mp4'))
+    path, steps = outputs.record_video('CartPole-v1', lambda obs: act(w, obs), 40, 1, str(tmp_path / 'best.mp4'))
     assert os.path.getsize(path) > 1000 and steps == 40  # a balancing policy lasts to the 40-step limit
     with open(path, 'rb') as f:
         assert b'ftyp' in f.read(64)
@@ -82,7 +84,7 @@ def test_failed_video_leaves_nothing(tmp_path):
     def broken_policy(obs):
         raise RuntimeError('the policy broke')
     try:
-        artifacts.record_video('CartPole-v1', broken_policy, 40, 1, str(tmp_path / 'v.mp4'))
+        outputs.record_video('CartPole-v1', broken_policy, 40, 1, str(tmp_path / 'v.mp4'))
     except RuntimeError as e:
         assert 'the policy broke' in str(e)
     else:
@@ -93,7 +95,7 @@ def test_failed_video_leaves_nothing(tmp_path):
 def test_q_learning_plot(tmp_path):
     from robot_ai.cartpole import q_learning
     result = q_learning.train(q_learning.resolve(episodes=150, components=100, learners=3), 0, workers=1)
-    job = artifacts.q_learning_plot_job(result)
+    job = outputs.q_learning_plot_job(result)
     labels = [s.get('label') for s in job['series']]
     # one faint running average per other learner, learner 0's totals and running average
     assert len(job['series']) == 2 + 2 and labels[0].startswith('learners 1-2') and labels[1] is None
@@ -106,7 +108,7 @@ def test_q_learning_plot(tmp_path):
     partial = {0: (result.total_rewards[0], result.agents[0], 100.0), 1: (result.total_rewards[1][:40], None, None),
                2: (result.total_rewards[2], result.agents[2], 120.0)}
     failed = q_learning._result(result.training, 0, partial, False, 1.0, {1: 'its process was killed by SIGKILL'})
-    assert artifacts.q_learning_plot_job(failed)['title'].endswith(
+    assert outputs.q_learning_plot_job(failed)['title'].endswith(
         f'2 learners, last-100 average {failed.mean_last100:.1f} $\\pm$ {failed.ci95_last100:.1f}; final greedy '
         f'agents: {failed.greedy_averages.min():.1f} to {failed.greedy_averages.max():.1f} steps\n'
         'learner 1 failed: the curve stops where the process did')

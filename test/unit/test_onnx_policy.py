@@ -1,7 +1,7 @@
-"""robot_ai.onnx_policy without ROS: ONNX models built with onnx.helper act exactly as the numpy policies they encode
+"""robot_ai.policies.onnx without ROS: ONNX models built with onnx.helper act exactly as the numpy policies they encode
 (the course's linear CartPole policy, in both of the shapes stable-baselines3 exports; the reach P-controller and a
-tanh layer), through load_any, learn.load and both command lines; the env comes from the metadata or the caller;
-a reach model is refused for another robot, tip or control; and every file that is not a usable policy is refused
+tanh layer), through policy_kinds.load, policy_files.load and both command lines; the env comes from the metadata or
+the caller; a reach model is refused for another robot, tip or control; and every file that is not a usable policy is refused
 in one line before onnxruntime runs it (external data, foreign operators, local functions, wrong shapes, NaN
 actions, sizes, FIFOs)."""
 import json
@@ -11,18 +11,18 @@ import subprocess
 import sys
 
 import numpy as np
-import onnx
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 import onnx_models
 from fk_helpers import robot_path
-from robot_ai import onnx_policy
-from robot_ai.cartpole import linear_search, policies
+from robot_ai import policies
+from robot_ai.cartpole import linear_search, policy_kinds
 from robot_ai.cartpole.dynamics import CartPoleDynamics
 from robot_ai.cartpole.linear_search import LinearPolicy
-from robot_ai.cartpole.policies import PolicyError
-from robot_ai.reach import ReachSetup, learn
+from robot_ai.policies import PolicyError
+from robot_ai.policies import onnx as onnx_policy
+from robot_ai.reach import ReachSetup, learn, policy_files
 
 HERE = os.path.dirname(os.path.realpath(__file__))
 PACKAGE_UR5 = os.path.abspath(os.path.join(HERE, '..', '..', 'urdf', 'ur5_arm.urdf'))
@@ -37,12 +37,12 @@ def observations(n=5000, seed=0):
 @pytest.mark.parametrize('build', [onnx_models.cartpole_scores, onnx_models.cartpole_integer])
 def test_a_cartpole_model_acts_and_plays_as_the_linear_policy_it_encodes(tmp_path, build):
     path = onnx_models.save(build(WEIGHTS), str(tmp_path / 'linear.onnx'))
-    policy = policies.load_any(path)
+    policy = policy_kinds.load(path)
     x = observations()
     np.testing.assert_array_equal(policy.act_batch(x), (x.astype(np.float64) @ WEIGHTS > 0).astype(int))
     assert [policy.act(s) for s in x[:50]] == [linear_search.act(WEIGHTS, s) for s in x[:50]]
     dynamics = CartPoleDynamics.of(policy.env_id)
-    lengths = policy.evaluate(dynamics, 100, 500, 7)
+    lengths = policy_kinds.evaluate(policy, dynamics, 100, 500, 7)
     np.testing.assert_array_equal(lengths, LinearPolicy(WEIGHTS).evaluate(dynamics, 100, 500, 7))
     assert lengths.mean() > 400
     assert policy.session.get_session_options().intra_op_num_threads == 1
@@ -52,18 +52,18 @@ def test_a_cartpole_model_acts_and_plays_as_the_linear_policy_it_encodes(tmp_pat
 def test_the_env_comes_from_the_metadata_or_the_caller(tmp_path):
     bare = onnx_models.save(onnx_models.cartpole_scores(WEIGHTS, env={}), str(tmp_path / 'bare.onnx'))
     with pytest.raises(PolicyError, match='names no env .*--env-id'):
-        policies.load_any(bare)
-    assert policies.load_any(bare, 'CartPole-v0').env_id == 'CartPole-v0'
+        policy_kinds.load(bare)
+    assert policy_kinds.load(bare, 'CartPole-v0').env_id == 'CartPole-v0'
     ros = onnx_models.save(onnx_models.cartpole_scores(WEIGHTS, env={'env_id': 'robot_ai/RosCartPole-v1'}),
                            str(tmp_path / 'ros.onnx'))
-    policy = policies.load_any(ros)
+    policy = policy_kinds.load(ros)
     assert policy.env_id == 'CartPole-v1' and 'as robot_ai/RosCartPole-v1' in policy.describe()
     reach = onnx_models.save(onnx_models.cartpole_scores(WEIGHTS, env={'env_id': 'robot_ai/Reach-v0'}),
                              str(tmp_path / 'reach.onnx'))
     with pytest.raises(PolicyError, match='acts in robot_ai/Reach-v0, not a cart-pole'):
-        policies.load_any(reach)
+        policy_kinds.load(reach)
     with pytest.raises(PolicyError, match='ONNX model, not a policy file'):
-        policies.load(ros)             # the searches' and trainings' loader takes .npz files only
+        policies.npz.load(ros)         # the searches' and trainings' loader takes .npz files only
 
 
 def reach_model(setup, weights, tmp_path, name='reach.onnx', **env):
@@ -78,7 +78,7 @@ def test_a_reach_model_of_the_p_controller_reaches_as_the_p_controller(tmp_path)
     setup = ReachSetup(model=PACKAGE_UR5)
     p = learn.p_controller(setup)
     path = reach_model(setup, p.weights.T, tmp_path)
-    policy, loaded, note = learn.load(path)
+    policy, loaded, note = policy_files.load(path)
     assert note == '' and loaded.arm.joints == setup.arm.joints and loaded.control == 'ee'
     x = np.random.default_rng(1).uniform(-1, 1, (2000, 9 + setup.arm.n))
     np.testing.assert_allclose(policy.act_batch(x), p.act_batch(x), atol=1e-5)
@@ -93,7 +93,7 @@ def test_a_tanh_layer_acts_as_numpy_and_the_action_space_bounds_it(tmp_path):
     w, b = rng.normal(size=(9 + setup.arm.n, setup.arm.n)), rng.normal(size=setup.arm.n)
     meta = dict(env_id='robot_ai/Reach-v0', env_kwargs=dict(model=PACKAGE_UR5, control='joints'))
     path = onnx_models.save(onnx_models.linear_tanh(w, b, meta), str(tmp_path / 'tanh.onnx'))
-    policy, loaded, note = learn.load(path)
+    policy, loaded, note = policy_files.load(path)
     assert loaded.control == 'joints' and 'names no robot' in note
     x = rng.uniform(-1, 1, (1000, 9 + setup.arm.n))
     np.testing.assert_allclose(policy.act_batch(x), np.tanh(x @ w + b), atol=1e-5)
@@ -106,25 +106,25 @@ def test_a_reach_model_is_refused_for_another_robot_tip_or_control(tmp_path):
     w = learn.p_controller(setup).weights.T
     other = reach_model(setup, w, tmp_path, 'other.onnx', robot='not_a_ur5')
     with pytest.raises(PolicyError, match='learned to reach with not_a_ur5 .* this arm is'):
-        learn.load(other)
+        policy_files.load(other)
     good = reach_model(setup, w, tmp_path)
     with pytest.raises(PolicyError, match='acts with control=ee; this env has control=joints'):
-        learn.load(good, ReachSetup(model=PACKAGE_UR5, control='joints'))
+        policy_files.load(good, ReachSetup(model=PACKAGE_UR5, control='joints'))
     tip = setup.arm.links[-2] if hasattr(setup.arm, 'links') else 'wrist_3_link'
     with pytest.raises(PolicyError, match='tip'):
-        learn.load(good, tip=tip)
+        policy_files.load(good, tip=tip)
     four = reach_model(setup, np.zeros((9 + setup.arm.n, 4)), tmp_path, 'four.onnx')
     with pytest.raises(PolicyError, match="first output 'action' is FLOAT \\(batch, 4\\); the env takes float actions "
                                           "\\(batch, 3\\)"):
-        learn.load(four)
+        policy_files.load(four)
     bare = onnx_models.save(onnx_models.linear_clip(w), str(tmp_path / 'bare.onnx'))
-    policy, loaded, note = learn.load(bare)      # no metadata: Reach-v0 as gymnasium.make makes it, the package's UR5
+    policy, loaded, note = policy_files.load(bare)      # no metadata: Reach-v0 as gymnasium.make makes it, the package's UR5
     assert loaded.arm.joints == setup.arm.joints and loaded.control == 'ee' and 'names no robot' in note
-    policy, loaded, note = learn.load(bare, model=PACKAGE_UR5)
+    policy, loaded, note = policy_files.load(bare, model=PACKAGE_UR5)
     assert loaded.control == 'ee' and 'names no robot' in note
     kuka = os.path.join(os.path.dirname(robot_path('ur5.urdf')), 'kuka_lwr_arm.urdf')
     with pytest.raises(PolicyError, match=r'maps 15 observations to 3 actions; this env has 16 and 3|takes FLOAT'):
-        learn.load(bare, model=kuka)
+        policy_files.load(bare, model=kuka)
 
 
 # ------------------------------------------------------------------------------------------------------ refusals
@@ -227,7 +227,7 @@ def test_a_file_that_is_not_a_usable_policy_is_refused_in_one_line(tmp_path, cas
     with open(path, 'wb') as f:
         f.write(m if isinstance(m, bytes) else m.SerializeToString())
     with pytest.raises(PolicyError) as e:
-        policies.load_any(path)
+        policy_kinds.load(path)
     assert '\n' not in str(e.value)
     assert re.search(words, str(e.value)), str(e.value)
 
@@ -248,16 +248,16 @@ def test_sizes_directories_and_fifos_are_refused_without_reading_or_waiting(tmp_
     path = onnx_models.save(onnx_models.cartpole_scores(WEIGHTS), str(tmp_path / 'big.onnx'))
     monkeypatch.setattr(onnx_policy, 'MAX_BYTES', 100)
     with pytest.raises(PolicyError, match=r'big.onnx is [\d,]+ bytes: too large for an ONNX file \(at most 100 bytes\)'):
-        policies.load_any(path)
+        policy_kinds.load(path)
     monkeypatch.undo()
     with pytest.raises(PolicyError, match='no ONNX file at'):
-        policies.load_any(str(tmp_path / 'missing.onnx'))
+        policy_kinds.load(str(tmp_path / 'missing.onnx'))
     os.mkdir(tmp_path / 'dir.onnx')
     with pytest.raises(PolicyError):
-        policies.load_any(str(tmp_path / 'dir.onnx'))
+        policy_kinds.load(str(tmp_path / 'dir.onnx'))
     os.mkfifo(tmp_path / 'fifo.onnx')
     with pytest.raises(PolicyError, match='regular file|not a file'):
-        policies.load_any(str(tmp_path / 'fifo.onnx'))
+        policy_kinds.load(str(tmp_path / 'fifo.onnx'))
     with pytest.raises(PolicyError, match='the path is empty'):
         onnx_policy.read('  ')
 
@@ -283,7 +283,7 @@ def test_both_command_lines_evaluate_and_show_an_onnx_file_and_the_searches_refu
     r = run('robot_ai.reach', 'evaluate', reach, '--episodes', '200')
     assert r.returncode == 0, r.stderr
     rate = learn.evaluate(learn.p_controller(setup), setup, 200).success_rate
-    assert f'of 200 fresh goals' in r.stdout and f'P-controller      {100 * rate:.1f} %' in r.stdout
+    assert 'of 200 fresh goals' in r.stdout and f'P-controller      {100 * rate:.1f} %' in r.stdout
     bad = onnx_models.save(_custom_domain(), str(tmp_path / 'custom.onnx'))
     r = run('robot_ai.reach', 'evaluate', bad)
     assert r.returncode == 2 and 'com.evil' in r.stderr and 'Traceback' not in r.stderr

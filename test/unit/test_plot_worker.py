@@ -4,7 +4,7 @@ import subprocess
 import sys
 import time
 
-from robot_ai.cartpole import artifacts
+from robot_ai.cartpole import outputs
 from robot_ai.cartpole.dynamics import CartPoleDynamics
 from robot_ai.cartpole.linear_search import random_search
 from robot_ai.plot_worker import job_line
@@ -19,7 +19,7 @@ def test_draws_jobs_and_survives_bad_ones(tmp_path):
     res = random_search(CartPoleDynamics.of('CartPole-v1'), 10, 5, seed=2, final_episodes=5)
     good = str(tmp_path / 'curve.png')
     proc = subprocess.run([sys.executable, '-m', 'robot_ai.plot_worker'],
-                          input='{"not": "a job"}\n' + job_line(artifacts.search_plot_job(res), good),
+                          input='{"not": "a job"}\n' + job_line(outputs.search_plot_job(res), good),
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0
     assert 'failed' in proc.stderr and 'Traceback' not in proc.stderr

@@ -1,5 +1,5 @@
-"""robot_ai.cartpole.policies: the file format, save/load round trips that act and evaluate exactly as the policy
-that was saved, and one-line refusals of everything else."""
+"""robot_ai.policies with the cart-pole's kinds: the file format, save/load round trips that act and evaluate exactly
+as the policy that was saved, and one-line refusals of everything else."""
 import io
 import json
 import os
@@ -11,7 +11,9 @@ import zipfile
 import numpy as np
 import pytest
 
-from robot_ai.cartpole import linear_search as ls, policies, q_learning as ql
+from robot_ai import policies
+
+from robot_ai.cartpole import linear_search as ls, q_learning as ql
 from robot_ai.cartpole.dynamics import CartPoleDynamics
 
 

@@ -15,8 +15,8 @@ from gymnasium.utils.env_checker import check_env
 import robot_ai.reach  # registers robot_ai/Reach-v0
 from fk_helpers import robot_path
 from robot_ai import ars
-from robot_ai.cartpole import policies
-from robot_ai.reach import Arm, ReachEnv, ReachError, ReachSetup, ReachVectorEnv, goal_distance, learn
+from robot_ai import policies
+from robot_ai.reach import Arm, ReachEnv, ReachError, ReachSetup, ReachVectorEnv, goal_distance, learn, policy_files
 
 HERE = os.path.dirname(os.path.realpath(__file__))
 XACRO_ARM = os.path.join(HERE, '..', 'urdf', 'reach_arm7.urdf.xacro')
@@ -238,18 +238,18 @@ def test_a_short_ars_run_learns_to_reach_is_reproducible_and_its_file_drives_the
     again = learn.train(dict(model=XACRO_ARM), settings, seed=3, evaluate_episodes=0)
     np.testing.assert_array_equal(first.policy.weights, again.policy.weights)
     assert first.held_out.success_rate >= 0.5          # a random policy: below 0.1 (above)
-    path = learn.save(first, str(tmp_path / 'arm7.npz'))
-    policy, setup, note = learn.load(path)
+    path = policy_files.save(first, str(tmp_path / 'arm7.npz'))
+    policy, setup, note = policy_files.load(path)
     assert note == '' and setup.arm.joints == first.setup.arm.joints
     x = np.random.default_rng(0).normal(size=(10, 9 + setup.arm.n))
     np.testing.assert_array_equal(policy.actor.act_batch(x), first.policy.act_batch(x))
     assert policy.metadata['training_steps'] == first.result.steps and policy.metadata['joints'] == setup.arm.joints
     # the same robot with other xacro arguments is another tip; another robot is refused, naming both
     with pytest.raises(policies.PolicyError) as e:
-        learn.load(path, ReachSetup(model=XACRO_ARM, xacro_args='tool:=true', tip='tool'))
+        policy_files.load(path, ReachSetup(model=XACRO_ARM, xacro_args='tool:=true', tip='tool'))
     assert 'reach_arm7' in str(e.value) and 'tip flange' in str(e.value) and 'tip tool' in str(e.value)
     with pytest.raises(policies.PolicyError) as e:
-        learn.load(path, ReachSetup())
+        policy_files.load(path, ReachSetup())
     assert 'reach_arm7' in str(e.value) and 'robot_ai_ur5_arm' in str(e.value) and '\n' not in str(e.value)
 
 

@@ -9,16 +9,19 @@ random-search and q-learning write the run's policy file (.npz), its CSV log and
 their paths; evaluate and show take any policy file, of either kind.
 """
 import argparse
-import json
 import sys
 from dataclasses import replace
 
 import numpy as np
 
-from robot_ai.cartpole import artifacts, linear_search, policies, q_learning
+from robot_ai import ars, artifacts
+
+from robot_ai import policies
+
+from robot_ai.cartpole import linear_search, outputs, policy_kinds, q_learning
 from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
-from robot_ai.cli import output_folder, positive_number, run_command, show_onnx, whole_number, write_or_say
+from robot_ai.cli import output_folder, positive_number, run_command, show_policy, whole_number, write_or_say
 from robot_ai.text import counted
 
 
@@ -90,10 +93,10 @@ def run_random_search(a, parser) -> int:
     weights = result.best_weights
     write_or_say('policy', lambda: policies.save(stem + '.npz', LinearPolicy(weights), result.env_id, a.seed,
                                                  result.settings(), result.figures(), 'random-search (CLI)'))
-    write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *artifacts.search_log(result)))
-    write_or_say('plot', lambda: artifacts.write_plot(artifacts.search_plot_job(result), stem + '.png'))
+    write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *outputs.search_log(result)))
+    write_or_say('plot', lambda: artifacts.write_plot(outputs.search_plot_job(result), stem + '.png'))
     if a.video:
-        write_or_say('video', lambda: artifacts.record_video(
+        write_or_say('video', lambda: outputs.record_video(
             result.env_id, lambda obs: linear_search.act(weights, obs), search.max_steps, a.seed, stem + '.mp4')[0])
     return 0
 
@@ -153,11 +156,11 @@ def run_ars(a, parser) -> int:
                    iterations=len(result.history))
     write_or_say('policy', lambda: policies.save(stem + '.npz', LinearPolicy(weights), a.env_id, a.seed,
                                                  settings.as_dict(), figures, 'ARS (CLI)'))
-    write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *artifacts.ars_log(result, settings)))
-    write_or_say('plot', lambda: artifacts.write_plot(artifacts.ars_plot_job(result, settings, search, a.env_id,
+    write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *ars.history_log(result, settings)))
+    write_or_say('plot', lambda: artifacts.write_plot(outputs.ars_plot_job(result, settings, search, a.env_id,
                                                                              float(final.mean())), stem + '.png'))
     if a.video:
-        write_or_say('video', lambda: artifacts.record_video(
+        write_or_say('video', lambda: outputs.record_video(
             a.env_id, lambda obs: linear_search.act(weights, obs), dynamics.max_episode_steps, a.seed,
             stem + '.mp4')[0])
     return 0
@@ -197,7 +200,7 @@ def run_q_learning(a, parser) -> int:
     start = None
     try:
         if a.initial_policy:
-            start = policies.load(a.initial_policy)
+            start = policies.npz.load(a.initial_policy)
             if start.kind != 'q_learning':
                 raise RequestError(f'--initial-policy: {start.path} holds a {start.kind} policy, not a q_learning one')
         training = q_learning.resolve(a.env_id, a.episodes, a.gamma, a.regressor or '', a.components or 0, a.learners,
@@ -246,10 +249,10 @@ def run_q_learning(a, parser) -> int:
         write_or_say('policy', lambda: policies.save(
             stem + '.npz', agent, result.env_id, a.seed + best, training.settings(), result.figures_of(best),
             f'q-learning (CLI), learner {best}' + training.origin()))
-    write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *artifacts.q_learning_log(result)))
-    write_or_say('plot', lambda: artifacts.write_plot(artifacts.q_learning_plot_job(result), stem + '.png'))
+    write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *outputs.q_learning_log(result)))
+    write_or_say('plot', lambda: artifacts.write_plot(outputs.q_learning_plot_job(result), stem + '.png'))
     if a.video and best >= 0:
-        write_or_say(f'video (learner {best})', lambda: artifacts.record_video(
+        write_or_say(f'video (learner {best})', lambda: outputs.record_video(
             result.env_id, agent.act, training.max_steps, a.seed + best, stem + '.mp4')[0])
     print(f'avg reward for last {min(100, training.episodes)} episodes: {result.mean_last100:.2f}')
     return 0 if not (result.cancelled or result.failed) else 1
@@ -280,14 +283,14 @@ def evaluate_parser(sub) -> None:
 
 def run_evaluate(a, parser) -> int:
     try:
-        policy = policies.load_any(a.policy, a.env_id)
+        policy = policy_kinds.load(a.policy, a.env_id)
         dynamics = CartPoleDynamics.of(a.env_id or policy.env_id)
         max_steps = dynamics.resolve_max_steps(a.max_steps)
     except (policies.PolicyError, RequestError) as e:
         parser.error(str(e))
     folder = output_folder(a, parser) if a.video else ''
     if a.ros_env is None:
-        lengths = policy.evaluate(dynamics, a.episodes, max_steps, a.seed)
+        lengths = policy_kinds.evaluate(policy, dynamics, a.episodes, max_steps, a.seed)
     else:
         try:
             from robot_ai.envs.ros_cartpole import RosCartPoleError, episode_lengths   # rospy: only when asked
@@ -310,7 +313,7 @@ def run_evaluate(a, parser) -> int:
     print(f'average length: {lengths.mean():.2f}')
     if a.video:
         stem = artifacts.artifact_stem(folder, 'evaluate', dynamics.env_id, a.seed)
-        write_or_say('video', lambda: artifacts.record_video(dynamics.env_id, policy.act, max_steps, a.seed,
+        write_or_say('video', lambda: outputs.record_video(dynamics.env_id, policy.act, max_steps, a.seed,
                                                              stem + '.mp4')[0])
     return 0
 
@@ -324,17 +327,7 @@ def show_parser(sub) -> None:
 
 
 def run_show(a, parser) -> int:
-    if a.policy.strip().lower().endswith('.onnx'):
-        return show_onnx(a.policy, parser)
-    try:
-        policy = policies.load(a.policy)
-    except policies.PolicyError as e:
-        parser.error(str(e))
-    print(json.dumps(policy.metadata, indent=2))
-    for name, array in policies.arrays_of(policy.actor).items():
-        value = f' = {np.array2string(array, precision=6)}' if array.size <= 4 else ''
-        print(f'{name}: {array.dtype} {array.shape}{value}')
-    return 0
+    return show_policy(a.policy, parser)
 
 
 def main(argv=None) -> int:

@@ -17,11 +17,13 @@ from typing import Callable
 
 import rospy
 
-from robot_ai.cartpole import policies
-from robot_ai.cartpole.artifacts import (artifact_stem, default_output_dir, remove_leftovers, unwritable_reason,
+from robot_ai import policies
+
+from robot_ai.cartpole import policy_kinds
+from robot_ai.artifacts import (artifact_stem, default_output_dir, remove_leftovers, unwritable_reason,
                                          write_csv)
 from robot_ai.cartpole.dynamics import RequestError
-from robot_ai.cartpole.policies import Policy, PolicyError
+from robot_ai.policies import Policy, PolicyError
 from robot_ai.child_process import process_stat, spawn
 from robot_ai.plot_worker import job_line
 from robot_ai.srv import LoadPolicyResponse
@@ -307,14 +309,14 @@ def policy_param(kind: str) -> Policy | None:
 
 
 def load_of_kind(path: str, kind: str, env_id: str = '') -> Policy:
-    """policies.load(path), refusing a policy of another kind than `kind` ('' takes both, and ONNX models:
-    policies.load_any, env_id naming the CartPole of one whose metadata does not; PolicyError, one line)."""
+    """policies.npz.load(path), refusing a policy of another kind than `kind` ('' takes both, and ONNX models:
+    policy_kinds.load, env_id naming the CartPole of one whose metadata does not; PolicyError, one line)."""
     if not kind:
-        return policies.load_any(path, env_id)
+        return policy_kinds.load(path, env_id)
     if str(path).strip().lower().endswith('.onnx'):
         raise PolicyError(f'{path} is an ONNX model: this node starts from and serves {kind} policy files (.npz); '
                           f'an ONNX policy drives cartpole_controller (~policy, ~load_policy)')
-    policy = policies.load(path)
+    policy = policies.npz.load(path)
     if kind and policy.kind != kind:
         other = 'cartpole_search' if policy.kind == 'linear' else 'cartpole_q_learning'
         raise PolicyError(f'{policy.path} holds a {policy.kind} policy; this node serves {kind} policies '

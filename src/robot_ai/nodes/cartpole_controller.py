@@ -6,7 +6,7 @@ and the pole falls on its own.
 
 ROS Parameters
     ~policy (str, ""): a policy file (.npz) of either kind, written by a search, a training or the CLI, or an ONNX
-        model (.onnx) exported from another library (stable-baselines3's PPO or DQN, say; see robot_ai.onnx_policy).
+        model (.onnx) exported from another library (stable-baselines3's PPO or DQN, say; see robot_ai.policies.onnx).
         Empty: the course's random search (100 x 100, CartPole-v1, seed 0) runs at start and its best weights drive.
         A bad file ends the node with one line.
     ~env_id (str, ""): the CartPole (CartPole-v0 or CartPole-v1) an ONNX model plays when its metadata names none.
@@ -30,7 +30,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 from std_srvs.srv import SetBool, SetBoolResponse
 
-from robot_ai.cartpole import linear_search, policies
+from robot_ai import policies
+
+from robot_ai.cartpole import linear_search, policy_kinds
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.nodes.agent_common import answer_load
@@ -58,7 +60,7 @@ class CartPoleController:
         self.env_id = str_param('~env_id', '')
         if path:
             try:
-                self.policy = policies.load_any(path, self.env_id)
+                self.policy = policy_kinds.load(path, self.env_id)
             except policies.PolicyError as e:
                 raise policies.PolicyError(f'~policy: {e}')
         else:

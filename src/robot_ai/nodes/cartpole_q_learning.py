@@ -39,7 +39,9 @@ import actionlib
 import numpy as np
 import rospy
 
-from robot_ai.cartpole import artifacts, policies, q_learning
+from robot_ai import policies
+
+from robot_ai.cartpole import outputs, q_learning
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.q_learning import Agent
 from robot_ai.msg import QLearningAction, QLearningFeedback, QLearningProgress, QLearningResult
@@ -129,14 +131,14 @@ class CartPoleQLearningNode:
             best = result.best_learner()
             agent, figures = result.agents[best], result.figures_of(best)
             kept = self._keep_better(agent, training, req.seed, number, best, figures)
-            video = None if not req.record_video else (lambda path: artifacts.record_video(
+            video = None if not req.record_video else (lambda path: outputs.record_video(
                 env_id, agent.act, training.max_steps, req.seed + best, path)[0])
             files = write_files(
-                self.plots, self.output_dir, 'qlearning', env_id, req.seed, artifacts.q_learning_plot_job(result),
+                self.plots, self.output_dir, 'qlearning', env_id, req.seed, outputs.q_learning_plot_job(result),
                 policy=lambda path: policies.save(path, agent, env_id, req.seed + best, training.settings(), figures,
                                                   f'training {number} of cartpole_q_learning, learner {best}'
                                                   + training.origin()),
-                log=artifacts.q_learning_log(result), video=video)
+                log=outputs.q_learning_log(result), video=video)
             elapsed = time.time() - t0
         failures = ''.join(f'; learner {j} (seed {req.seed + j}) failed: {why}' for j, why in result.failed.items())
         collapsed = q_learning.collapse_note(result)
@@ -162,10 +164,10 @@ class CartPoleQLearningNode:
         source = (f'a training of cartpole_q_learning cancelled with {len(result.finished)} of {training.learners} '
                   f'learners finished, learner {best}')
         files = write_files(
-            self.plots, self.output_dir, 'qlearning', env_id, req.seed, artifacts.q_learning_plot_job(result),
+            self.plots, self.output_dir, 'qlearning', env_id, req.seed, outputs.q_learning_plot_job(result),
             policy=lambda path: policies.save(path, agent, env_id, req.seed + best, training.settings(), figures,
                                               source),
-            log=artifacts.q_learning_log(result))
+            log=outputs.q_learning_log(result))
         return CancelledRun(result, elapsed, files)
 
     def _keep_better(self, agent: Agent, training, seed: int, number: int, learner: int, figures: dict) -> str:

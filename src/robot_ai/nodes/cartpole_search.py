@@ -35,7 +35,9 @@ import actionlib
 import numpy as np
 import rospy
 
-from robot_ai.cartpole import artifacts, linear_search, policies
+from robot_ai import policies
+
+from robot_ai.cartpole import linear_search, outputs
 from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchResult, SearchProgress
@@ -102,13 +104,13 @@ class CartPoleSearchNode:
             number = self.searches
             kept = self._keep_better(result, number)
             weights = result.best_weights
-            video = None if not req.record_video else (lambda path: artifacts.record_video(
+            video = None if not req.record_video else (lambda path: outputs.record_video(
                 env_id, lambda obs: linear_search.act(weights, obs), search.max_steps, req.seed, path)[0])
             files = write_files(
-                self.plots, self.output_dir, 'search', env_id, req.seed, artifacts.search_plot_job(result),
+                self.plots, self.output_dir, 'search', env_id, req.seed, outputs.search_plot_job(result),
                 policy=lambda path: policies.save(path, LinearPolicy(weights), env_id, req.seed, result.settings(),
                                                   result.figures(), f'search {number} of cartpole_search'),
-                log=artifacts.search_log(result), video=video)
+                log=outputs.search_log(result), video=video)
             elapsed = time.time() - t0
         message = (f'best average {result.best_avg_length:.1f} of {counted(iterations, "candidate")} x '
                    f'{counted(search.episodes, "episode")} ({env_id}, seed {req.seed}); final '
@@ -129,10 +131,10 @@ class CartPoleSearchNode:
         source = (f'a search of cartpole_search cancelled after {len(result.avg_lengths)} of {result.iterations} '
                   'candidates (its best so far)')
         files = write_files(
-            self.plots, self.output_dir, 'search', env_id, req.seed, artifacts.search_plot_job(result),
+            self.plots, self.output_dir, 'search', env_id, req.seed, outputs.search_plot_job(result),
             policy=lambda path: policies.save(path, LinearPolicy(weights), env_id, req.seed, result.settings(),
                                               figures, source),
-            log=artifacts.search_log(result))
+            log=outputs.search_log(result))
         return CancelledRun(result, elapsed, files)
 
     def _keep_better(self, result, number: int) -> str:

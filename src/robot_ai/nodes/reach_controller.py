@@ -13,7 +13,7 @@ and holds it until the next goal. ~home takes the arm home and drops the goal.
 ROS Parameters
     robot_description (str): the robot, searched up the namespaces and waited for.
     ~policy (str, ""): a reach policy file (.npz, python -m robot_ai.reach train) or an ONNX model (.onnx) exported
-        from another library (examples/sb3_sac_her_reach_onnx.py; robot_ai.onnx_policy); empty: ARS trains on the
+        from another library (examples/sb3_sac_her_reach_onnx.py; robot_ai.policies.onnx); empty: ARS trains on the
         robot description at start (seconds) and says so. A bad file, or one of another robot or tip, ends the node
         with one line.
     ~tip (str, ""): the tip link; empty: the policy's, or the link below the most joints.
@@ -55,11 +55,11 @@ from std_srvs.srv import Trigger, TriggerResponse
 from visualization_msgs.msg import Marker
 
 from robot_ai import ars
-from robot_ai.cartpole import policies
+from robot_ai import policies
 from robot_ai.nodes.params import number_param, publish, quiet_on_shutdown, str_param
 from robot_ai.srv import LoadPolicy, LoadPolicyResponse
 from robot_ai.nodes.robot_description import wait_for_tree
-from robot_ai.reach import learn
+from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import ReachSetup
 from robot_ai.reach.task import goal_distance_one
@@ -128,7 +128,7 @@ class ReachController:
         of ~policy, or of an ARS run on the robot description when it is empty."""
         if path:
             try:
-                policy, setup, note = learn.load(path, urdf=xml, tip=tip or None)
+                policy, setup, note = policy_files.load(path, urdf=xml, tip=tip or None)
             except (policies.PolicyError, ReachError) as e:
                 raise ValueError(f'~policy: {e}') from None
             if note:
@@ -194,7 +194,7 @@ class ReachController:
 
     def _on_load_policy(self, req) -> LoadPolicyResponse:
         try:
-            policy, _, note = learn.load(req.path, self.setup)
+            policy, _, note = policy_files.load(req.path, self.setup)
         except (policies.PolicyError, ReachError) as e:
             return LoadPolicyResponse(success=False, message=f'{e}; still driving with the policy it had')
         with self.lock:

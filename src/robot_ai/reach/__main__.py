@@ -12,18 +12,17 @@ far; a second ends the run.
 from __future__ import annotations
 
 import argparse
-import json
 import re
 import signal
 import sys
 from dataclasses import replace
 
 
-from robot_ai import ars
-from robot_ai.cartpole import artifacts, policies
-from robot_ai.cli import (fraction, output_folder, positive_number, run_command, show_onnx, whole_number,
+from robot_ai import ars, artifacts
+from robot_ai import policies
+from robot_ai.cli import (fraction, output_folder, positive_number, run_command, show_policy, whole_number,
                           write_or_say)
-from robot_ai.reach import learn
+from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import CONTROLS, STARTS, ReachSetup
 
@@ -122,8 +121,8 @@ def run_train(a, parser) -> int:
     print(f'training          {len(result.history)} iterations, {result.steps:,} steps, {result.elapsed:.1f} s'
           f'{" (stopped early: best so far kept)" if result.cancelled else ""}')
     stem = artifacts.artifact_stem(folder, stem_name(setup), 'Reach-v0', a.seed)
-    write_or_say('policy', lambda: learn.save(training, stem + '.npz'))
-    write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *artifacts.ars_log(result, settings)))
+    write_or_say('policy', lambda: policy_files.save(training, stem + '.npz'))
+    write_or_say('log', lambda: artifacts.write_csv(stem + '.csv', *ars.history_log(result, settings)))
     write_or_say('plot', lambda: artifacts.write_plot(plot_job(training), stem + '.png'))
     if a.video:
         write_or_say('video', lambda: learn.record_video(result.policy, setup, stem + '.mp4'))
@@ -169,7 +168,7 @@ def evaluate_parser(sub) -> None:
 
 def run_evaluate(a, parser) -> int:
     try:
-        policy, setup, note = learn.load(a.policy, model=a.model or None, xacro_args=a.xacro_args or None)
+        policy, setup, note = policy_files.load(a.policy, model=a.model or None, xacro_args=a.xacro_args or None)
     except (policies.PolicyError, ReachError) as e:
         parser.error(str(e))
     if note:
@@ -197,16 +196,7 @@ def show_parser(sub) -> None:
 
 
 def run_show(a, parser) -> int:
-    if a.policy.strip().lower().endswith('.onnx'):
-        return show_onnx(a.policy, parser)
-    try:
-        policy = policies.load(a.policy)
-    except policies.PolicyError as e:
-        parser.error(str(e))
-    print(json.dumps(policy.metadata, indent=2))
-    for name, array in policies.arrays_of(policy.actor).items():
-        print(f'{name}: {array.dtype} {array.shape}')
-    return 0
+    return show_policy(a.policy, parser)
 
 
 def main(argv=None) -> int:

@@ -2,7 +2,7 @@
 
     training = train(dict(model='/path/arm.urdf', tip='tool0'), seed=0, progress=print)   # seconds, on 2 cores
     training.policy.act(flat_observation), training.held_out.success_rate
-    path = save(training, '/tmp/reach.npz');  policy = load(path, ReachSetup(model=...))
+    path = policy_files.save(training, '/tmp/reach.npz')
 
 The policy is ARS's linear policy (robot_ai.ars) on the flattened goal-env observation (achieved goal, desired goal,
 joint positions, tip). ARS learns on the dense reward (minus the distance, every step). Its observation statistics
@@ -15,31 +15,25 @@ still missed 15 %). alpha and nu shrink over the run (decay). A large arm's step
 threshold, so it needs finer weights: the default number of iterations grows with ee_step / distance_threshold
 (80 for a UR5, 121 for a 2.8 m arm; default_settings).
 
-A policy file is the package's .npz of kind ars_linear (robot_ai.cartpole.policies); its metadata names the env
-(env_id, env_kwargs), the robot, the tip and the joints in order: loading it for another robot or tip is refused.
+Its policy files (save, load) are robot_ai.reach.policy_files'.
 """
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from robot_ai import ars
-from robot_ai.cartpole import policies
-from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import ReachSetup, ReachVectorEnv
 from robot_ai.reach.task import goal_distance
 
-ENV_ID = 'robot_ai/Reach-v0'
 JOINT_SCALE = 10.0              # joint positions normalised by 10 x their range (see the module's docstring)
 PRIOR_STATES = 2000             # random configurations and goals that seed the goal coordinates' statistics
 HELD_OUT_EPISODES = 1000
 HELD_OUT_SEED = 2 ** 31         # held-out goals: seeds no training iteration draws (those are below 2 ** 31)
 SETTINGS = ars.ARSSettings(iterations=80, directions=32, top_directions=16, step_size=0.1, noise=0.1, episodes=8,
                            eval_episodes=256, decay=0.9, bias=True, normalize=True)
-ENV_SETTINGS = ('model', 'xacro_args', 'tip', 'control', 'start', 'distance_threshold', 'ee_step', 'damping', 'home')
 
 
 @dataclass
@@ -172,146 +166,10 @@ def p_controller(setup: ReachSetup, gain: float = 1.0) -> ars.LinearPolicy:
     return ars.LinearPolicy(weights, np.zeros(d), np.ones(d), np.zeros(3), -np.ones(3), np.ones(3))
 
 
-# ------------------------------------------------------------------------------------------------- policy files
-def save(training: Training, path: str) -> str:
-    setup, result = training.setup, training.result
-    figures = dict(training_steps=int(result.steps), iterations=len(result.history),
-                   best_iteration=int(result.best_iteration), train_seconds=round(result.elapsed, 3))
-    if training.held_out is not None:
-        figures.update(success_rate=training.held_out.success_rate,
-                       mean_final_distance=training.held_out.mean_distance, held_out_episodes=len(
-                           training.held_out.distances))
-    if training.p_controller is not None:
-        figures['p_controller_success_rate'] = training.p_controller.success_rate
-    return policies.save(path, training.policy, ENV_ID, training.seed, settings=result.settings.as_dict(),
-                         figures=figures, source='ARS (python -m robot_ai.reach train)',
-                         env_kwargs=training.env_kwargs, joints=list(setup.arm.joints),
-                         robot=setup.model.tree.name, model=setup.model.name, model_sha256=setup.model.sha256,
-                         training_steps=int(result.steps),
-                         success_rate=training.held_out.success_rate if training.held_out else None)
-
-
-def setup_of(policy: policies.Policy, **overrides) -> ReachSetup:
-    """The reach setup a policy file names (its env_kwargs), with overrides (another model file, say)."""
-    return _setup_of_kwargs(policy.metadata.get('env_kwargs', {}), {k: v for k, v in overrides.items() if v is not None},
-                            policy.metadata.get('robot', ''))
-
-
-REACH_ENVS = (ENV_ID, 'robot_ai/RosReach-v0')
-
-
-def check_fits(policy, setup: ReachSetup) -> str:
-    """PolicyError (one line naming both) unless policy (a policy file's, or an ONNX model's) is a reach policy for
-    setup's robot, tip, joints and spaces; returns a note ('' or a warning to show) when only the URDF's text
-    differs, or when an ONNX model names no robot (its spaces fit, so it drives)."""
-    m = policy.metadata
-    where = policy.path or 'the policy'
-    onnx = policy.kind == 'onnx'
-    if (onnx and m.get('env_id') not in REACH_ENVS) or (not onnx and (policy.kind != 'ars_linear'
-                                                                      or m.get('env_id') != ENV_ID)):
-        raise policies.PolicyError(f'{where} is a {policy.kind} policy for {m.get("env_id")}, not a reach policy '
-                                   f'({ENV_ID})')
-    arm = setup.arm
-    robot = setup.model.tree.name
-    kwargs = m.get('env_kwargs', {})
-    learned = f'{m.get("robot") or "?"} ({m.get("model") or kwargs.get("model") or "?"}), tip {kwargs.get("tip")}'
-    here = f'{robot} ({setup.model.name}), tip {arm.tip}'
-    differs = [k for k, mine in (('robot', robot), ('joints', arm.joints)) if (k in m or not onnx) and m.get(k) != mine]
-    if (kwargs.get('tip') or not onnx) and kwargs.get('tip') != arm.tip:
-        differs.append('tip')
-    if differs:
-        raise policies.PolicyError(f'{where} learned to reach with {learned} (joints {", ".join(m.get("joints", []))});'
-                                   f' this arm is {here} (joints {", ".join(arm.joints)})')
-    control = kwargs.get('control', 'ee')
-    if control != setup.control:
-        raise policies.PolicyError(f'{where} acts with control={control}; this env has control={setup.control}')
-    inputs, actions = policy_sizes(policy)
-    if inputs != 9 + arm.n or actions != setup.action_space.shape[0]:
-        raise policies.PolicyError(f'{where} maps {inputs} observations to {actions} actions; this env has '
-                                   f'{9 + arm.n} and {setup.action_space.shape[0]}')
-    if m.get('model_sha256') and m['model_sha256'] != setup.model.sha256:
-        return (f'note: {setup.model.name} is not the URDF text {where} learned on ({m.get("model")}); same robot, '
-                f'tip and joints, so it drives it')
-    if onnx and 'robot' not in m:
-        return (f'note: {where} names no robot (its metadata robot_ai_env has none); its input and output fit '
-                f'{robot}\'s with tip {arm.tip}, so it drives it')
-    return ''
-
-
-def policy_sizes(policy) -> tuple[int, int]:
-    """(observation size, action size) a reach policy takes and gives."""
-    if policy.kind == 'onnx':
-        from gymnasium import spaces
-        return int(spaces.flatdim(policy.observation_space)), int(np.prod(policy.action_space.shape))
-    actions, inputs = policy.actor.weights.shape
-    return inputs, actions
-
-
-def load(path: str, setup: ReachSetup | None = None, **overrides) -> tuple[policies.Policy, ReachSetup, str]:
-    """(the policy, its setup, a note) of a reach policy file (.npz) or ONNX model (.onnx): for setup's arm when
-    given (refused in one line if it is another robot or tip), else for the env its metadata names with overrides
-    (model=, xacro_args=, urdf=, tip=: setup_of). PolicyError or ReachError: one line."""
-    if str(path).strip().lower().endswith('.onnx'):
-        return _load_onnx(path, setup, overrides)
-    policy = policies.load(path)
-    if policy.kind != 'ars_linear':
-        raise policies.PolicyError(f'{policy.path} is a {policy.kind} policy for {policy.env_id}, not a reach policy')
-    if setup is None:
-        model = policy.metadata.get('env_kwargs', {}).get('model')
-        if model and not os.path.exists(model) and not any(overrides.get(k) for k in ('model', 'urdf')):
-            raise policies.PolicyError(f'{policy.path} learned on {model}, which is not there any more: give the '
-                                       f'robot file with --model')
-        setup = setup_of(policy, **overrides)
-    return policy, setup, check_fits(policy, setup)
-
-
-def _load_onnx(path: str, setup: ReachSetup | None, overrides: dict):
-    """load() of an ONNX model: its metadata's env (Reach-v0 when it names none; without a model, the env's default
-    robot, as gymnasium.make would make it), control from its metadata or else from its action size (3: ee,
-    otherwise joints), built against the setup's spaces."""
-    from robot_ai import onnx_policy
-    file = onnx_policy.read(path)
-    env_id = file.env_id or ENV_ID
-    if env_id not in REACH_ENVS:
-        raise policies.PolicyError(f'{file.path} acts in {env_id}, not a reach env ({", ".join(REACH_ENVS)})')
-    kwargs = file.env_kwargs
-    if 'control' not in kwargs and file.action_size() is not None:
-        kwargs['control'] = 'ee' if file.action_size() == 3 else 'joints'
-    if setup is None:
-        given = {k: v for k, v in overrides.items() if v is not None}
-        model = kwargs.get('model')
-        if model and not os.path.exists(model) and not any(given.get(k) for k in ('model', 'urdf')):
-            raise policies.PolicyError(f'{file.path} learned on {model}, which is not here: give the robot file '
-                                       f'with --model')
-        setup = _setup_of_kwargs(kwargs, given, file.info.get('robot', ''))
-    elif kwargs.get('control', 'ee') != setup.control:
-        raise policies.PolicyError(f'{file.path} acts with control={kwargs.get("control", "ee")}; this env has '
-                                   f'control={setup.control}')
-    policy = onnx_policy.build(file, env_id, kwargs, setup.observation_space, setup.action_space)
-    return policy, setup, check_fits(policy, setup)
-
-
-def _setup_of_kwargs(env_kwargs: dict, given: dict, learned_on: str = '') -> ReachSetup:
-    """The setup of a policy's env kwargs with the caller's overrides; a robot file without the policy's tip is a
-    PolicyError naming the robot the policy learned on (learned_on)."""
-    kwargs = {k: v for k, v in env_kwargs.items() if k in ENV_SETTINGS}
-    other_file = 'model' in given or 'urdf' in given
-    if other_file:      # another robot file (or text): its own limits and sizes
-        kwargs = {k: v for k, v in kwargs.items() if k not in ('model', 'xacro_args', 'home', 'ee_step', 'damping')}
-    kwargs.update(given)
-    try:
-        return ReachSetup(**kwargs)
-    except ReachError as e:
-        if other_file and learned_on and 'tip' in kwargs and 'tip' not in given and 'is not a link' in str(e):
-            raise policies.PolicyError(f'the policy learned to reach with {learned_on}, tip {kwargs["tip"]}, a link '
-                                       f'this robot does not have ({e})') from None
-        raise
-
-
 def record_video(policy, setup: ReachSetup, path: str, episodes: int = 3, seed: int = HELD_OUT_SEED) -> str:
     """An mp4 of the arm reaching `episodes` fresh goals with policy (act_batch), drawn from the kinematics
     (robot_ai.reach.render), written whole or not at all."""
-    from robot_ai.cartpole.artifacts import write_video
+    from robot_ai.artifacts import write_video
     from robot_ai.reach.env import RENDER_FPS
     from robot_ai.reach.render import ArmRenderer
     renderer = ArmRenderer(setup.arm, setup.task.distance_threshold)

@@ -1,4 +1,5 @@
-"""Policies exported by other libraries (.onnx), run with onnxruntime on the CPU. No rospy.
+"""Policies exported by other libraries (.onnx), run with onnxruntime on the CPU. No rospy; nothing here knows a robot
+or an env (robot_ai.policies.envs describes them).
 
 stable-baselines3 trains with torch, which a robot's computer should not need; ONNX is how its policy travels
 (stable-baselines3's export guide: opset 14 or later; for SAC, the actor only). Here such a file drives the package's
@@ -6,6 +7,7 @@ robots wherever a policy file is taken:
 
     policy = load('ppo_cartpole.onnx')                        # the env from the file's metadata (robot_ai_env)
     policy = load('sac_reach.onnx', env_id='robot_ai/Reach-v0', env_kwargs={'control': 'joints'})
+    policy = build(read(path), target_of('CartPole-v1'))      # for an env the caller chose
     policy.act(observation)          # one observation as the env gives it -> the action the env takes
     policy.act_batch(flat)           # (M, obs) flattened observations -> (M,) integers or (M, act) floats
 
@@ -31,8 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from gymnasium import spaces
 
-from robot_ai import ars
-from robot_ai.cartpole.policies import PolicyError, read_regular_file
+from robot_ai.policies.envs import Target, flatten_batch as _flatten, target_of
+from robot_ai.policies.files import PolicyError, read_regular_file
 
 MAX_BYTES = 64 * 1024 * 1024
 STANDARD_DOMAINS = ('', 'ai.onnx', 'ai.onnx.ml')
@@ -58,6 +60,8 @@ class OnnxPolicy:
     output_name: str
     scores: bool                        # Discrete: the output is one score per action (argmax), not an integer
     metadata: dict = field(default_factory=dict)
+    note: str = ''                      # what loading it for an env found worth saying (robot_ai.policies.load)
+    target: object = None               # that env (a robot_ai.policies.Target)
 
     kind = 'onnx'
 
@@ -90,15 +94,10 @@ class OnnxPolicy:
         a = self.act_batch(flat.reshape(1, -1))[0]
         return int(a) if isinstance(self.action_space, spaces.Discrete) else a
 
-    # the CartPole agents' interface (robot_ai.cartpole.policies.Policy)
+    # the CartPole agents' interface (robot_ai.cartpole.policy_kinds)
     def push_right(self, observations: np.ndarray) -> np.ndarray:
         """observations (4, n) float32 -> (n,) bool: the policy pushes right (action 1)."""
         return self.act_batch(np.ascontiguousarray(observations.T)) == 1
-
-    def evaluate(self, dynamics, episodes: int, max_steps: int, seed: int) -> np.ndarray:
-        """Lengths (episodes,) of CartPole episodes, start states from rng_for(seed), as the package's policies."""
-        from robot_ai.cartpole.dynamics import rng_for, start_states
-        return dynamics.episode_lengths(start_states(rng_for(seed), 1, episodes), max_steps, policy=self.push_right)[0]
 
     def describe(self) -> str:
         m = self.metadata
@@ -202,31 +201,6 @@ def env_of(model) -> dict:
     return value
 
 
-def spaces_of(env_id: str, env_kwargs: dict) -> tuple[spaces.Space, spaces.Space]:
-    """The observation and action spaces of an env: the package's CartPoles and reach tasks without making a ROS env,
-    any other registered env made and closed."""
-    from robot_ai.cartpole.dynamics import SUPPORTED_ENVS
-    if env_id in SUPPORTED_ENVS or env_id in ('robot_ai/RosCartPole-v0', 'robot_ai/RosCartPole-v1'):
-        return spaces.Box(-np.inf, np.inf, (4,), np.float32), spaces.Discrete(2)
-    if env_id in ('robot_ai/Reach-v0', 'robot_ai/RosReach-v0'):
-        from robot_ai.reach import ReachError, ReachSetup
-        keep = ('model', 'xacro_args', 'tip', 'control', 'urdf')
-        try:
-            setup = ReachSetup(**{k: v for k, v in env_kwargs.items() if k in keep})
-        except ReachError as e:
-            raise PolicyError(f'its env {env_id}: {e}') from None
-        return setup.observation_space, setup.action_space
-    import gymnasium
-    try:
-        env = gymnasium.make(env_id, **env_kwargs)
-    except Exception as e:       # an unknown id, bad kwargs: one line
-        raise PolicyError(f'its env {env_id} cannot be made: {str(e).splitlines()[0][:200]}') from None
-    try:
-        return env.observation_space, env.action_space
-    finally:
-        env.close()
-
-
 def _fit(model, where: str, observation_space, action_space) -> tuple[str, str, bool]:
     """(input name, output name, whether a Discrete env's output is scores) once the model's input and first output
     fit the spaces; PolicyError naming both shapes otherwise."""
@@ -310,6 +284,12 @@ class OnnxFile:
     model: object
     info: dict
 
+    kind = 'onnx'
+
+    @property
+    def metadata(self) -> dict:
+        return self.info
+
     @property
     def env_id(self) -> str:
         return self.info.get('env_id', '')
@@ -339,10 +319,12 @@ def read(path: str) -> OnnxFile:
     return OnnxFile(where, data, model, info)
 
 
-def build(file: OnnxFile, env_id: str, env_kwargs: dict, observation_space, action_space) -> OnnxPolicy:
-    """The policy of a read file acting in the env (env_id, env_kwargs) whose spaces are given: its input and
-    output fit them, onnxruntime takes it, and its trial run answers actions of the space."""
+def build(file: OnnxFile, target: Target) -> OnnxPolicy:
+    """The policy of a read file acting in the target's env: its input and output fit the env's spaces, onnxruntime
+    takes it, and its trial run answers actions of the space."""
     where, model = file.path, file.model
+    env_id, env_kwargs = target.env_id, target.env_kwargs
+    observation_space, action_space = target.observation_space, target.action_space
     input_name, output_name, scores = _fit(model, where, observation_space, action_space)
     try:
         session = session_of(file.data)
@@ -350,6 +332,7 @@ def build(file: OnnxFile, env_id: str, env_kwargs: dict, observation_space, acti
         raise PolicyError(f'{where}: onnxruntime cannot run it: {str(e).strip().splitlines()[0][:300]}') from None
     metadata = {p.key: p.value for p in model.metadata_props if p.key != METADATA_KEY}
     metadata.update(file.info)
+    metadata.update(target.metadata)
     metadata.update(env_id=env_id, env_kwargs=dict(env_kwargs), producer=' '.join(
         v for v in (model.producer_name, model.producer_version) if v), opset=max(
         (o.version for o in model.opset_import if o.domain in ('', 'ai.onnx')), default=0))
@@ -367,29 +350,7 @@ def load(path: str, env_id: str = '', env_kwargs: dict | None = None) -> OnnxPol
     env_kwargs = dict(env_kwargs or file.env_kwargs)
     if not env_id:
         raise PolicyError(f'{file.path} names no env (its metadata has no {METADATA_KEY}): give one (--env-id)')
-    observation_space, action_space = spaces_of(env_id, env_kwargs)
-    return build(file, env_id, env_kwargs, observation_space, action_space)
-
-
-CARTPOLE_ENVS = {'CartPole-v0': 'CartPole-v0', 'CartPole-v1': 'CartPole-v1',
-                 'robot_ai/RosCartPole-v0': 'CartPole-v0', 'robot_ai/RosCartPole-v1': 'CartPole-v1'}
-
-
-def load_cartpole(path: str, env_id: str = '') -> OnnxPolicy:
-    """An ONNX policy of the cart-pole: env_id (or the file's metadata) must be a CartPole the package's dynamics
-    run (CartPole-v0/v1, or the ROS cart-pole's ids, which act as they do); its env_id is then that CartPole's."""
-    file = read(path)
-    given = env_id or file.env_id
-    if not given:
-        raise PolicyError(f'{file.path} names no env (its metadata has no {METADATA_KEY}): give the CartPole it '
-                          f'plays (--env-id or ~env_id: CartPole-v1)')
-    if given not in CARTPOLE_ENVS:
-        raise PolicyError(f'{file.path} acts in {given}, not a cart-pole ({", ".join(CARTPOLE_ENVS)})')
-    observation_space, action_space = spaces_of(CARTPOLE_ENVS[given], {})
-    policy = build(file, CARTPOLE_ENVS[given], {}, observation_space, action_space)
-    if given != policy.env_id:
-        policy.metadata['exported_for'] = given
-    return policy
+    return build(file, target_of(env_id, env_kwargs))
 
 
 def summary(file: OnnxFile) -> dict:
@@ -414,5 +375,5 @@ def summary(file: OnnxFile) -> dict:
 
 
 def flatten_batch(observation_space, observations) -> np.ndarray:
-    """A batch of observations as the model takes them (float32 (M, obs)): ars.flatten_batch's order."""
-    return ars.flatten_batch(observation_space, observations).astype(np.float32)
+    """A batch of observations as the model takes them (float32 (M, obs)): gymnasium.spaces.flatten's order."""
+    return _flatten(observation_space, observations).astype(np.float32)
