@@ -1,6 +1,7 @@
 # robot_ai: every target does its own set-up (Debian packages, .venv/, a private catkin workspace).
 #   make demo   build, then run the headless demo (roslaunch robot_ai demo.launch)
-#   make test   build, then unit tests (pytest) and rostest tests, one summary, non-zero on any failure
+#   make test   build, then unit tests (pytest) and rostest tests side by side, one summary, non-zero on any failure
+#   make check  the edit loop: a lint (flake8) and the unit tests, no roscore
 #   make build  Debian packages + .venv + .catkin_ws (catkin_make); a second run with nothing changed is quick
 #   make bench  the benchmarks in bench/, figures beside the reference's, kept in output/bench.txt
 #   make clean  remove .venv, .catkin_ws and outputs
@@ -31,7 +32,10 @@ export PYTHONDONTWRITEBYTECODE := 1
 RUN := source $(WS)/devel/setup.bash && export PATH="$(VENV)/bin:$$PATH" ROS_HOSTNAME=localhost \
 	ROS_MASTER_URI=http://localhost:11311 &&
 
-.PHONY: build test demo bench clean apt venv
+.PHONY: build test check demo bench clean apt venv
+
+# Tests at a time in make test: each rostest has a master of its own; most of their time is waiting for ROS, not CPU.
+TEST_JOBS ?= 3
 
 apt:
 	@missing=$$(for p in $(APT_PACKAGES); do \
@@ -71,10 +75,14 @@ build: venv
 	@echo "built: source $(WS)/devel/setup.bash (with $(VENV)/bin first on PATH)"
 
 test: build
-	rm -rf $(WS)/build/test_results
-	cd $(WS) && $(RUN) catkin_make run_tests_robot_ai -j1 2>&1 | tee $(WS)/test.log \
-	  | grep -E --line-buffered '^(-- run_tests|\[ROSTEST\]|SUMMARY|  \* RESULT|[0-9]+ (passed|failed))|passed|failed' || true
+	rm -rf $(WS)/build/test_results $(WS)/build/test_logs
+	$(RUN) python $(ROOT)/test/run_tests.py --build $(WS)/build --jobs $(TEST_JOBS)
 	$(RUN) python $(ROOT)/test/summarize.py $(WS)/build/test_results/robot_ai
+
+# flake8: pyflakes' errors (unused imports, undefined names) and lines of at most 120 columns (setup.cfg)
+check: build
+	$(RUN) python -m flake8 $(ROOT)/src $(ROOT)/test $(ROOT)/bench $(ROOT)/examples
+	$(RUN) cd $(ROOT) && python -m pytest -q -p no:cacheprovider -n 2 test/unit
 
 # A master of its own on a free port, like the tests: never one that already runs on 11311 (its robot_description).
 # launch_guard: whatever ends roslaunch (a SIGKILL too), the processes it started end with it and tee sees the end.

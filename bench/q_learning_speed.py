@@ -149,7 +149,8 @@ def main():
     totals, _ = q_learning.train_one(training, 0)
     ours = time.time() - t
     our_steps = int(totals.sum() + len(totals))  # the +1 steps and each episode's last step
-    print('train_one, 500 episodes                  %6.1f us a step   %5.0fx   (%d steps, %.2f s, last-100 average %.2f)'
+    print('train_one, 500 episodes                  %6.1f us a step   %5.0fx   '
+          '(%d steps, %.2f s, last-100 average %.2f)'
           % (ours / our_steps * 1e6, course_step / (ours / our_steps), our_steps, ours, totals[-100:].mean()))
 
     print('learners in one call (each a fresh process; wall time, learners per second, peak resident memory):')

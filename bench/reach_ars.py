@@ -59,7 +59,8 @@ def reach_section(names, extra_models):
         setup = home.setup
         p_random = learn.evaluate(learn.p_controller(setup), ReachSetup(model=model, xacro_args=args, start='random'))
         rand = learn.train(dict(model=model, xacro_args=args, start='random'), seed=0)
-        print(f'  {name:16s} {setup.arm.n:6d} {setup.ee_step:8.3f} {wall:7.1f} s {first_reached(home.result.history, 0.95)} '
+        print(f'  {name:16s} {setup.arm.n:6d} {setup.ee_step:8.3f} {wall:7.1f} s '
+              f'{first_reached(home.result.history, 0.95)} '
               f'{first_reached(home.result.history, 0.99)} {home.result.steps:11,d} '
               f'{100 * home.held_out.success_rate:6.1f}% {100 * home.p_controller.success_rate:6.1f}% '
               f'{100 * p_random.success_rate:7.1f}% {100 * rand.held_out.success_rate:9.1f}%', flush=True)
@@ -93,7 +94,8 @@ def sb3_section(sb3_steps, sac_steps):
     model.learn(total_timesteps=sb3_steps)
     seconds = time.monotonic() - t0
     rate = held_out(lambda x: model.predict(x.astype(np.float32), deterministic=True)[0])
-    print(f'  sb3-contrib ARS (LinearPolicy, its defaults, 8 envs, dense reward): {sb3_steps:,} steps in {seconds:.1f} s, '
+    print(f'  sb3-contrib ARS (LinearPolicy, its defaults, 8 envs, dense reward): {sb3_steps:,} steps in '
+          f'{seconds:.1f} s, '
           f'held-out {100 * rate:.1f}%', flush=True)
     env = gymnasium.make('robot_ai/Reach-v0')
     t0 = time.monotonic()

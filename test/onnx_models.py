@@ -30,9 +30,9 @@ def cartpole_scores(weights: np.ndarray, env=None) -> onnx.ModelProto:
     does (weights . state > 0)."""
     w = np.zeros((4, 2), np.float32)
     w[:, 1] = weights
-    return model([helper.make_node('MatMul', ['obs', 'W'], ['scores'])], [tensor('obs', TensorProto.FLOAT, ['batch', 4])],
-                 [tensor('scores', TensorProto.FLOAT, ['batch', 2])], [numpy_helper.from_array(w, 'W')],
-                 env if env is not None else {'env_id': 'CartPole-v1'})
+    return model([helper.make_node('MatMul', ['obs', 'W'], ['scores'])],
+                 [tensor('obs', TensorProto.FLOAT, ['batch', 4])], [tensor('scores', TensorProto.FLOAT, ['batch', 2])],
+                 [numpy_helper.from_array(w, 'W')], env if env is not None else {'env_id': 'CartPole-v1'})
 
 
 def cartpole_integer(weights: np.ndarray, env=None) -> onnx.ModelProto:
@@ -41,8 +41,9 @@ def cartpole_integer(weights: np.ndarray, env=None) -> onnx.ModelProto:
     w[:, 1] = weights
     nodes = [helper.make_node('MatMul', ['obs', 'W'], ['scores']),
              helper.make_node('ArgMax', ['scores'], ['action'], axis=1, keepdims=0)]
-    return model(nodes, [tensor('obs', TensorProto.FLOAT, ['batch', 4])], [tensor('action', TensorProto.INT64, ['batch'])],
-                 [numpy_helper.from_array(w, 'W')], env if env is not None else {'env_id': 'CartPole-v1'})
+    return model(nodes, [tensor('obs', TensorProto.FLOAT, ['batch', 4])],
+                 [tensor('action', TensorProto.INT64, ['batch'])], [numpy_helper.from_array(w, 'W')],
+                 env if env is not None else {'env_id': 'CartPole-v1'})
 
 
 def linear_tanh(weights: np.ndarray, bias: np.ndarray, env=None) -> onnx.ModelProto:

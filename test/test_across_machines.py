@@ -95,7 +95,8 @@ table inet ros_guard {
   }
 }
 '''
-TRUSTED_PEERS_RULES = LOOPBACK_ONLY_RULES.replace('    tcp flags syn drop', '    ip saddr { TRUSTED } accept\n    tcp flags syn drop')
+TRUSTED_PEERS_RULES = LOOPBACK_ONLY_RULES.replace('    tcp flags syn drop',
+                                                  '    ip saddr { TRUSTED } accept\n    tcp flags syn drop')
 
 
 class Hosts:

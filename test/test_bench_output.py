@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """make bench as it runs each script: stdout (the table) holds no ROS log line, and last_figures.py prints the
-last recorded figures (docs/benchmarks.md). The search benchmark runs small (--skip-large --calls 1): its output format is what is checked."""
+last recorded figures (docs/benchmarks.md). The search benchmark runs small (--skip-large --calls 1): its output
+format is what is checked."""
 import os
 import re
 import subprocess

@@ -20,7 +20,8 @@ from fk_helpers import ROBOTS_DIR, write_xacro_package  # noqa: E402
 
 HERE = os.path.dirname(os.path.realpath(__file__))
 TILTED = os.path.join(HERE, 'urdf', 'tilted_axis_arm.urdf')
-ROBOTS = sorted(glob.glob(os.path.join(ROBOTS_DIR, '*.urdf')) + glob.glob(os.path.join(ROBOTS_DIR, 'fixtures', '*.urdf')))
+ROBOTS = sorted(glob.glob(os.path.join(ROBOTS_DIR, '*.urdf'))
+                + glob.glob(os.path.join(ROBOTS_DIR, 'fixtures', '*.urdf')))
 
 
 def check_fk(model, candidate, *args, mistake='euler', parent='world', mark=''):
@@ -109,7 +110,8 @@ class TestCheckFk(unittest.TestCase):
         with tempfile.TemporaryDirectory() as folder:
             for source, verdict in (
                     ('import rospy\ntry:\n    pass\nexcept ValueError, e:\n    pass\n',
-                     'FAIL: solution.py line 5 is Python 2 (except X, e): ROS Noetic runs Python 3; write except X as e'),
+                     'FAIL: solution.py line 5 is Python 2 (except X, e): ROS Noetic runs Python 3; '
+                     'write except X as e'),
                     ('import rospy\n\ndef callback(msg:\n    pass\n',
                      'FAIL: solution.py line 4: SyntaxError: ')):
                 path = os.path.join(folder, 'solution.py')
@@ -138,8 +140,9 @@ class TestCheckFk(unittest.TestCase):
         kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
         with open(kuka) as f:
             xml = f.read()
-        setter = subprocess.run([sys.executable, '-c', 'import rospy, sys; rospy.set_param("/grader/robot_description", '
-                                 'sys.stdin.read())'], input=xml, text=True, capture_output=True, timeout=60)
+        setter = subprocess.run([sys.executable, '-c', 'import rospy, sys; '
+                                 'rospy.set_param("/grader/robot_description", sys.stdin.read())'],
+                                input=xml, text=True, capture_output=True, timeout=60)
         self.assertEqual(setter.returncode, 0, setter.stderr)
         # a user's shell, the venv first on PATH: rostest puts a `python` of its own before it (a link to the Python
         # that runs rostest, which outside the venv's folder no longer finds the venv)
@@ -524,9 +527,9 @@ class TestCheckFk(unittest.TestCase):
 
     def test_every_option_reaches_every_student_and_the_header_says_what_is_graded(self):
         """--xacro-args reach each student's check (the reference and the robot_description are the xacro's with
-        them: 10 links graded with the tool, the root's 11 in all; 9 without), and the class header names the model and its arguments; a
-        --candidate file that is neither Python nor executable is one line; `--xacro-args "a:=1 b:=2"` with a single
-        candidate is no traceback."""
+        them: 10 links graded with the tool, the root's 11 in all; 9 without), and the class header names the model
+        and its arguments; a --candidate file that is neither Python nor executable is one line; `--xacro-args
+        "a:=1 b:=2"` with a single candidate is no traceback."""
         arm7 = os.path.join(HERE, 'urdf', 'reach_arm7.urdf.xacro')
         with open(os.path.join(HERE, 'course_fk.py')) as f:
             course = f.read().replace("os.environ.get('COURSE_FK_MISTAKE', 'none')", "'none'")

@@ -3,6 +3,7 @@
 under Xvfb, a screenshot of rviz's 3D view shows the robot and its frames, not only the grid.
 
 Each launch gets its own master on a free port, so it does not disturb rostest's."""
+import functools
 import os
 import random
 import re
@@ -109,6 +110,18 @@ def run_to_end(args, env=None, launch_file='demo.launch', timeout=400):
     return proc.returncode, out.decode(errors='replace')
 
 
+@functools.lru_cache(maxsize=None)
+def default_demo():
+    """(exit status, output, ROS_HOME) of one run of the demo as `make demo` runs it but with ROS_HOME of its own and
+    no output_dir, shared by the cases that read it (each asserts its own part of the same run)."""
+    ros_home = os.path.abspath(os.path.join(ARTIFACTS, 'ros_home'))
+    shutil.rmtree(ros_home, ignore_errors=True)
+    t0 = time.time()
+    status, text = run_to_end([], dict(os.environ, ROS_HOME=ros_home))
+    print(f'the demo took {time.time() - t0:.0f} s')
+    return status, text, ros_home
+
+
 def stop(proc):
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGINT)
@@ -177,9 +190,7 @@ def colour_counts(path):
 class TestLaunch(unittest.TestCase):
 
     def test_demo_ends_cleanly_with_a_summary(self):
-        out_dir = os.path.abspath(os.path.join(ARTIFACTS, 'demo'))
-        t0 = time.time()
-        status, text = run_to_end(['output_dir:=' + out_dir])
+        status, text, ros_home = default_demo()
         self.assertEqual(status, 0, text[-3000:])
         self.assertIn('verdict: OK', text, text[-3000:])
         self.assertIn('the end effector moves', text)
@@ -187,9 +198,8 @@ class TestLaunch(unittest.TestCase):
         # the closed loop: the Q-learning agent's saved policy drives the cart-pole, and recovers from a push
         self.assertRegex(text, r'cartpole: the pole stayed up [0-9.]+ s of [0-9.]+ s')
         self.assertIn('recovered', text)
-        print(f'the demo took {time.time() - t0:.0f} s')
         video = [l.split()[-1] for l in text.splitlines() if l.strip().startswith('video ')][0]
-        self.assertTrue(os.path.isfile(video) and video.startswith(out_dir), video)
+        self.assertTrue(os.path.isfile(video) and video.startswith(os.path.join(ros_home, 'robot_ai')), video)
 
     def test_a_stale_parameter_on_a_master_that_stays_up_is_not_used(self):
         """Issue 27: after `rosrun robot_ai cartpole_search _policy:=<a file since deleted>` on a roscore that stays
@@ -248,9 +258,7 @@ class TestLaunch(unittest.TestCase):
             core.wait(30)
 
     def test_ros_home_moves_every_artifact(self):
-        ros_home = os.path.abspath(os.path.join(ARTIFACTS, 'ros_home'))
-        shutil.rmtree(ros_home, ignore_errors=True)
-        _, text = run_to_end([], dict(os.environ, ROS_HOME=ros_home))
+        _, text, ros_home = default_demo()
         self.assertIn('verdict: OK', text, text[-3000:])
         # the search's and the Q-learning agent's plot and video, all under $ROS_HOME/robot_ai
         files = sorted(os.listdir(os.path.join(ros_home, 'robot_ai')))
@@ -266,8 +274,9 @@ class TestLaunch(unittest.TestCase):
         for launch_file, wait in (('cartpole_search.launch', 6), ('forward_kinematics.launch', 6),
                                   ('cartpole_search.launch', 0.5), ('cartpole_q_learning.launch', 1.0),
                                   ('demo.launch', 2), ('demo.launch', 4)):
-            proc = launch(['output_dir:=' + os.path.join(ARTIFACTS, 'ctrl_c')] if launch_file != 'forward_kinematics.launch'
-                          else [], launch_file=launch_file)
+            fk_only = launch_file == 'forward_kinematics.launch'
+            args = [] if fk_only else ['output_dir:=' + os.path.join(ARTIFACTS, 'ctrl_c')]
+            proc = launch(args, launch_file=launch_file)
             os.set_blocking(proc.stdout.fileno(), False)
             early, deadline = b'', time.time() + 120
             while b'started with pid' not in early.split(b'started core service')[-1] and time.time() < deadline:
@@ -299,8 +308,8 @@ class TestLaunch(unittest.TestCase):
         port = free_port()
         env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{port}')
         log = os.path.join(ARTIFACTS, 'guard.log')
-        shell = subprocess.Popen(['bash', '-o', 'pipefail', '-c', f'python -m robot_ai.launch_guard roslaunch -p {port} '
-                                  f'robot_ai forward_kinematics.launch 2>&1 | tee {log}'], env=env,
+        shell = subprocess.Popen(['bash', '-o', 'pipefail', '-c', f'python -m robot_ai.launch_guard roslaunch -p '
+                                  f'{port} robot_ai forward_kinematics.launch 2>&1 | tee {log}'], env=env,
                                  stdout=subprocess.DEVNULL, preexec_fn=os.setsid)
         try:
             deadline = time.time() + 60
@@ -336,8 +345,9 @@ class TestLaunch(unittest.TestCase):
             while subprocess.run(['rosservice', 'info', '/cartpole_q_learning/train'], env=proc.env,
                                  capture_output=True).returncode != 0 and time.time() < deadline:
                 time.sleep(0.5)
-            call = subprocess.Popen(['rosservice', 'call', '/cartpole_q_learning/train', '{learners: 8, episodes: 4000}'],
-                                    env=proc.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+            call = subprocess.Popen(['rosservice', 'call', '/cartpole_q_learning/train',
+                                     '{learners: 8, episodes: 4000}'], env=proc.env, stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT)
             time.sleep(4.0)
             self.assertIsNone(call.poll(), 'the training ended before the Ctrl-C')
             t = time.time()

@@ -1,12 +1,14 @@
-"""robot_ai.candidates and robot_ai.urdf_compat: students' files as they wrote them (issue 26), without a roscore."""
+"""robot_ai.grading.candidates and robot_ai.urdf_compat: students' files as they wrote them (issue 26), without a
+roscore."""
 import os
 import sys
 
 import pytest
 
 from fk_helpers import robot_path
-from robot_ai import candidates, urdf_compat
-from robot_ai.candidates import Result, command, find_node, is_python, syntax_verdict
+from robot_ai import urdf_compat
+from robot_ai.grading import candidates
+from robot_ai.grading.candidates import Result, command, find_node, is_python, syntax_verdict
 
 HERE = os.path.dirname(os.path.realpath(__file__))
 COURSE_PY2 = os.path.join(HERE, '..', 'course_fk_py2.py')
@@ -74,8 +76,8 @@ def test_the_node_of_a_student_folder(tmp_path):
 def test_a_verdict_as_a_csv_row():
     out = 'check_fk: ...\nscore: 5/7 links, 18/20 configurations\n(graded in 3.0 s)\nFAIL: forearm, rotation off\n'
     r = Result.of('alice', out, 3.25, ['base', 'shoulder', 'forearm', 'tool'])
-    assert (r.verdict, r.score, r.first_wrong_link) == ('FAIL: forearm, rotation off', '5/7 links, 18/20 configurations',
-                                                       'forearm')
+    assert (r.verdict, r.score, r.first_wrong_link) == ('FAIL: forearm, rotation off',
+                                                       '5/7 links, 18/20 configurations', 'forearm')
     assert r.line() == 'alice: FAIL: forearm, rotation off [5/7 links, 18/20 configurations] (3.2 s)'
     assert Result.of('bob', 'PASS\n', 1.0, ['base']).first_wrong_link == ''
     assert Result.of('carol', '', 0.0, []).verdict == 'no verdict'
@@ -90,7 +92,8 @@ def test_from_parameter_server_has_ros_1s_meaning(monkeypatch):
     with open(os.path.join(HERE, '..', 'urdf', 'mimic_gripper.urdf')) as f:
         xml = f.read()
     params = {'/a/robot_description': xml, '/other': xml.replace('mimic_gripper', 'other')}
-    monkeypatch.setattr(rospy, 'search_param', lambda key: '/a/robot_description' if key == 'robot_description' else None)
+    monkeypatch.setattr(rospy, 'search_param',
+                        lambda key: '/a/robot_description' if key == 'robot_description' else None)
     monkeypatch.setattr(rospy, 'get_param', lambda key: params[key])
     assert URDF.from_parameter_server().name == 'mimic_gripper'
     assert URDF.from_parameter_server(key='/other').name == 'other'

@@ -9,7 +9,8 @@ import pytest
 
 
 def run(args, tmp_path, **env):
-    clean = {k: v for k, v in os.environ.items() if not k.startswith('ROS') and k not in ('PYTHONPATH', 'CMAKE_PREFIX_PATH')}
+    clean = {k: v for k, v in os.environ.items()
+             if not k.startswith('ROS') and k not in ('PYTHONPATH', 'CMAKE_PREFIX_PATH')}
     clean.update(env)
     return subprocess.run([sys.executable, '-m', 'robot_ai.cartpole'] + args, cwd=str(tmp_path), env=clean,
                           capture_output=True, text=True, timeout=300)
@@ -52,7 +53,8 @@ def path_of(proc, label):
     return [l.split()[-1] for l in proc.stdout.splitlines() if l.split() and l.split()[0] == label][0]
 
 
-@pytest.mark.parametrize('args, message', [(['random-search', '--iterations', '-5'], '--iterations: must be 1 to 100000, got -5'),
+@pytest.mark.parametrize('args, message', [(['random-search', '--iterations', '-5'],
+                                            '--iterations: must be 1 to 100000, got -5'),
                                            (['random-search', '--env-id', 'x'], 'invalid choice')])
 def test_bad_options_say_what_is_allowed(tmp_path, args, message):
     proc = run(args, tmp_path)

@@ -1,4 +1,4 @@
-"""robot_ai.fk_grading: configurations within limits, the comparison frame, errors, the report and verdict."""
+"""robot_ai.grading.fk: configurations within limits, the comparison frame, errors, the report and verdict."""
 import math
 import os
 
@@ -6,7 +6,7 @@ import numpy as np
 from tf import transformations as tft
 
 from fk_helpers import robot_path
-from robot_ai.fk_grading import Grade, comparison_frame, configurations, rotation_error
+from robot_ai.grading.fk import Grade, comparison_frame, configurations, rotation_error
 from robot_ai.kinematics import KinematicTree
 
 TILTED = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', 'urdf', 'tilted_axis_arm.urdf')

@@ -1,8 +1,8 @@
 """robot_ai.policies.onnx without ROS: ONNX models built with onnx.helper act exactly as the numpy policies they encode
 (the course's linear CartPole policy, in both of the shapes stable-baselines3 exports; the reach P-controller and a
 tanh layer), through policy_kinds.load, policy_files.load and both command lines; the env comes from the metadata or
-the caller; a reach model is refused for another robot, tip or control; and every file that is not a usable policy is refused
-in one line before onnxruntime runs it (external data, foreign operators, local functions, wrong shapes, NaN
+the caller; a reach model is refused for another robot, tip or control; and every file that is not a usable policy is
+refused in one line before onnxruntime runs it (external data, foreign operators, local functions, wrong shapes, NaN
 actions, sizes, FIFOs)."""
 import json
 import os
@@ -118,7 +118,8 @@ def test_a_reach_model_is_refused_for_another_robot_tip_or_control(tmp_path):
                                           "\\(batch, 3\\)"):
         policy_files.load(four)
     bare = onnx_models.save(onnx_models.linear_clip(w), str(tmp_path / 'bare.onnx'))
-    policy, loaded, note = policy_files.load(bare)      # no metadata: Reach-v0 as gymnasium.make makes it, the package's UR5
+    # no metadata: Reach-v0 as gymnasium.make makes it, the package's UR5
+    policy, loaded, note = policy_files.load(bare)
     assert loaded.arm.joints == setup.arm.joints and loaded.control == 'ee' and 'names no robot' in note
     policy, loaded, note = policy_files.load(bare, model=PACKAGE_UR5)
     assert loaded.control == 'ee' and 'names no robot' in note
@@ -172,12 +173,14 @@ def _nan():
     w = np.zeros((4, 2), np.float32)
     return onnx_models.model(nodes, [onnx_models.tensor('obs', TensorProto.FLOAT, ['batch', 4])],
                              [onnx_models.tensor('scores', TensorProto.FLOAT, ['batch', 2])],
-                             [numpy_helper.from_array(w, 'W'), numpy_helper.from_array(np.zeros(2, np.float32), 'zero')],
+                             [numpy_helper.from_array(w, 'W'),
+                              numpy_helper.from_array(np.zeros(2, np.float32), 'zero')],
                              {'env_id': 'CartPole-v1'})
 
 
 def _out_of_range():
-    nodes = [helper.make_node('MatMul', ['obs', 'W'], ['s']), helper.make_node('ArgMax', ['s'], ['a'], axis=1, keepdims=0),
+    nodes = [helper.make_node('MatMul', ['obs', 'W'], ['s']),
+             helper.make_node('ArgMax', ['s'], ['a'], axis=1, keepdims=0),
              helper.make_node('Add', ['a', 'five'], ['action'])]
     return onnx_models.model(nodes, [onnx_models.tensor('obs', TensorProto.FLOAT, ['batch', 4])],
                              [onnx_models.tensor('action', TensorProto.INT64, ['batch'])],
@@ -207,10 +210,11 @@ REFUSED = {
     'a foreign operator domain': (_custom_domain, 'outside the standard domains: com.evil'),
     'a local function': (_local_function, 'defines local functions \\(Shadow\\)'),
     'two inputs': (_two_inputs, 'has 2 inputs \\(obs, extra\\); one is wanted'),
-    'five observations': (lambda: _shape(['batch', 5], ['batch', 3]), "takes FLOAT \\(batch, 5\\) as 'obs'; the env's "
-                                                                      "flattened observation is float32 \\(batch, 4\\)"),
-    'three scores': (lambda: _shape(['batch', 4], ['batch', 3]), "first output 'scores' is FLOAT \\(batch, 3\\); the env "
-                                                                 "takes an integer action"),
+    'five observations': (lambda: _shape(['batch', 5], ['batch', 3]),
+                          "takes FLOAT \\(batch, 5\\) as 'obs'; the env's flattened observation is float32 "
+                          "\\(batch, 4\\)"),
+    'three scores': (lambda: _shape(['batch', 4], ['batch', 3]),
+                     "first output 'scores' is FLOAT \\(batch, 3\\); the env takes an integer action"),
     'NaN actions': (_nan, 'answers NaN or infinite actions \\(on 16 of 16 trial observations\\)'),
     'actions out of range': (_out_of_range, 'answers actions outside 0 to 1: \\[5\\]'),
     'metadata that is not JSON': (_bad_metadata, 'metadata robot_ai_env is not JSON'),
@@ -247,7 +251,8 @@ def test_other_envs_are_made_to_learn_their_spaces_and_unknown_ones_are_one_line
 def test_sizes_directories_and_fifos_are_refused_without_reading_or_waiting(tmp_path, monkeypatch):
     path = onnx_models.save(onnx_models.cartpole_scores(WEIGHTS), str(tmp_path / 'big.onnx'))
     monkeypatch.setattr(onnx_policy, 'MAX_BYTES', 100)
-    with pytest.raises(PolicyError, match=r'big.onnx is [\d,]+ bytes: too large for an ONNX file \(at most 100 bytes\)'):
+    with pytest.raises(PolicyError,
+                       match=r'big.onnx is [\d,]+ bytes: too large for an ONNX file \(at most 100 bytes\)'):
         policy_kinds.load(path)
     monkeypatch.undo()
     with pytest.raises(PolicyError, match='no ONNX file at'):

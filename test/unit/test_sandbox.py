@@ -1,5 +1,5 @@
-"""robot_ai.sandbox: escaping, the copy of a candidate's folder, and what a sandboxed process sees (as root, with
-bubblewrap and util-linux, as make test runs). No rospy."""
+"""robot_ai.grading.sandbox: escaping, the copy of a candidate's folder, and what a sandboxed process sees (as root,
+with bubblewrap and util-linux, as make test runs). No rospy."""
 from __future__ import annotations
 
 import os
@@ -10,7 +10,7 @@ import tempfile
 
 import pytest
 
-from robot_ai import sandbox
+from robot_ai.grading import sandbox
 
 
 def test_printable_keeps_every_verdict_on_one_line():

@@ -11,4 +11,5 @@ From the package's venv, with nothing sourced::
     python -m robot_ai.cartpole random-search --iterations 100 --episodes 100 --seed 0
     python -m robot_ai.cartpole q-learning --episodes 500 --seed 0 --learners 8
 """
-from robot_ai.cartpole import policy_kinds  # noqa: E402,F401  registers the linear and q_learning kinds and the CartPoles
+# registers the linear and q_learning kinds and the CartPoles as envs a policy acts in
+from robot_ai.cartpole import policy_kinds  # noqa: E402,F401

@@ -104,7 +104,8 @@ def run_random_search(a, parser) -> int:
 def ars_parser(sub) -> None:
     d = linear_search.ARS_SETTINGS
     p = sub.add_parser('ars', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-                       help='Augmented Random Search of the course\'s linear policy, beside the course\'s random search',
+                       help='Augmented Random Search of the course\'s linear policy, beside the course\'s random '
+                            'search',
                        description='ARS (Mania, Guy and Recht 2018, V1): the course\'s random search grown into a '
                        'walk: perturb the 4 weights along random directions, step toward the better ones. Prints its '
                        'figures beside the course\'s random search (100 x 100) from the same seed: which needs fewer '
@@ -144,13 +145,14 @@ def run_ars(a, parser) -> int:
     search_episodes, search_steps = linear_search.episodes_used(search)
     print(f'weights           {np.array2string(weights, precision=4)}')
     print(f'ARS               average {final.mean():.2f} over {counted(a.final_episodes, "episode")} after '
-          f'{len(result.history)} iterations: {ars_episodes:,} episodes, {result.steps:,} steps, {result.elapsed:.2f} s')
+          f'{len(result.history)} iterations: {ars_episodes:,} episodes, {result.steps:,} steps, '
+          f'{result.elapsed:.2f} s')
     print(f'random search     average {search.final_avg_length:.2f} over {counted(a.final_episodes, "episode")} '
           f'(the course\'s, {search.iterations} x {search.episodes}): {search_episodes:,} episodes, '
           f'{search_steps:,} steps, {search.elapsed:.2f} s')
     fewer = 'ARS' if ars_episodes < search_episodes else 'the random search'
-    print(f'fewer episodes    {fewer}: {min(ars_episodes, search_episodes):,} against '
-          f'{max(ars_episodes, search_episodes):,} ({max(ars_episodes, search_episodes) / max(1, min(ars_episodes, search_episodes)):.0f} times fewer)')
+    least, most = min(ars_episodes, search_episodes), max(ars_episodes, search_episodes)
+    print(f'fewer episodes    {fewer}: {least:,} against {most:,} ({most / max(1, least):.0f} times fewer)')
     stem = artifacts.artifact_stem(folder, 'ars', a.env_id, a.seed)
     figures = dict(final_avg_length=float(final.mean()), training_steps=int(result.steps), episodes=ars_episodes,
                    iterations=len(result.history))

@@ -38,7 +38,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from robot_ai.envs.link import DEFAULT_TIMEOUT, RosEnvError, claim, ensure_node, lease, new_token, release, resolve
-from robot_ai.nodes.lease import node_alive
+from robot_ai.lease import node_alive
 from robot_ai.srv import SetCartPoleState
 
 POLL = 0.05                  # s: how often a wait looks at what no message announces (connections)

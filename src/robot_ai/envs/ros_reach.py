@@ -303,7 +303,8 @@ class ArmLink:
         for parent, child, moving in self.chain:
             found = frames.get(child) if moving else self.static.get(child)
             if found is None or found[0] != parent:
-                raise self._fail(f'no transform {parent} -> {child} on {self.tf_topic if moving else self.static_topic}')
+                topic = self.tf_topic if moving else self.static_topic
+                raise self._fail(f'no transform {parent} -> {child} on {topic}')
             t = found[1]
             r = _rotate(q, t[:3])
             p = (p[0] + r[0], p[1] + r[1], p[2] + r[2])

@@ -40,7 +40,7 @@ import rospy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from robot_ai.nodes.lease import Lease, caller_of
+from robot_ai.lease import Lease, caller_of
 from robot_ai.nodes.params import bool_param, number_param, publish, quiet_on_shutdown
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach.arm import joint_limits, joint_velocity

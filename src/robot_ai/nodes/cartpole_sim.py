@@ -62,7 +62,7 @@ from std_srvs.srv import Trigger, TriggerResponse
 
 from robot_ai.cartpole.dynamics import CartPoleDynamics, rng_for, start_states
 from robot_ai.msg import CartPoleEpisode
-from robot_ai.nodes.lease import Lease, caller_of
+from robot_ai.lease import Lease, caller_of
 from robot_ai.nodes.params import bool_param, int_param, number_param, publish, quiet_on_shutdown
 from robot_ai.srv import Lease as LeaseService
 from robot_ai.srv import PushPole, PushPoleResponse, SetCartPoleState, SetCartPoleStateResponse

@@ -14,24 +14,24 @@ file, and its last lines are quoted when it dies or publishes nothing. It prints
 and exits 0 on PASS, 1 on FAIL, 2 on bad arguments.
 """
 import argparse
-import collections
 import math
 import os
-import shutil
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 
 import numpy as np
 
-from robot_ai import candidates, sandbox
-from robot_ai.child_process import PR_SET_CHILD_SUBREAPER, descendants, prctl, reap
-from robot_ai.fk_grading import Grade, comparison_frame, configurations
-from robot_ai.kinematics import KinematicTree, URDFError, prefix_frame
+from robot_ai.child_process import PR_SET_CHILD_SUBREAPER, prctl
+from robot_ai.grading import candidates, sandbox
+from robot_ai.grading.class_run import grade_class, reexec_in_namespaces, sandboxed
+from robot_ai.grading.fk import Grade, comparison_frame, configurations
+from robot_ai.grading.processes import Output, end_descendants, log_path, start_master, stop, wait_for_master
+from robot_ai.grading.report import (BUDGET_BASE, BUDGET_PER_CONFIGURATION, MAX_NAME, RESULT_BYTES, budget_of,
+                                     exit_status, read_model, result_of, write_junit)
+from robot_ai.kinematics import prefix_frame
 
 RESEND = 0.2            # seconds without a tf message after which the configuration is sent again
 STABLE = 3              # fresh tf messages in a row with the same poses: the candidate's answer
@@ -44,115 +44,6 @@ SUBSCRIBE = 10.0        # seconds from then to its joint_states subscription (it
 MAX_CONFIGURATIONS = 10000
 MAX_TIMEOUT = 600.0     # seconds
 MAX_FRAMES = 10000      # frame names a candidate's tree may introduce before the rest are only counted
-MAX_NAME = 120          # characters of a frame name kept for the report
-TAIL_LINES = 20         # lines of the candidate's output quoted in a verdict
-TAIL_CHARS = 300        # characters kept of each of them
-LOG_BYTES = 10 * 1024 * 1024   # the candidate's log file stops growing here (its output is still drained)
-CHUNK = 64 * 1024              # bytes of the candidate's output read at a time
-BUDGET_BASE = 120.0            # seconds: the default --budget is this plus BUDGET_PER_CONFIGURATION per configuration
-BUDGET_PER_CONFIGURATION = 3.0
-RESULT_BYTES = 64 * 1024       # a judge's result (JSON) is at most this
-REPORT_TAIL = 64 * 1024        # bytes of a judge's report a class run keeps in memory
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(('127.0.0.1', 0))
-        return s.getsockname()[1]
-
-
-def start_master():
-    """The roscore process this starts, or None when a master already runs (ROS_MASTER_URI)."""
-    import rosgraph
-    if rosgraph.is_master_online():
-        return None
-    port = free_port()
-    os.environ['ROS_MASTER_URI'] = f'http://127.0.0.1:{port}'
-    return subprocess.Popen(['roscore', '-p', str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            preexec_fn=os.setsid)
-
-
-def wait_for_master(core) -> None:
-    import rosgraph
-    deadline = time.time() + 30
-    while core is not None and not rosgraph.is_master_online():
-        if time.time() > deadline or core.poll() is not None:
-            raise RuntimeError(f'could not start a roscore at {os.environ["ROS_MASTER_URI"]}')
-        time.sleep(0.2)
-
-
-def stop(proc, timeout: float = 10) -> None:
-    """SIGINT to the process's group (it was started in a session of its own), then SIGKILL to what is left of the
-    group: a child that ignores SIGINT, or outlives its parent, does not survive."""
-    if proc is None:
-        return
-    if proc.poll() is None:
-        _signal_group(proc.pid, signal.SIGINT)
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            pass
-    _signal_group(proc.pid, signal.SIGKILL)
-    proc.wait()
-
-
-def _signal_group(pgid: int, sig: int) -> None:
-    try:
-        os.killpg(pgid, sig)
-    except (ProcessLookupError, PermissionError):
-        pass
-
-
-class Output:
-    """A process's stdout and stderr, drained by a thread into a log file (bounded), its last lines kept."""
-
-    def __init__(self, stream, path: str):
-        self.path = path
-        self.tail = collections.deque(maxlen=TAIL_LINES)
-        self.thread = threading.Thread(target=self._drain, args=(stream,), daemon=True)
-        self.thread.start()
-
-    def _drain(self, stream):
-        """Read the output in pieces of at most CHUNK bytes, whatever it writes (1 GiB without a newline
-        included): the log is cut at LOG_BYTES, a line kept for the tail at TAIL_CHARS."""
-        written, line = 0, b''
-        try:
-            log = open(self.path, 'wb')
-        except OSError:
-            log, self.path = None, ''
-        fd = stream.fileno()
-        while True:
-            try:
-                chunk = os.read(fd, CHUNK)
-            except OSError:
-                break
-            if not chunk:
-                break
-            if log is not None and written < LOG_BYTES:
-                log.write(chunk[:LOG_BYTES - written])
-                written += len(chunk)
-            *complete, rest = chunk.split(b'\n')
-            for piece in complete:
-                self._keep((line + piece)[:4 * TAIL_CHARS])
-                line = b''
-            line = (line + rest)[:4 * TAIL_CHARS]
-        if line:
-            self._keep(line)
-        if log is not None:
-            log.close()
-
-    def _keep(self, line: bytes) -> None:
-        text = line.decode(errors='replace').rstrip()
-        if text:    # escaped: a carriage return or an escape sequence in it cannot rewrite a line of the report
-            self.tail.append(sandbox.printable(text, TAIL_CHARS))
-
-    def lines(self) -> list[str]:
-        """The last lines of its output, indented, and where the whole output is; [] if there was none."""
-        self.thread.join(1.0)
-        if not self.tail:
-            return []
-        where = [f'  (its whole output: {self.path})'] if self.path else []
-        return ['its last output:'] + ['  | ' + l for l in self.tail] + where
 
 
 class TfTree:
@@ -286,40 +177,6 @@ def parse_args(argv):
     return a
 
 
-def read_model(path: str, xacro_args: str = '') -> tuple[str, KinematicTree]:
-    """(the URDF text, its tree); a xacro file expanded first (robot_ai.urdf_source, with xacro_args); ValueError
-    with one line for anything that is not a URDF this can grade."""
-    from robot_ai.urdf_source import XacroError, expand, parse_mappings
-    try:
-        xml = expand(path, parse_mappings(xacro_args.split()))
-    except XacroError as e:
-        message = str(e)
-        raise ValueError('cannot read the model ' + message[len('cannot read '):] if message.startswith('cannot read ')
-                         else message)
-    xacro = (f'{path} looks like unexpanded xacro without the xacro namespace: expand it first (rosrun robot_ai '
-             f'xacro {path} > robot.urdf) and grade the URDF')
-    try:
-        tree = KinematicTree.from_xml_string(xml)
-    except URDFError as e:
-        if '${' in xml or '<xacro:' in xml:     # ${half_pi} in an rpy, a macro call where a link should be
-            raise ValueError(f'{xacro} ({e})')
-        raise ValueError(f'cannot read the model {path}: {e}')
-    except (Exception, RecursionError) as e:    # whatever a hostile file does to the parser: one line
-        raise ValueError(f'cannot read the model {path}: {type(e).__name__}: {" ".join(str(e).split())[:300]}')
-    # an expanded URDF may keep xacro calls and ${...} in blocks nobody reads (the PR2's, the course's KUKA), but
-    # no definitions: with them, links inside macros would load as a robot of one link
-    if any(d in xml for d in ('<xacro:macro', '<xacro:property', '<xacro:include', '<xacro:arg')):
-        raise ValueError(f'{xacro}: it defines xacro macros or properties')
-    return xml, tree
-
-
-def log_path(candidate: str) -> str:
-    """Where the candidate's output goes: $ROS_HOME/log/check_fk_<candidate>_<pid>.log."""
-    folder = os.path.join(os.environ.get('ROS_HOME') or os.path.expanduser('~/.ros'), 'log')
-    os.makedirs(folder, exist_ok=True)
-    return os.path.join(folder, f'check_fk_{candidate.replace("/", "_")}_{os.getpid()}.log')
-
-
 def candidate_command(candidate: str) -> tuple[list[str], str | None]:
     """(the command that starts the candidate, its file or None): a file as it is, PACKAGE/TYPE found as rosrun
     finds it; a Python file runs with this Python (a course node's `#!/usr/bin/env python` names no command on
@@ -339,19 +196,6 @@ def candidate_command(candidate: str) -> tuple[list[str], str | None]:
     return candidates.command(path, sys.executable), path
 
 
-def exit_status(verdict: str, expect: str) -> int:
-    """0 when the verdict is the one expected (--expect pass: PASS; --expect fail: a FAIL), else 1."""
-    return 0 if verdict.startswith('PASS') == (expect == 'pass') else 1
-
-
-def result_of(lines: list[str], tree, status: int, seconds: float) -> dict:
-    """What a judge hands its class run (JSON on --result-fd): the verdict line, the score, the first wrong link,
-    the exit status; from this process's own report, never from text the candidate wrote."""
-    r = candidates.Result.of('', '\n'.join(lines), seconds, tree.links)
-    return dict(verdict=r.verdict, score=r.score, first_wrong_link=r.first_wrong_link, status=status,
-                seconds=round(seconds, 3))
-
-
 def finish(a, tree, lines: list[str], seconds: float) -> int:
     """Print the report (every line escaped: one line each, whatever the candidate's names and output held), write
     rostest's results file and a judge's result; the exit status."""
@@ -369,55 +213,6 @@ def finish(a, tree, lines: list[str], seconds: float) -> int:
         except OSError:
             pass
     return status
-
-
-def sandboxed(a) -> bool:
-    return a.judge_uid >= 0
-
-
-def reexec_in_namespaces(a, argv) -> int:
-    """--candidate with --sandbox: this check again as a judge in a network, PID and mount namespace of its own
-    (its own master, the candidate as a user of its own, a copy of its folder); its exit status."""
-    uid = sandbox.uid_for(os.getpid(), 0)
-    work = tempfile.mkdtemp(prefix='check_fk_sandbox_')
-    candidate, folder = a.candidate, ''
-    try:
-        if os.path.isfile(a.candidate):
-            source = os.path.abspath(a.candidate)
-            folder = os.path.join(work, 'student')
-            try:
-                sandbox.copy_folder(os.path.dirname(source), folder, uid)
-            except (sandbox.SandboxError, OSError) as e:   # ~/solution.py: its folder is a home, not a submission
-                shutil.rmtree(folder, ignore_errors=True)
-                alone = os.path.join(work, 'alone')
-                os.mkdir(alone)
-                shutil.copy2(source, alone)
-                sandbox.copy_folder(alone, folder, uid)
-                print(f'check_fk: the sandbox holds {sandbox.printable(os.path.basename(source))} alone: its folder '
-                      f'cannot be copied ({sandbox.printable(str(e))})', flush=True)
-            candidate = os.path.join(folder, os.path.basename(source))
-        words = argv + ['--candidate', candidate]   # the last --candidate is argparse's: the copy
-        cmd = sandbox.judge_prefix() + [sys.executable, '-c', JUDGE] + words + [
-            '--judge-uid', str(uid), '--judge-folder', folder, '--judge-hide', work, '--judge-shown', a.candidate]
-        proc = subprocess.Popen(cmd, env=judge_env())
-        try:
-            return proc.wait()
-        except BaseException:
-            proc.kill()
-            proc.wait()
-            raise
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
-
-
-JUDGE = 'import sys; from robot_ai.nodes.check_fk import main; sys.exit(main(sys.argv[1:]))'
-
-
-def judge_env() -> dict:
-    """A judge's environment: ROS on loopback (its network namespace has nothing else)."""
-    env = {k: v for k, v in os.environ.items() if k not in ('ROS_IP', 'ROS_HOSTNAME', 'ROS_MASTER_URI')}
-    env.update(ROS_HOSTNAME='127.0.0.1', ROS_MASTER_URI='http://127.0.0.1:11311')
-    return env
 
 
 def main(argv=None) -> int:
@@ -516,252 +311,6 @@ def main(argv=None) -> int:
         end_descendants()
 
 
-class Reader:
-    """A judge's stdout, drained by a thread: its last REPORT_TAIL bytes kept, the whole (up to LOG_BYTES) written to
-    a report file."""
-
-    def __init__(self, stream, path: str):
-        self.tail = b''
-        self.path = path
-        self.thread = threading.Thread(target=self._drain, args=(stream,), daemon=True)
-        self.thread.start()
-
-    def _drain(self, stream) -> None:
-        written = 0
-        try:
-            report = open(self.path, 'wb')
-        except OSError:
-            report, self.path = None, ''
-        while True:
-            try:
-                chunk = os.read(stream.fileno(), CHUNK)
-            except OSError:
-                break
-            if not chunk:
-                break
-            self.tail = (self.tail + chunk)[-REPORT_TAIL:]
-            if report is not None and written < LOG_BYTES:
-                report.write(chunk[:LOG_BYTES - written])
-                written += len(chunk)
-        if report is not None:
-            report.close()
-
-    def last_lines(self, n: int = 3) -> str:
-        self.thread.join(5.0)
-        lines = self.tail.decode(errors='replace').strip().splitlines()[-n:]
-        return ' | '.join(sandbox.printable(line, 200) for line in lines)
-
-
-def read_result(fd: int) -> dict | None:
-    """A judge's result from the read end of its pipe (at most RESULT_BYTES), None when there is none or it is not
-    the JSON a judge writes."""
-    import json
-    data = b''
-    try:
-        while len(data) <= RESULT_BYTES:
-            chunk = os.read(fd, RESULT_BYTES)
-            if not chunk:
-                break
-            data += chunk
-    except OSError:
-        return None
-    finally:
-        os.close(fd)
-    try:
-        result = json.loads(data.decode())
-    except ValueError:
-        return None
-    if not isinstance(result, dict) or not all(isinstance(result.get(k), str) for k in
-                                               ('verdict', 'score', 'first_wrong_link')):
-        return None
-    return result
-
-
-def grade_class(a, tree, argv) -> int:
-    """--candidates DIR: the node in each student folder of DIR graded by a judge of its own (a check_fk in a network,
-    PID and mount namespace of its own, its own roscore; the student's node in a sandbox: see robot_ai.sandbox),
-    --jobs at a time; one line per student as each ends, then the CSV. A student's verdict is the judge's result and
-    exit status, which the student's code cannot write; a crash, a hang or an escape attempt is that student's
-    verdict and the others go on. A signal stops the run: the CSV holds the students graded, and the rest are named.
-    0 once every student has a line."""
-    import concurrent.futures
-    import csv
-    import shutil
-    folder = os.path.abspath(a.candidates)
-    students = sorted(d for d in os.listdir(folder) if os.path.isdir(os.path.join(folder, d)) and d[0] != '.')
-    if not students:
-        print(f'check_fk: {folder} has no student folders', file=sys.stderr)
-        return 2
-    jobs = a.jobs or os.cpu_count() or 1
-    budget = budget_of(a)
-    limit = budget + 60.0             # a judge that has not ended by then is killed with its namespaces
-    path = a.csv or f'check_fk_{os.path.basename(folder)}.csv'
-    reports = os.path.splitext(os.path.abspath(path))[0] + '_reports'
-    os.makedirs(reports, exist_ok=True)
-    for old in os.listdir(reports):        # an earlier run's reports: this run's numbering may differ
-        if old[:3].isdigit() and old[3:4] == '_' and old.endswith('.txt'):
-            os.remove(os.path.join(reports, old))
-    work = tempfile.mkdtemp(prefix='check_fk_class_')
-    os.chmod(work, 0o711)
-    running, lock = {}, threading.Lock()
-    on_model = f'{a.model}' + (f' with xacro arguments "{a.xacro_args}"' if a.xacro_args else '')
-    limits = sandbox.Limits(cpu_seconds=int(budget) + 60)
-    print(f'check_fk: {len(students)} students in {sandbox.printable(folder)} on {on_model} ({len(tree.links)} '
-          f'links), {a.configurations} configurations (seed {a.seed}, tolerance {a.tolerance:g}, timeout '
-          f'{a.timeout:g} s), at most {budget:g} s each, {jobs} at a time')
-    if a.no_sandbox:
-        print('check_fk: NOT sandboxed (--no-sandbox): every student runs as you, with your files and network')
-    else:
-        print(f'check_fk: each student in a sandbox: a user of its own, a copy of its folder, a network of its own, '
-              f'{limits.describe()}')
-    print(f'check_fk: reports in {reports}', flush=True)
-    options = ['--model', a.model, '--xacro-args', a.xacro_args, '--configurations', str(a.configurations),
-               '--seed', str(a.seed), '--tolerance', repr(a.tolerance), '--timeout', repr(a.timeout),
-               '--budget', repr(budget), '--expect', 'pass']
-    stopping_class = []
-
-    def one(index: int, student: str) -> candidates.Result:
-        shown = sandbox.printable(student)
-        original = os.path.join(folder, student)
-        node = candidates.find_node(original)
-        if node is None:
-            return candidates.Result(shown, 'FAIL: no node found (no Python file that calls rospy.init_node)',
-                                     '', '', 0.0)
-        t = time.time()
-        cmd, env, copy = [sys.executable, '-c', JUDGE] + options, None, ''
-        if a.no_sandbox:
-            env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{free_port()}')   # none runs there: its own
-            cmd += ['--candidate', node]
-        else:
-            uid = sandbox.uid_for(os.getpid(), index)
-            copy = os.path.join(work, str(index))
-            try:
-                sandbox.copy_folder(original, copy, uid)
-            except (sandbox.SandboxError, OSError) as e:
-                return candidates.Result(shown, f'FAIL: its folder cannot be graded: {sandbox.printable(str(e))}',
-                                         '', '', 0.0)
-            cmd = sandbox.judge_prefix() + cmd + [
-                '--candidate', os.path.join(copy, os.path.relpath(node, original)), '--judge-uid', str(uid),
-                '--judge-folder', copy, '--judge-hide', folder, '--judge-hide', reports, '--judge-hide', work]
-            env = judge_env()
-        read_end, write_end = os.pipe()
-        try:
-            with lock:
-                if stopping_class:
-                    return None
-                proc = subprocess.Popen(cmd + ['--result-fd', str(write_end)], env=env, stdout=subprocess.PIPE,
-                                        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True,
-                                        pass_fds=(write_end,))
-                running[student] = proc
-        finally:
-            os.close(write_end)
-        reader = Reader(proc.stdout, os.path.join(reports, f'{index:03d}_{_file_name(student)}.txt'))
-        try:
-            proc.wait(timeout=limit)
-            timed_out = False
-        except subprocess.TimeoutExpired:
-            _signal_group(proc.pid, signal.SIGKILL)       # unshare, and with it the judge's namespaces
-            proc.wait()
-            timed_out = True
-        finally:
-            with lock:
-                running.pop(student, None)
-        result = read_result(read_end)
-        if copy:
-            shutil.rmtree(copy, ignore_errors=True)
-        seconds = time.time() - t
-        if stopping_class and (result is None or proc.returncode < 0):
-            return None
-        if timed_out:
-            verdict = f'FAIL: grading did not end within {limit:.0f} s (its budget and a minute): ended'
-            return candidates.Result(shown, verdict, '', '', seconds)
-        if result is None:
-            return candidates.Result(shown, f'FAIL: check_fk ended with status {proc.returncode} and no result: '
-                                     f'{reader.last_lines()}', '', '', seconds)
-        verdict = sandbox.printable(result['verdict'], 600, backslashes=False)
-        if verdict.startswith('PASS') != (proc.returncode == 0):
-            verdict = f'FAIL: check_fk said {verdict[:200]} but ended with status {proc.returncode}'
-        return candidates.Result(shown, verdict, sandbox.printable(result['score'], 100, backslashes=False),
-                                 sandbox.printable(result['first_wrong_link'], MAX_NAME, backslashes=False), seconds)
-
-    results = {}
-    pool = concurrent.futures.ThreadPoolExecutor(max_workers=jobs)
-    stopped = None
-    try:
-        futures = {pool.submit(one, i, student): student for i, student in enumerate(students)}
-        for future in concurrent.futures.as_completed(futures):
-            result = future.result()
-            if result is not None:
-                results[futures[future]] = result
-                print(result.line(), flush=True)
-    except BaseException as e:   # a signal: the students being graded are stopped, none starts, the CSV is written
-        stopped = e
-    finally:
-        with lock:
-            stopping_class.append(True)
-            left = list(running.values())
-        for proc in left:
-            _signal_group(proc.pid, signal.SIGKILL)
-        pool.shutdown(wait=True, cancel_futures=True)
-        shutil.rmtree(work, ignore_errors=True)
-        with open(path, 'w', newline='') as f:
-            w = csv.writer(f)
-            w.writerow(['student', 'verdict', 'score', 'first_wrong_link', 'seconds'])
-            for student in students:
-                r = results.get(student)
-                if r is None:
-                    w.writerow([sandbox.printable(student), 'not graded (check_fk was stopped)', '', '', ''])
-                else:
-                    w.writerow([r.student, r.verdict, r.score, r.first_wrong_link, f'{r.seconds:.1f}'])
-    passed = sum(r.verdict.startswith('PASS') for r in results.values())
-    if stopped is not None:
-        rest = [sandbox.printable(s) for s in students if s not in results]
-        print(f'check_fk: stopped: {len(results)} of {len(students)} graded ({passed} PASS); CSV: '
-              f'{os.path.abspath(path)}; not graded: {", ".join(rest)}', flush=True)
-        if isinstance(stopped, SystemExit):
-            return stopped.code if isinstance(stopped.code, int) else 1
-        raise stopped
-    print(f'{passed} of {len(students)} PASS; CSV: {os.path.abspath(path)}')
-    return 0
-
-
-def _file_name(student: str) -> str:
-    """A report file's name for a student folder's name: letters, digits, '.', '-' and '_' kept."""
-    return ''.join(c if c.isalnum() or c in '.-_' else '_' for c in student)[:80] or 'student'
-
-
-def end_descendants(keep=None) -> None:
-    """SIGKILL every process left below this one but keep (a Popen) and its own, and reap them: check_fk is a child
-    subreaper, so whatever the candidate started and left behind has become its descendant."""
-    for _ in range(100):
-        spared = set() if keep is None else {keep.pid, *descendants(keep.pid)}
-        left = [pid for pid in descendants(os.getpid()) if pid not in spared]
-        if not left:
-            return
-        for pid in left:
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-        time.sleep(0.01)
-        reap()
-
-
-def write_junit(path: str, candidate: str, lines: list, seconds: float, expect: str = 'pass') -> None:
-    """The results file rostest asks a <test> node for: one test case, failed unless the verdict is the one
-    expected (--expect: PASS, or with fail a FAIL)."""
-    from xml.sax.saxutils import escape, quoteattr
-    failed = exit_status(lines[-1], expect) != 0
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    message = lines[-1] if expect == 'pass' else f'expected a FAIL, got {lines[-1]}'
-    failure = (f'    <failure message={quoteattr(message)}>{escape(chr(10).join(lines))}</failure>\n'
-               if failed else '')
-    with open(path, 'w') as f:
-        f.write(f'<?xml version="1.0" encoding="utf-8"?>\n<testsuite name="check_fk" tests="1" errors="0" '
-                f'failures="{int(failed)}" time="{seconds:.3f}">\n  <testcase classname="check_fk" '
-                f'name={quoteattr(candidate)} time="{seconds:.3f}">\n{failure}  </testcase>\n</testsuite>\n')
-
-
 def send(pub, JointState, q: dict) -> None:
     import rospy
     msg = JointState(name=list(q), position=list(q.values()))
@@ -785,11 +334,11 @@ def settle(candidate: TfTree, frame: str, links: dict, q: dict, previous: dict |
 
     Paced by the candidate's own messages, not the clock, so that a loaded machine gives the verdict a quiet one
     does: q is sent, and sent again only once a tf message has come since and QUIET seconds passed after it (one
-    send in flight: a slow node never queues a backlog of old configurations) or RESEND seconds passed without one. The poses count once STABLE
-    fresh messages in a row left them the same, and they differ from the previous configuration's (a slow node may
-    still answer a copy of it first) unless the reference's do not change (`changes` false) or SAME_AS_BEFORE
-    messages gave them (a node that ignores the joints). Only `timeout` seconds without any tf message, or
-    MAX_MESSAGES without settling, end the wait: then the poses it has."""
+    send in flight: a slow node never queues a backlog of old configurations) or RESEND seconds passed without one.
+    The poses count once STABLE fresh messages in a row left them the same, and they differ from the previous
+    configuration's (a slow node may still answer a copy of it first) unless the reference's do not change
+    (`changes` false) or SAME_AS_BEFORE messages gave them (a node that ignores the joints). Only `timeout` seconds
+    without any tf message, or MAX_MESSAGES without settling, end the wait: then the poses it has."""
     sent = -math.inf
     answered = True                   # a tf message came after the last send
     last, stable, same_as_before, messages = {}, 0, 0, 0
@@ -832,11 +381,6 @@ def registered(node: str) -> bool:
         return node in rosnode.get_node_names()
     except rosnode.ROSNodeIOException:
         return False
-
-
-def budget_of(a) -> float:
-    """--budget, or its default for the run's configurations (0 given)."""
-    return a.budget or BUDGET_BASE + BUDGET_PER_CONFIGURATION * a.configurations
 
 
 def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState, budget_end: float = math.inf):

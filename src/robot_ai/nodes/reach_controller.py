@@ -234,8 +234,8 @@ class ReachController:
             return
         arm = self.setup.arm
         if not all(n in joints for n in arm.joints):
-            rospy.logwarn_throttle(5.0, f'joint_states does not report {", ".join(n for n in arm.joints if n not in joints)}'
-                                        f' yet')
+            missing = ', '.join(n for n in arm.joints if n not in joints)
+            rospy.logwarn_throttle(5.0, f'joint_states does not report {missing} yet')
             return
         tip = self._tip()
         if tip is None:

@@ -46,8 +46,8 @@ def main():
         app = QApplication(sys.argv)
         app.setApplicationDisplayName('Joint State Publisher')
         num_rows = joint_state_publisher.get_param('num_rows', 0)
-        gui = gui_module.JointStatePublisherGui('Node: ' + rospy.get_name(), joint_state_publisher.JointStatePublisher(),
-                                                num_rows)
+        gui = gui_module.JointStatePublisherGui('Node: ' + rospy.get_name(),
+                                                joint_state_publisher.JointStatePublisher(), num_rows)
         gui.show()
         beside_rviz(app, gui)
         gui.sliderUpdateTrigger.emit()

@@ -140,7 +140,8 @@ def _nodes(graph):
 
 
 def _dims(value_info) -> tuple[int, list]:
-    """(element type, dims: int or None for a symbolic one) of a graph input or output; (0, []) without a tensor type."""
+    """(element type, dims: int or None for a symbolic one) of a graph input or output; (0, []) without a tensor
+    type."""
     t = value_info.type
     if not t.HasField('tensor_type'):
         return 0, []

@@ -14,7 +14,8 @@ from robot_ai.reach.arm import Arm, ReachError
 from robot_ai.reach.env import ReachEnv, ReachSetup, ReachVectorEnv
 from robot_ai.reach.model import load_model
 from robot_ai.reach.task import ReachTask, goal_distance
-from robot_ai.reach import policy_files  # noqa: E402,F401  registers Reach-v0 and RosReach-v0 as envs a policy acts in
+# registers Reach-v0 and RosReach-v0 as envs a policy acts in
+from robot_ai.reach import policy_files  # noqa: E402,F401
 
 __all__ = ['Arm', 'ReachEnv', 'ReachError', 'ReachSetup', 'ReachTask', 'ReachVectorEnv', 'goal_distance', 'load_model']
 

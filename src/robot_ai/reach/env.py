@@ -98,8 +98,8 @@ class ReachSetup:
             values = np.asarray(home, dtype=float).reshape(-1)
             if values.shape != (arm.n,):
                 raise ReachError(f'home must be {arm.n} joint positions ({", ".join(arm.joints)}), got {values.size}')
-        outside = [f'{n} {v:g} not in [{lo:g}, {hi:g}]' for n, v, lo, hi in zip(arm.joints, values, arm.lower, arm.upper)
-                   if not lo <= v <= hi]
+        outside = [f'{n} {v:g} not in [{lo:g}, {hi:g}]'
+                   for n, v, lo, hi in zip(arm.joints, values, arm.lower, arm.upper) if not lo <= v <= hi]
         if outside:
             raise ReachError(f'home outside the joint limits: {"; ".join(outside)}')
         return values

@@ -101,7 +101,8 @@ def final_distance(observations: dict) -> np.ndarray:
 
 
 def train(env_kwargs: dict | None = None, settings: ars.ARSSettings | None = None, seed: int = 0, progress=None,
-          should_stop=None, target_success: float | None = None, evaluate_episodes: int = HELD_OUT_EPISODES) -> Training:
+          should_stop=None, target_success: float | None = None,
+          evaluate_episodes: int = HELD_OUT_EPISODES) -> Training:
     """ARS on the reach task of env_kwargs (ReachEnv's: model, xacro_args, tip, control, start, ...), reproducible from
     seed. progress(ars.IterationStats) after each iteration; should_stop() before each (cancel keeps the best so
     far); target_success: stop once an iteration's evaluation reaches it. settings: default_settings(the arm's).

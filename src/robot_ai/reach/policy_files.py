@@ -47,8 +47,8 @@ def save(training, path: str) -> str:
 
 def setup_of(policy, **overrides) -> ReachSetup:
     """The reach setup a policy file names (its env_kwargs), with overrides (another model file, say)."""
-    return _setup_of_kwargs(policy.metadata.get('env_kwargs', {}), {k: v for k, v in overrides.items() if v is not None},
-                            policy.metadata.get('robot', ''))
+    given = {k: v for k, v in overrides.items() if v is not None}
+    return _setup_of_kwargs(policy.metadata.get('env_kwargs', {}), given, policy.metadata.get('robot', ''))
 
 
 def target(setup: ReachSetup, env_id: str = ENV_ID, env_kwargs: dict | None = None) -> Target:

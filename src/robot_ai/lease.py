@@ -1,4 +1,4 @@
-"""A simulator's lease: one env drives it at a time (cartpole_sim, arm_sim). ROS glue.
+"""A simulator's lease: one env drives it at a time (cartpole_sim, arm_sim hold it; robot_ai.envs take it). rospy.
 
     lease = Lease('cartpole_sim')
     rospy.Service('~lease', robot_ai.srv.Lease, lease.handle)

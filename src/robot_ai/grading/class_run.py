@@ -1,0 +1,283 @@
+"""A class graded at once: each student's node judged by a check_fk of its own in a sandbox (robot_ai.grading.sandbox),
+--jobs at a time, one line per student, the CSV; and a single candidate judged the same way (--sandbox). No rospy:
+the judge is ``robot_ai.nodes.check_fk`` in a process of its own, whose result comes back through a pipe only it
+holds.
+
+    status = grade_class(args, tree, argv)        # args: check_fk's parsed options (--candidates DIR, ...)
+    status = reexec_in_namespaces(args, argv)     # --candidate FILE --sandbox
+"""
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+from robot_ai.grading import candidates, sandbox
+from robot_ai.grading.processes import CHUNK, LOG_BYTES, free_port, signal_group
+from robot_ai.grading.report import MAX_NAME, RESULT_BYTES, budget_of
+
+REPORT_TAIL = 64 * 1024        # bytes of a judge's report a class run keeps in memory
+JUDGE = 'import sys; from robot_ai.nodes.check_fk import main; sys.exit(main(sys.argv[1:]))'
+
+
+def sandboxed(a) -> bool:
+    return a.judge_uid >= 0
+
+
+def judge_env() -> dict:
+    """A judge's environment: ROS on loopback (its network namespace has nothing else)."""
+    env = {k: v for k, v in os.environ.items() if k not in ('ROS_IP', 'ROS_HOSTNAME', 'ROS_MASTER_URI')}
+    env.update(ROS_HOSTNAME='127.0.0.1', ROS_MASTER_URI='http://127.0.0.1:11311')
+    return env
+
+
+def reexec_in_namespaces(a, argv) -> int:
+    """--candidate with --sandbox: this check again as a judge in a network, PID and mount namespace of its own
+    (its own master, the candidate as a user of its own, a copy of its folder); its exit status."""
+    uid = sandbox.uid_for(os.getpid(), 0)
+    work = tempfile.mkdtemp(prefix='check_fk_sandbox_')
+    candidate, folder = a.candidate, ''
+    try:
+        if os.path.isfile(a.candidate):
+            source = os.path.abspath(a.candidate)
+            folder = os.path.join(work, 'student')
+            try:
+                sandbox.copy_folder(os.path.dirname(source), folder, uid)
+            except (sandbox.SandboxError, OSError) as e:   # ~/solution.py: its folder is a home, not a submission
+                shutil.rmtree(folder, ignore_errors=True)
+                alone = os.path.join(work, 'alone')
+                os.mkdir(alone)
+                shutil.copy2(source, alone)
+                sandbox.copy_folder(alone, folder, uid)
+                print(f'check_fk: the sandbox holds {sandbox.printable(os.path.basename(source))} alone: its folder '
+                      f'cannot be copied ({sandbox.printable(str(e))})', flush=True)
+            candidate = os.path.join(folder, os.path.basename(source))
+        words = argv + ['--candidate', candidate]   # the last --candidate is argparse's: the copy
+        cmd = sandbox.judge_prefix() + [sys.executable, '-c', JUDGE] + words + [
+            '--judge-uid', str(uid), '--judge-folder', folder, '--judge-hide', work, '--judge-shown', a.candidate]
+        proc = subprocess.Popen(cmd, env=judge_env())
+        try:
+            return proc.wait()
+        except BaseException:
+            proc.kill()
+            proc.wait()
+            raise
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+class Reader:
+    """A judge's stdout, drained by a thread: its last REPORT_TAIL bytes kept, the whole (up to LOG_BYTES) written to
+    a report file."""
+
+    def __init__(self, stream, path: str):
+        self.tail = b''
+        self.path = path
+        self.thread = threading.Thread(target=self._drain, args=(stream,), daemon=True)
+        self.thread.start()
+
+    def _drain(self, stream) -> None:
+        written = 0
+        try:
+            report = open(self.path, 'wb')
+        except OSError:
+            report, self.path = None, ''
+        while True:
+            try:
+                chunk = os.read(stream.fileno(), CHUNK)
+            except OSError:
+                break
+            if not chunk:
+                break
+            self.tail = (self.tail + chunk)[-REPORT_TAIL:]
+            if report is not None and written < LOG_BYTES:
+                report.write(chunk[:LOG_BYTES - written])
+                written += len(chunk)
+        if report is not None:
+            report.close()
+
+    def last_lines(self, n: int = 3) -> str:
+        self.thread.join(5.0)
+        lines = self.tail.decode(errors='replace').strip().splitlines()[-n:]
+        return ' | '.join(sandbox.printable(line, 200) for line in lines)
+
+
+def read_result(fd: int) -> dict | None:
+    """A judge's result from the read end of its pipe (at most RESULT_BYTES), None when there is none or it is not
+    the JSON a judge writes."""
+    import json
+    data = b''
+    try:
+        while len(data) <= RESULT_BYTES:
+            chunk = os.read(fd, RESULT_BYTES)
+            if not chunk:
+                break
+            data += chunk
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
+    try:
+        result = json.loads(data.decode())
+    except ValueError:
+        return None
+    if not isinstance(result, dict) or not all(isinstance(result.get(k), str) for k in
+                                               ('verdict', 'score', 'first_wrong_link')):
+        return None
+    return result
+
+
+def grade_class(a, tree, argv) -> int:
+    """--candidates DIR: the node in each student folder of DIR graded by a judge of its own (a check_fk in a network,
+    PID and mount namespace of its own, its own roscore; the student's node in a sandbox: see robot_ai.grading.sandbox),
+    --jobs at a time; one line per student as each ends, then the CSV. A student's verdict is the judge's result and
+    exit status, which the student's code cannot write; a crash, a hang or an escape attempt is that student's
+    verdict and the others go on. A signal stops the run: the CSV holds the students graded, and the rest are named.
+    0 once every student has a line."""
+    import concurrent.futures
+    import csv
+    import shutil
+    folder = os.path.abspath(a.candidates)
+    students = sorted(d for d in os.listdir(folder) if os.path.isdir(os.path.join(folder, d)) and d[0] != '.')
+    if not students:
+        print(f'check_fk: {folder} has no student folders', file=sys.stderr)
+        return 2
+    jobs = a.jobs or os.cpu_count() or 1
+    budget = budget_of(a)
+    limit = budget + 60.0             # a judge that has not ended by then is killed with its namespaces
+    path = a.csv or f'check_fk_{os.path.basename(folder)}.csv'
+    reports = os.path.splitext(os.path.abspath(path))[0] + '_reports'
+    os.makedirs(reports, exist_ok=True)
+    for old in os.listdir(reports):        # an earlier run's reports: this run's numbering may differ
+        if old[:3].isdigit() and old[3:4] == '_' and old.endswith('.txt'):
+            os.remove(os.path.join(reports, old))
+    work = tempfile.mkdtemp(prefix='check_fk_class_')
+    os.chmod(work, 0o711)
+    running, lock = {}, threading.Lock()
+    on_model = f'{a.model}' + (f' with xacro arguments "{a.xacro_args}"' if a.xacro_args else '')
+    limits = sandbox.Limits(cpu_seconds=int(budget) + 60)
+    print(f'check_fk: {len(students)} students in {sandbox.printable(folder)} on {on_model} ({len(tree.links)} '
+          f'links), {a.configurations} configurations (seed {a.seed}, tolerance {a.tolerance:g}, timeout '
+          f'{a.timeout:g} s), at most {budget:g} s each, {jobs} at a time')
+    if a.no_sandbox:
+        print('check_fk: NOT sandboxed (--no-sandbox): every student runs as you, with your files and network')
+    else:
+        print(f'check_fk: each student in a sandbox: a user of its own, a copy of its folder, a network of its own, '
+              f'{limits.describe()}')
+    print(f'check_fk: reports in {reports}', flush=True)
+    options = ['--model', a.model, '--xacro-args', a.xacro_args, '--configurations', str(a.configurations),
+               '--seed', str(a.seed), '--tolerance', repr(a.tolerance), '--timeout', repr(a.timeout),
+               '--budget', repr(budget), '--expect', 'pass']
+    stopping_class = []
+
+    def one(index: int, student: str) -> candidates.Result:
+        shown = sandbox.printable(student)
+        original = os.path.join(folder, student)
+        node = candidates.find_node(original)
+        if node is None:
+            return candidates.Result(shown, 'FAIL: no node found (no Python file that calls rospy.init_node)',
+                                     '', '', 0.0)
+        t = time.time()
+        cmd, env, copy = [sys.executable, '-c', JUDGE] + options, None, ''
+        if a.no_sandbox:
+            env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{free_port()}')   # none runs there: its own
+            cmd += ['--candidate', node]
+        else:
+            uid = sandbox.uid_for(os.getpid(), index)
+            copy = os.path.join(work, str(index))
+            try:
+                sandbox.copy_folder(original, copy, uid)
+            except (sandbox.SandboxError, OSError) as e:
+                return candidates.Result(shown, f'FAIL: its folder cannot be graded: {sandbox.printable(str(e))}',
+                                         '', '', 0.0)
+            cmd = sandbox.judge_prefix() + cmd + [
+                '--candidate', os.path.join(copy, os.path.relpath(node, original)), '--judge-uid', str(uid),
+                '--judge-folder', copy, '--judge-hide', folder, '--judge-hide', reports, '--judge-hide', work]
+            env = judge_env()
+        read_end, write_end = os.pipe()
+        try:
+            with lock:
+                if stopping_class:
+                    return None
+                proc = subprocess.Popen(cmd + ['--result-fd', str(write_end)], env=env, stdout=subprocess.PIPE,
+                                        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True,
+                                        pass_fds=(write_end,))
+                running[student] = proc
+        finally:
+            os.close(write_end)
+        reader = Reader(proc.stdout, os.path.join(reports, f'{index:03d}_{_file_name(student)}.txt'))
+        try:
+            proc.wait(timeout=limit)
+            timed_out = False
+        except subprocess.TimeoutExpired:
+            signal_group(proc.pid, signal.SIGKILL)       # unshare, and with it the judge's namespaces
+            proc.wait()
+            timed_out = True
+        finally:
+            with lock:
+                running.pop(student, None)
+        result = read_result(read_end)
+        if copy:
+            shutil.rmtree(copy, ignore_errors=True)
+        seconds = time.time() - t
+        if stopping_class and (result is None or proc.returncode < 0):
+            return None
+        if timed_out:
+            verdict = f'FAIL: grading did not end within {limit:.0f} s (its budget and a minute): ended'
+            return candidates.Result(shown, verdict, '', '', seconds)
+        if result is None:
+            return candidates.Result(shown, f'FAIL: check_fk ended with status {proc.returncode} and no result: '
+                                     f'{reader.last_lines()}', '', '', seconds)
+        verdict = sandbox.printable(result['verdict'], 600, backslashes=False)
+        if verdict.startswith('PASS') != (proc.returncode == 0):
+            verdict = f'FAIL: check_fk said {verdict[:200]} but ended with status {proc.returncode}'
+        return candidates.Result(shown, verdict, sandbox.printable(result['score'], 100, backslashes=False),
+                                 sandbox.printable(result['first_wrong_link'], MAX_NAME, backslashes=False), seconds)
+
+    results = {}
+    pool = concurrent.futures.ThreadPoolExecutor(max_workers=jobs)
+    stopped = None
+    try:
+        futures = {pool.submit(one, i, student): student for i, student in enumerate(students)}
+        for future in concurrent.futures.as_completed(futures):
+            result = future.result()
+            if result is not None:
+                results[futures[future]] = result
+                print(result.line(), flush=True)
+    except BaseException as e:   # a signal: the students being graded are stopped, none starts, the CSV is written
+        stopped = e
+    finally:
+        with lock:
+            stopping_class.append(True)
+            left = list(running.values())
+        for proc in left:
+            signal_group(proc.pid, signal.SIGKILL)
+        pool.shutdown(wait=True, cancel_futures=True)
+        shutil.rmtree(work, ignore_errors=True)
+        with open(path, 'w', newline='') as f:
+            w = csv.writer(f)
+            w.writerow(['student', 'verdict', 'score', 'first_wrong_link', 'seconds'])
+            for student in students:
+                r = results.get(student)
+                if r is None:
+                    w.writerow([sandbox.printable(student), 'not graded (check_fk was stopped)', '', '', ''])
+                else:
+                    w.writerow([r.student, r.verdict, r.score, r.first_wrong_link, f'{r.seconds:.1f}'])
+    passed = sum(r.verdict.startswith('PASS') for r in results.values())
+    if stopped is not None:
+        rest = [sandbox.printable(s) for s in students if s not in results]
+        print(f'check_fk: stopped: {len(results)} of {len(students)} graded ({passed} PASS); CSV: '
+              f'{os.path.abspath(path)}; not graded: {", ".join(rest)}', flush=True)
+        if isinstance(stopped, SystemExit):
+            return stopped.code if isinstance(stopped.code, int) else 1
+        raise stopped
+    print(f'{passed} of {len(students)} PASS; CSV: {os.path.abspath(path)}')
+    return 0
+
+
+def _file_name(student: str) -> str:
+    """A report file's name for a student folder's name: letters, digits, '.', '-' and '_' kept."""
+    return ''.join(c if c.isalnum() or c in '.-_' else '_' for c in student)[:80] or 'student'

@@ -1,0 +1,72 @@
+#!/usr/bin/env python3
+"""Run the package's tests side by side, longest first, each as catkin runs it (its `_run_tests_robot_ai_*` target in
+the workspace's build folder, so the commands and the result files are catkin's own), and print a line as each ends.
+
+    python test/run_tests.py --build .catkin_ws/build --jobs 3        # then test/summarize.py reads the results
+
+Every rostest starts a master of its own on a free port, so rostests do not meet. The unit tests (pytest) run beside
+them. A target's output goes to <build>/test_logs/<name>.log; a failed target's last lines are printed. Exits 0
+(summarize.py decides): a test that fails is in its results file, a target that could not run is a MISSING result.
+"""
+import argparse
+import concurrent.futures
+import os
+import pathlib
+import subprocess
+import sys
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+# measured on the 2-core machine, seconds alone (CI, 2026-12-03): the longest start first so that the run ends soon
+# after its longest test; a .test file not named here runs after these, in name order
+LONGEST_FIRST = ['launch.test', 'check_fk.test', 'pytest', 'reach_ros.test', 'ros_env.test', 'cartpole_robot.test',
+                 'forward_kinematics_vs_rsp.test', 'forward_kinematics_node.test', 'policy_files.test',
+                 'cartpole_search.test', 'cartpole_q_learning.test', 'across_machines.test', 'bench_output.test',
+                 'check_fk_example.test', 'forward_kinematics_hz.test', 'roslaunch-check']
+
+
+def targets() -> list[tuple[str, str]]:
+    """(name, make target) of every test, in LONGEST_FIRST's order."""
+    found = {'pytest': '_run_tests_robot_ai_pytest_unit',
+             'roslaunch-check': '_run_tests_robot_ai_roslaunch-check_launch'}
+    for test in sorted((ROOT / 'test').glob('*.test')):
+        found[test.name] = f'_run_tests_robot_ai_rostest_test_{test.name}'
+    order = [n for n in LONGEST_FIRST if n in found] + sorted(n for n in found if n not in LONGEST_FIRST)
+    return [(n, found[n]) for n in order]
+
+
+def run(name: str, target: str, build: pathlib.Path, logs: pathlib.Path, t0: float) -> tuple[str, int, float]:
+    started = time.monotonic()
+    with open(logs / f'{name}.log', 'wb') as log:
+        status = subprocess.call(['make', '--no-print-directory', target], cwd=build, stdout=log,
+                                 stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+    seconds = time.monotonic() - started
+    print(f'[{time.monotonic() - t0:6.0f} s] {name:<34} ended after {seconds:5.0f} s'
+          + ('' if status == 0 else f' (make status {status}; its log: {logs / (name + ".log")})'), flush=True)
+    if status:
+        tail = (logs / f'{name}.log').read_bytes().decode(errors='replace').splitlines()[-15:]
+        print('\n'.join('    | ' + line for line in tail), flush=True)
+    return name, status, seconds
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument('--build', required=True, help='the catkin workspace\'s build folder')
+    p.add_argument('--jobs', type=int, default=3, help='tests at a time')
+    p.add_argument('--only', nargs='*', default=None, help='names of tests to run (launch.test, pytest, ...)')
+    a = p.parse_args(argv)
+    build = pathlib.Path(a.build).resolve()
+    logs = build / 'test_logs'
+    logs.mkdir(parents=True, exist_ok=True)
+    chosen = [(n, t) for n, t in targets() if a.only is None or n in a.only]
+    t0 = time.monotonic()
+    print(f'{len(chosen)} test targets, {a.jobs} at a time (load average {os.getloadavg()[0]:.1f})', flush=True)
+    with concurrent.futures.ThreadPoolExecutor(a.jobs) as pool:
+        done = list(pool.map(lambda nt: run(*nt, build, logs, t0), chosen))
+    print(f'all tests ended in {time.monotonic() - t0:.0f} s; alone they took {sum(s for _, _, s in done):.0f} s',
+          flush=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
