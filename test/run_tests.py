@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
-"""Run the package's tests side by side, longest first, each as catkin runs it (its `_run_tests_robot_ai_*` target in
-the workspace's build folder, so the commands and the result files are catkin's own), and print a line as each ends.
+"""Run the package's tests side by side, longest first, each as catkin runs it (the rule of its `_run_tests_robot_ai_*`
+target in the workspace's build folder, so the commands and the result files are catkin's own), and print a line as
+each ends. The results folder is emptied once before (make test does it), never by a target.
 
     python test/run_tests.py --build .catkin_ws/build --jobs 3        # then test/summarize.py reads the results
 
@@ -38,8 +39,11 @@ def targets() -> list[tuple[str, str]]:
 def run(name: str, target: str, build: pathlib.Path, logs: pathlib.Path, t0: float) -> tuple[str, int, float]:
     started = time.monotonic()
     with open(logs / f'{name}.log', 'wb') as log:
-        status = subprocess.call(['make', '--no-print-directory', target], cwd=build, stdout=log,
-                                 stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        # the target's own rule only: through the top-level Makefile every test target first cleans the results
+        # folder (catkin's clean_test_results), which would delete the results of the tests beside it
+        rule = f'robot_ai/CMakeFiles/{target}.dir'
+        status = subprocess.call(['make', '--no-print-directory', '-f', f'{rule}/build.make', f'{rule}/build'],
+                                 cwd=build, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
     seconds = time.monotonic() - started
     print(f'[{time.monotonic() - t0:6.0f} s] {name:<34} ended after {seconds:5.0f} s'
           + ('' if status == 0 else f' (make status {status}; its log: {logs / (name + ".log")})'), flush=True)
