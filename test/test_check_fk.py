@@ -220,7 +220,21 @@ class TestCheckFk(unittest.TestCase):
             import csv
             with open(csv_path) as f:
                 rows = {r['student']: r for r in csv.DictReader(f)}
+            # issue 41: a report names the student's own file, never the sandbox's copy, and has a score line
+            reports = os.path.join(folder, 'grades_reports')
+            for report in sorted(os.listdir(reports)):
+                with open(os.path.join(reports, report)) as f:
+                    text = f.read()
+                name = report.split('_', 1)[1][:-len('.txt')]
+                self.assertIn(os.path.join(folder, 'class', name, 'src', 'solution.py'), text, report)
+                self.assertNotIn('check_fk_class_', text, report)
+                self.assertEqual(len([l for l in text.splitlines() if l.startswith('score: ')]), 1, text)
+            self.assertEqual(sorted(r.split('_', 1)[1] for r in os.listdir(reports)),
+                             [f'{n}.txt' for n in sorted(students) if students[n] is not None])
         self.assertEqual(sorted(rows), sorted(students))
+        for name in ('bob', 'erin', 'frank'):      # nothing graded: none of the 8 links right, still a score
+            self.assertEqual(rows[name]['score'], '0/8 links, 0/5 configurations', rows[name])
+        self.assertRegex(rows['dave']['score'], r'^\d/8 links, \d/5 configurations$')
         self.assertEqual(rows['alice']['verdict'], 'PASS')
         self.assertEqual(rows['alice']['score'], '8/8 links, 5/5 configurations')
         self.assertTrue(rows['bob']['verdict'].startswith('FAIL: solution.py line 59 is Python 2'), rows['bob'])

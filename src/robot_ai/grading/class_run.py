@@ -17,7 +17,7 @@ import time
 
 from robot_ai.grading import candidates, sandbox
 from robot_ai.grading.processes import CHUNK, LOG_BYTES, free_port, signal_group
-from robot_ai.grading.report import MAX_NAME, RESULT_BYTES, budget_of
+from robot_ai.grading.report import MAX_NAME, RESULT_BYTES, budget_of, nothing_graded
 
 REPORT_TAIL = 64 * 1024        # bytes of a judge's report a class run keeps in memory
 JUDGE = 'import sys; from robot_ai.nodes.check_fk import main; sys.exit(main(sys.argv[1:]))'
@@ -99,6 +99,13 @@ class Reader:
         if report is not None:
             report.close()
 
+    def append(self, lines: list[str]) -> None:
+        """Lines the class run adds at the end of the report, once the judge's output has ended."""
+        self.thread.join(5.0)
+        if self.path:
+            with open(self.path, 'a') as report:
+                report.write(''.join(line + '\n' for line in lines))
+
     def last_lines(self, n: int = 3) -> str:
         self.thread.join(5.0)
         lines = self.tail.decode(errors='replace').strip().splitlines()[-n:]
@@ -172,6 +179,7 @@ def grade_class(a, tree, argv) -> int:
                '--seed', str(a.seed), '--tolerance', repr(a.tolerance), '--timeout', repr(a.timeout),
                '--budget', repr(budget), '--expect', 'pass']
     stopping_class = []
+    none_right = nothing_graded(tree, a.configurations)[len('score: '):]   # a student's score when nothing ran
 
     def one(index: int, student: str) -> candidates.Result:
         shown = sandbox.printable(student)
@@ -179,7 +187,7 @@ def grade_class(a, tree, argv) -> int:
         node = candidates.find_node(original)
         if node is None:
             return candidates.Result(shown, 'FAIL: no node found (no Python file that calls rospy.init_node)',
-                                     '', '', 0.0)
+                                     none_right, '', 0.0)
         t = time.time()
         cmd, env, copy = [sys.executable, '-c', JUDGE] + options, None, ''
         if a.no_sandbox:
@@ -192,10 +200,11 @@ def grade_class(a, tree, argv) -> int:
                 sandbox.copy_folder(original, copy, uid)
             except (sandbox.SandboxError, OSError) as e:
                 return candidates.Result(shown, f'FAIL: its folder cannot be graded: {sandbox.printable(str(e))}',
-                                         '', '', 0.0)
+                                         none_right, '', 0.0)
             cmd = sandbox.judge_prefix() + cmd + [
                 '--candidate', os.path.join(copy, os.path.relpath(node, original)), '--judge-uid', str(uid),
-                '--judge-folder', copy, '--judge-hide', folder, '--judge-hide', reports, '--judge-hide', work]
+                '--judge-shown', node, '--judge-folder', copy, '--judge-hide', folder, '--judge-hide', reports,
+                '--judge-hide', work]
             env = judge_env()
         read_end, write_end = os.pipe()
         try:
@@ -225,12 +234,12 @@ def grade_class(a, tree, argv) -> int:
         seconds = time.time() - t
         if stopping_class and (result is None or proc.returncode < 0):
             return None
-        if timed_out:
-            verdict = f'FAIL: grading did not end within {limit:.0f} s (its budget and a minute): ended'
-            return candidates.Result(shown, verdict, '', '', seconds)
-        if result is None:
-            return candidates.Result(shown, f'FAIL: check_fk ended with status {proc.returncode} and no result: '
-                                     f'{reader.last_lines()}', '', '', seconds)
+        if timed_out or result is None:    # the judge's own report ends without them: they are added to it
+            verdict = (f'FAIL: grading did not end within {limit:.0f} s (its budget and a minute): ended' if timed_out
+                       else f'FAIL: check_fk ended with status {proc.returncode} and no result: '
+                            f'{reader.last_lines()}')
+            reader.append([f'score: {none_right}', verdict])
+            return candidates.Result(shown, verdict, none_right, '', seconds)
         verdict = sandbox.printable(result['verdict'], 600, backslashes=False)
         if verdict.startswith('PASS') != (proc.returncode == 0):
             verdict = f'FAIL: check_fk said {verdict[:200]} but ended with status {proc.returncode}'
