@@ -385,8 +385,9 @@ class TestRosEnv(unittest.TestCase):
 
     def test_third_parties_never_take_a_step(self):
         """While an env pauses (a PPO update), another node floods cart_force, calls ~reset, ~set_state and ~push
-        and publishes joint_states of its own on the sim's topic: the sim refuses and ignores them all, and the env's
-        run equals gymnasium's."""
+        and publishes joint_states of its own on the sim's topic, and watchers subscribe to the sim's latched
+        joint_states (rospy re-sends the latched state to each, bumping its header.seq: issue 40 saw that end a
+        50k-step PPO run): the sim refuses and ignores them all, and the env's run equals gymnasium's."""
         env, ref = self.ros('/cartpole_0'), gymnasium.make('CartPole-v1')
         obs, _ = env.reset(seed=21)
         ref.reset(seed=21)
@@ -401,6 +402,10 @@ class TestRosEnv(unittest.TestCase):
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid)
         try:
             time.sleep(3.0)          # a pause longer than the sim's 1 s driver silence
+            for _ in range(3):       # read-only watchers, each sent the latched state when it subscribes
+                echo = subprocess.run(['rostopic', 'echo', '-n', '1', '/cartpole_0/joint_states/position'],
+                                      capture_output=True, text=True, timeout=60)
+                self.assertIn('---', echo.stdout, echo.stderr)
             for service, args in (('reset', '{}'), ('set_state', '{state: [0, 0, 0.1, 0]}'),
                                   ('push', '{angular_velocity: 1.0}')):
                 answer = subprocess.run(['rosservice', 'call', f'/cartpole_0/cartpole_sim/{service}', args],
