@@ -17,7 +17,7 @@ import time
 
 from robot_ai.grading import candidates, sandbox
 from robot_ai.grading.processes import CHUNK, LOG_BYTES, free_port, signal_group
-from robot_ai.grading.report import MAX_NAME, RESULT_BYTES, budget_of, nothing_graded
+from robot_ai.grading.report import MAX_NAME, RESULT_BYTES, budget_of, nothing_graded, spreadsheet_cell
 
 REPORT_TAIL = 64 * 1024        # bytes of a judge's report a class run keeps in memory
 JUDGE = 'import sys; from robot_ai.nodes.check_fk import main; sys.exit(main(sys.argv[1:]))'
@@ -272,9 +272,10 @@ def grade_class(a, tree, argv) -> int:
             for student in students:
                 r = results.get(student)
                 if r is None:
-                    w.writerow([sandbox.printable(student), 'not graded (check_fk was stopped)', '', '', ''])
+                    row = [sandbox.printable(student), 'not graded (check_fk was stopped)', '', '', '']
                 else:
-                    w.writerow([r.student, r.verdict, r.score, r.first_wrong_link, f'{r.seconds:.1f}'])
+                    row = [r.student, r.verdict, r.score, r.first_wrong_link, f'{r.seconds:.1f}']
+                w.writerow([spreadsheet_cell(cell) for cell in row])
     passed = sum(r.verdict.startswith('PASS') for r in results.values())
     if stopped is not None:
         rest = [sandbox.printable(s) for s in students if s not in results]

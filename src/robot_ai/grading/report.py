@@ -54,6 +54,15 @@ def nothing_graded(tree: KinematicTree, configurations: int) -> str:
     return f'score: 0/{links} links, 0/{configurations} configurations'
 
 
+FORMULA_STARTS = ('=', '+', '-', '@', '\t', '\r')
+
+
+def spreadsheet_cell(text: str) -> str:
+    """A CSV cell no spreadsheet evaluates: text that starts as a formula would (a student folder named `=2+5` or
+    `@SUM(9+9)`) gets a leading apostrophe, as OWASP's CSV-injection advice says; other text is as it is."""
+    return "'" + text if text.startswith(FORMULA_STARTS) else text
+
+
 def budget_of(a) -> float:
     """--budget, or its default for the run's configurations (0 given)."""
     return a.budget or BUDGET_BASE + BUDGET_PER_CONFIGURATION * a.configurations
