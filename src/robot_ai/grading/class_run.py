@@ -182,29 +182,36 @@ def grade_class(a, tree, argv) -> int:
     none_right = nothing_graded(tree, a.configurations)[len('score: '):]   # a student's score when nothing ran
 
     def one(index: int, student: str) -> candidates.Result:
+        t = time.time()         # from the first look at the folder: the CSV's seconds are the student's whole cost
         shown = sandbox.printable(student)
         original = os.path.join(folder, student)
-        node = candidates.find_node(original)
-        if node is None:
-            return candidates.Result(shown, 'FAIL: no node found (no Python file that calls rospy.init_node)',
-                                     none_right, '', 0.0)
-        t = time.time()
+        no_node = 'FAIL: no node found (no Python file that calls rospy.init_node)'
         cmd, env, copy = [sys.executable, '-c', JUDGE] + options, None, ''
         if a.no_sandbox:
+            node = candidates.find_node(original)
+            if node is None:
+                return candidates.Result(shown, no_node, none_right, '', time.time() - t)
             env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{free_port()}')   # none runs there: its own
             cmd += ['--candidate', node]
         else:
+            # the folder is counted and copied first (links kept as links, nothing else but files and folders), and
+            # the node is looked for in the copy: nothing of the student's is read before it is bounded
             uid = sandbox.uid_for(os.getpid(), index)
             copy = os.path.join(work, str(index))
             try:
                 sandbox.copy_folder(original, copy, uid)
             except (sandbox.SandboxError, OSError) as e:
+                shutil.rmtree(copy, ignore_errors=True)
                 return candidates.Result(shown, f'FAIL: its folder cannot be graded: {sandbox.printable(str(e))}',
-                                         none_right, '', 0.0)
+                                         none_right, '', time.time() - t)
+            found = candidates.find_node(copy)
+            if found is None:
+                shutil.rmtree(copy, ignore_errors=True)
+                return candidates.Result(shown, no_node, none_right, '', time.time() - t)
+            node = os.path.join(original, os.path.relpath(found, copy))     # as the student named it
             cmd = sandbox.judge_prefix() + cmd + [
-                '--candidate', os.path.join(copy, os.path.relpath(node, original)), '--judge-uid', str(uid),
-                '--judge-shown', node, '--judge-folder', copy, '--judge-hide', folder, '--judge-hide', reports,
-                '--judge-hide', work]
+                '--candidate', found, '--judge-uid', str(uid), '--judge-shown', node, '--judge-folder', copy,
+                '--judge-hide', folder, '--judge-hide', reports, '--judge-hide', work]
             env = judge_env()
         read_end, write_end = os.pipe()
         try:
