@@ -198,7 +198,8 @@ class TestCheckFk(unittest.TestCase):
         self.assertIn(default, course)
         students = {'alice': course, 'bob': open(os.path.join(HERE, 'course_fk_py2.py')).read(),
                     'carol': course.replace(default, "'first'"), 'dave': course.replace(default, "'die'"),
-                    'erin': open(os.path.join(HERE, 'silent_fk.py')).read(), 'frank': None}
+                    'erin': open(os.path.join(HERE, 'silent_fk.py')).read(), 'frank': None,
+                    '=2+5': None, '@SUM(9+9)': None}      # issue 40: names a spreadsheet would evaluate
         with tempfile.TemporaryDirectory() as folder:
             for name, text in students.items():
                 os.makedirs(os.path.join(folder, 'class', name, 'src'))
@@ -220,7 +221,23 @@ class TestCheckFk(unittest.TestCase):
             import csv
             with open(csv_path) as f:
                 rows = {r['student']: r for r in csv.DictReader(f)}
-        self.assertEqual(sorted(rows), sorted(students))
+            # issue 41: a report names the student's own file, never the sandbox's copy, and has a score line
+            reports = os.path.join(folder, 'grades_reports')
+            for report in sorted(os.listdir(reports)):
+                with open(os.path.join(reports, report)) as f:
+                    text = f.read()
+                name = report.split('_', 1)[1][:-len('.txt')]
+                self.assertIn(os.path.join(folder, 'class', name, 'src', 'solution.py'), text, report)
+                self.assertNotIn('check_fk_class_', text, report)
+                self.assertEqual(len([l for l in text.splitlines() if l.startswith('score: ')]), 1, text)
+            self.assertEqual(sorted(r.split('_', 1)[1] for r in os.listdir(reports)),
+                             [f'{n}.txt' for n in sorted(students) if students[n] is not None])
+        # OWASP's advice: a cell that starts as a formula gets a leading apostrophe, and nothing else changes
+        self.assertEqual(sorted(rows), sorted(["'" + n if n[0] in '=@' else n for n in students]))
+        self.assertTrue(rows["'=2+5"]['verdict'].startswith('FAIL: no node found'), rows)
+        for name in ('bob', 'erin', 'frank'):      # nothing graded: none of the 8 links right, still a score
+            self.assertEqual(rows[name]['score'], '0/8 links, 0/5 configurations', rows[name])
+        self.assertRegex(rows['dave']['score'], r'^\d/8 links, \d/5 configurations$')
         self.assertEqual(rows['alice']['verdict'], 'PASS')
         self.assertEqual(rows['alice']['score'], '8/8 links, 5/5 configurations')
         self.assertTrue(rows['bob']['verdict'].startswith('FAIL: solution.py line 59 is Python 2'), rows['bob'])
@@ -231,7 +248,7 @@ class TestCheckFk(unittest.TestCase):
         self.assertTrue(rows['frank']['verdict'].startswith('FAIL: no node found'), rows['frank'])
         for r in rows.values():
             float(r['seconds'])
-        self.assertIn('1 of 6 PASS', proc.stdout)
+        self.assertIn('1 of 8 PASS', proc.stdout)
 
     # ------------------------------------------------------------------- course-style nodes (test/course_fk.py)
     def test_correct_course_style_nodes_pass_fast_or_slow(self):

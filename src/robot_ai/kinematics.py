@@ -166,10 +166,10 @@ class KinematicTree:
         joint_names = [j.name for j in robot.joints]
         if len(set(joint_names)) != len(joint_names):
             raise URDFError(f'the robot {robot.name!r} names a joint twice')
-        by_child, children = {}, {}
+        by_child, children, known = {}, {}, set(link_names)     # a set: 40,000 links must not cost 40,000**2
         for j in robot.joints:
             for end in (j.parent, j.child):
-                if end not in link_names:
+                if end not in known:
                     raise URDFError(f'joint {j.name!r} refers to the unknown link {end!r}')
             if j.child in by_child:
                 raise URDFError(f'link {j.child!r} is the child of two joints')
@@ -211,8 +211,9 @@ class KinematicTree:
                 joints[j.name] = Joint(j.name, j.type, j.parent, j.child, xyz, rpy, axis, lower, upper, mimic,
                                        velocity)
         tree = cls(robot.name, root, links, joints, floating)
-        tree._floating_child = {j.name: j.child for j in robot.joints if j.name in floating}
-        tree._floating_parent = {j.name: j.parent for j in robot.joints if j.name in floating}
+        floating_set = set(floating)
+        tree._floating_child = {j.name: j.child for j in robot.joints if j.name in floating_set}
+        tree._floating_parent = {j.name: j.parent for j in robot.joints if j.name in floating_set}
         tree._check_mimics()
         return tree
 

@@ -12,8 +12,10 @@ os.system; ``$(eval)`` gets Python's real builtins). Here every expression is ch
 (``check_expression``: no name or attribute that starts with an underscore, no frame, generator or code attributes,
 no ``format``) and run with no builtins but xacro's list of harmless ones, ``vars`` and ``type`` taken out of it;
 what real robot files use (arithmetic, math, properties, macros, comprehensions,
-``xacro.load_yaml``) passes. And the expansion runs in a child process bounded in wall time (EXPAND_SECONDS), CPU
-time and memory (EXPAND_MEMORY), whose output is at most MAX_BYTES: ``${10**10**10}`` is an error after
+``xacro.load_yaml``) passes. ``xacro.load_yaml`` and ``xacro:include`` read only files in the robot file's folder
+and in the packages ``$(find)`` names (``${xacro.load_yaml('/etc/shadow')}`` is refused). And the expansion runs
+in a child process bounded in wall time (EXPAND_SECONDS), CPU time and memory (EXPAND_MEMORY), whose output is at
+most MAX_BYTES: ``${10**10**10}`` is an error after
 EXPAND_SECONDS, and a Ctrl-C ends it at once.
 
     rosrun robot_ai xacro FILE [name:=value ...]     # the URDF on stdout, for your own launch files
@@ -225,14 +227,41 @@ def _harden(xacro, substitution_args) -> None:
     substitution_args._eval = eval_substitution
 
 
+def _confine(xacro, roots: list[str]) -> None:
+    """xacro.load_yaml and xacro:include read only files inside roots (the model's folder, then every package folder
+    $(find) gave), links resolved: `${xacro.load_yaml('/etc/shadow')}` would copy any file the user can read into
+    the URDF, and from there into robot_description."""
+    absolute, include_files = xacro.abs_filename_spec, xacro.get_include_files
+
+    def inside(filename: str) -> str:
+        real = os.path.realpath(filename)
+        if not any(real == root or real.startswith(root.rstrip(os.sep) + os.sep) for root in roots):
+            raise xacro.XacroException(f'{filename} is outside the robot file\'s folder ({roots[0]}) and the '
+                                       f'packages found with $(find): a robot file reads only those')
+        return filename
+
+    def confined_includes(filename_spec, symbols):
+        for filename in include_files(filename_spec, symbols):
+            yield inside(filename)
+    xacro.abs_filename_spec = lambda filename_spec: inside(absolute(filename_spec))
+    xacro.get_include_files = confined_includes
+
+
 def _expand(path: str, text: str, mappings: dict[str, str] | None) -> str:
     try:
         import xacro
         from xacro import substitution_args
     except ImportError:
         raise XacroError(f'{path} is xacro, and the xacro library is not installed (pip install xacro)') from None
-    substitution_args._eval_find = _find_ros1     # $(find pkg): ROS 1's meaning
+    roots = [os.path.dirname(os.path.realpath(path))]
+
+    def find(pkg: str) -> str:                     # $(find pkg): ROS 1's meaning; its folder may be read
+        found = _find_ros1(pkg)
+        roots.append(os.path.realpath(found))
+        return found
+    substitution_args._eval_find = find
     _harden(xacro, substitution_args)
+    _confine(xacro, roots)
     try:
         doc = xacro.process_file(os.path.abspath(path), mappings=dict(mappings or {}))
     except Exception as e:       # XacroException, SubstitutionException, XML errors, whatever a file does

@@ -122,3 +122,30 @@ def test_patch_adds_the_method_only_where_it_is_missing():
     urdf_compat.patch(module)
     assert Own.from_parameter_server() == 'own'
     assert 'robot_ai.urdf_compat' in urdf_compat.pth_line() and candidates.MAX_SOURCE > 0
+
+
+def test_find_node_reads_regular_files_only_and_never_waits(tmp_path):
+    """Issue 40: a folder holding fk.py -> /proc/kmsg hung the class run for good, and 5,000 links to one 4 MiB
+    file cost 82 s before anything was bounded. Links (in the folder or out of it), FIFOs and devices are never
+    opened; a bounded number of names is looked at."""
+    import threading
+    import time
+    folder = tmp_path / 'student'
+    folder.mkdir()
+    (folder / 'fk.py').symlink_to('/proc/kmsg')
+    os.mkfifo(folder / 'pipe.py')
+    big = tmp_path / 'big.py'
+    big.write_bytes(b'import rospy\nrospy.init_node("x")\n' + b'#' * (4 * 1024 * 1024))
+    for i in range(200):
+        (folder / f'link{i}.py').symlink_to(big)
+    (folder / 'real.py').write_text('import rospy\nrospy.init_node("fk")\nrospy.Subscriber("joint_states", None)\n')
+    found = []
+    t = time.monotonic()
+    worker = threading.Thread(target=lambda: found.append(find_node(str(folder))), daemon=True)
+    worker.start()
+    worker.join(10)
+    assert not worker.is_alive(), 'find_node waited on a FIFO or a device'
+    assert found == [str(folder / 'real.py')] and time.monotonic() - t < 5
+    with pytest.raises(OSError):
+        candidates.read_head(str(folder / 'pipe.py'))
+    assert find_node(str(folder), max_files=3) is None      # bounded: real.py is not among the first names

@@ -266,3 +266,30 @@ def test_a_message_of_100000_unknown_names():
     layout = tree.transform_plan().message_layout(names)
     assert len(layout.unknown) == 100000 and layout.unknown[:2] == ['ghost_0', 'ghost_1']
     assert list(layout.out_idx) == [tree.transform_plan().index['shoulder_pan_joint']]
+
+
+def _long_chain(n: int) -> str:
+    joint = ('<link name="l{i}"/><joint name="j{i}" type="revolute"><parent link="l{p}"/><child link="l{i}"/>'
+             '<axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>')
+    joints = ''.join(joint.format(i=i, p=i - 1) for i in range(1, n))
+    return f'<robot name="long"><link name="l0"/>{joints}</robot>'
+
+
+def test_loading_grows_linearly_with_the_links():
+    """Issue 40: 10,000 links took 7.7 s, 20,000 took 40.7 s (a membership test against a list). Building the tree of
+    four times the links must take about four times as long, not sixteen (urdf_parser_py's own parse apart; best of
+    two, so that a busy machine's pause does not count)."""
+    import time
+    from urdf_parser_py.urdf import URDF
+
+    def seconds(n):
+        robot = URDF.from_xml_string(_long_chain(n))
+        best = float('inf')
+        for _ in range(2):
+            t = time.perf_counter()
+            tree = KinematicTree.from_urdf(robot)
+            best = min(best, time.perf_counter() - t)
+        assert len(tree.links) == n
+        return best
+    small, large = seconds(4000), seconds(16000)
+    assert large / small < 7, f'4,000 links {small:.3f} s, 16,000 links {large:.3f} s'

@@ -301,3 +301,28 @@ def test_command_line_trains_evaluates_and_shows(tmp_path):
     assert done.returncode == 0 and '"kind": "ars_linear"' in done.stdout and 'weights: float64 (3, 16)' in done.stdout
     done = run_cli('evaluate', str(tmp_path / files['.npz']), '--model', PACKAGE_UR5)
     assert done.returncode == 2 and 'reach_arm7' in done.stderr and 'Traceback' not in done.stderr
+
+
+def test_reset_options_set_the_goal_and_the_start_and_keep_the_random_stream():
+    """Issue 41: a clicked point that fails in rviz is tried in-process with reset(options={'goal': ..., 'q': ...})."""
+    env = ReachEnv(model=PACKAGE_UR5)
+    plain, _ = env.reset(seed=3)
+    goal, q = [0.3, -0.2, 0.4], (env.arm.lower + env.arm.upper) / 3
+    obs, info = env.reset(seed=3, options={'goal': goal, 'q': q.tolist()})
+    assert obs['desired_goal'].tolist() == goal
+    np.testing.assert_array_equal(env.joint_positions, q)
+    np.testing.assert_allclose(obs['achieved_goal'], env.arm.tip_positions(q[None, :])[0], atol=1e-12)
+    assert info['is_success'] == (goal_distance(obs['achieved_goal'], np.array(goal)) < 0.05)
+    by_name, _ = env.reset(seed=3, options={'q': dict(zip(env.arm.joints, q.tolist()))})
+    np.testing.assert_array_equal(by_name['desired_goal'], plain['desired_goal'])   # the draws are made either way
+    np.testing.assert_array_equal(env.joint_positions, q)
+    for options, said in (({'goal': [0, 0]}, 'goal must be 3 finite numbers'),
+                          ({'goal': [0, 0, float('nan')]}, 'goal must be 3 finite numbers'),
+                          ({'q': [0.0]}, f'q must be {env.arm.n} joint positions'),
+                          ({'q': (env.arm.upper + 1).tolist()}, 'q outside the joint limits'),
+                          ({'q': {'nope': 1.0}}, 'q names joints the arm does not have'),
+                          ({'start': 1}, 'reset options are goal')):
+        with pytest.raises(ReachError, match=said):
+            env.reset(seed=3, options=options)
+    obs, _ = env.reset(seed=3)           # the env goes on after a refused option
+    np.testing.assert_array_equal(obs['desired_goal'], plain['desired_goal'])

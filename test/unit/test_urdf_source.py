@@ -190,3 +190,34 @@ def test_an_expression_that_eats_memory_is_one_line(tmp_path):
     with pytest.raises(XacroError) as caught:
         expand(robot_with(tmp_path, "'x' * 10 ** 10", 'hungry.urdf.xacro'))
     assert 'memory' in str(caught.value) and '\n' not in str(caught.value)
+
+
+def test_a_robot_file_reads_only_its_folder_and_found_packages(arm, tmp_path):
+    """Issue 40: ${xacro.load_yaml('/etc/shadow')} copied the file into the URDF. load_yaml and xacro:include read the
+    model's folder and $(find pkg) folders only; a link out of the folder counts where it leads."""
+    folder = tmp_path / 'robot'
+    folder.mkdir()
+    (tmp_path / 'secret.yaml').write_text('length: 0.4\n')
+    (folder / 'mine.yaml').write_text('length: 0.4\n')
+    (folder / 'link.yaml').symlink_to(tmp_path / 'secret.yaml')
+    (tmp_path / 'outside.xacro').write_text('<robot xmlns:xacro="http://www.ros.org/wiki/xacro"><link name="x"/>'
+                                            '</robot>')
+
+    def robot(body: str) -> str:
+        path = folder / 'arm.urdf.xacro'
+        path.write_text(f'<?xml version="1.0"?>\n<robot name="r" xmlns:xacro="http://www.ros.org/wiki/xacro">\n'
+                        f'{body}\n  <link name="base"/>\n</robot>\n')
+        return str(path)
+    for body in ("<link name=\"${xacro.load_yaml('/etc/hostname')}\"/>",
+                 f"<link name=\"${{xacro.load_yaml('{tmp_path}/secret.yaml')}}\"/>",
+                 "<link name=\"${xacro.load_yaml('../secret.yaml')}\"/>",
+                 "<link name=\"${xacro.load_yaml('link.yaml')}\"/>",
+                 '<xacro:include filename="../outside.xacro"/>',
+                 '<xacro:include filename="/etc/*.conf"/>'):
+        with pytest.raises(XacroError) as caught:
+            expand(robot(body))
+        assert 'outside the robot file\'s folder' in str(caught.value) and '\n' not in str(caught.value), body
+    ok = "<xacro:property name='c' value=\"${xacro.load_yaml('mine.yaml')}\"/><link name=\"l${c['length']}\"/>"
+    assert 'l0.4' in expand(robot(ok))
+    found = '<xacro:include filename="$(find my_arm_description)/urdf/arm.urdf.xacro"/>'    # a package: allowed
+    assert 'shoulder' in expand(robot(found)) or 'base' in expand(robot(found))

@@ -54,7 +54,9 @@ class RosCartPoleError(RosEnvError):
 class SimLink:
     """One cartpole_sim as an env holds it: its lease, its cart_force publisher, joint_states subscriber and set_state
     service, connected once; a step is one message out and one back, which counts only if it comes from the sim's
-    node with the header.seq that follows the last one (robot_ai.envs.link)."""
+    node and is the next one this env receives from it. Messages are counted here, not by header.seq: rospy bumps a
+    publisher's seq when it re-sends a latched message to a new subscriber (a `rostopic echo`, rviz), which must not
+    look like a step to this env."""
 
     def __init__(self, robot_ns: str, timeout: float):
         self.timeout = float(timeout)
@@ -66,9 +68,9 @@ class SimLink:
         self.ns = robot_ns or ''
         self.leased = False
         self.changed = threading.Condition()
-        self.seq = -1                # header.seq of the sim's last state this env has taken
+        self.seq = -1                # the number of the sim's last state this env has taken
         self.latest: tuple | None = None
-        self.last_seq = -1           # header.seq of the sim's last message received
+        self.last_seq = -1           # the number of the sim's last message this env received (counted from 0)
         self.intruders: dict[str, int] = {}     # other nodes' joint_states on the sim's topic, by sender
         self.force_pub = self.state_sub = self.set_state = None
         try:
@@ -145,7 +147,7 @@ class SimLink:
         state = (msg.position[0], msg.velocity[0], msg.position[1], msg.velocity[1])
         with self.changed:
             self.latest = state
-            self.last_seq = msg.header.seq
+            self.last_seq += 1
             self.changed.notify_all()
 
     def _wait(self, done, failure: str) -> None:
@@ -159,8 +161,8 @@ class SimLink:
                 self.changed.wait(min(left, POLL))
 
     def _answer(self, failure: str) -> tuple:
-        """The sim's state that answers this env's last command or reset: the next header.seq from the sim's node;
-        a later one means the sim published a state nobody asked this env for."""
+        """The sim's state that answers this env's last command or reset: the next message from the sim's node; a
+        second one means the sim published a state nobody asked this env for."""
         expected = self.seq + 1
         self._wait(lambda: self.last_seq >= expected, failure)
         if self.last_seq != expected:

@@ -10,10 +10,10 @@ actions to 1e-9 m (the tip comes through tf's quaternions), and successes (and s
 
 The sim must be an arm_sim in lockstep (``roslaunch robot_ai reach_gym.launch``) and the env's own: it takes its
 lease, in ``robot_ns`` or, without one, the first free one of the running ones (robot_ai.envs.link); a state counts
-only from the sim's node with the next header.seq. The model defaults to the namespace's robot_description (read
-from the master when the env is made; no node is started then). No master, no sim, a sim that dies, no frames from
-forward_kinematics: RosReachError naming the namespace within ``timeout``; after a failure every call raises until
-the next reset().
+only from the sim's node, the next message this env receives from it. The model defaults to the namespace's
+robot_description (read from the master when the env is made; no node is started then). No master, no sim, a sim
+that dies, no frames from forward_kinematics: RosReachError naming the namespace within ``timeout``; after a failure
+every call raises until the next reset().
 
     env = gymnasium.make('robot_ai/RosReach-v0', robot_ns='/arm_0')       # with reach_gym.launch running
 """
@@ -126,9 +126,10 @@ class ArmLink:
         self.tf_decoder = TFDecoder()
         self.ready = threading.Lock()      # released by a callback when the awaited state and its frames are here
         self.ready.acquire()
-        self.awaited: int | None = None     # header.seq the env waits for
-        self.seq = -1
-        self.last_seq = -1
+        self.awaited: int | None = None     # the number of the sim's message the env waits for
+        self.seq = -1                     # the number of the sim's last state this env has taken
+        self.last_seq = -1                # the number of its last message received, counted here from 0: rospy bumps
+                                          # header.seq when it re-sends a latched message to a new subscriber
         self.last_state = None            # (stamp, its bytes) of the sim's last joint_states
         self.frames: dict[tuple, dict] = {}   # stamp -> {child: (parent, transform)} of /tf
         self.static: dict[str, tuple] = {}    # child -> (parent, transform) of /tf_static
@@ -207,11 +208,11 @@ class ArmLink:
                                         f'this env')
             return
         try:
-            seq, secs, nsecs = header_of(msg.buff)
+            _, secs, nsecs = header_of(msg.buff)
         except WireError:
             return
         with self.changed:      # decoded by the env once answered: this thread hands over at once
-            self.last_seq = seq
+            self.last_seq += 1
             self.last_state = ((secs, nsecs), msg.buff)
             self._hand_over()
 

@@ -7,11 +7,15 @@ Python file with its own interpreter, and turns a file that does not compile int
 """
 from __future__ import annotations
 
+import errno
 import os
 import re
+import stat
 from dataclasses import dataclass
 
 MAX_SOURCE = 4 * 1024 * 1024    # bytes of a candidate file read to classify it
+MAX_FILES = 5000                # names of a student's folder looked at for its node (the sandbox copies at most as
+                                # many: robot_ai.grading.sandbox.MAX_COPY_FILES)
 
 # what Python 3.11 says of Python 2 code -> (the construct, what to write instead)
 PYTHON2 = (
@@ -33,8 +37,22 @@ PYTHON2_LINES = (
 
 
 def read_head(path: str, size: int = MAX_SOURCE) -> bytes:
-    with open(path, 'rb') as f:
-        return f.read(size)
+    """The first size bytes of a regular file, opened without blocking; OSError for anything else (a FIFO, a device
+    such as /proc/kmsg, a folder), which is never waited on."""
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise OSError(errno.EINVAL, 'not a regular file', path)
+        chunks, left = [], size
+        while left > 0:
+            chunk = os.read(fd, min(left, 1 << 20))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            left -= len(chunk)
+        return b''.join(chunks)
+    finally:
+        os.close(fd)
 
 
 def is_python(path: str) -> bool:
@@ -94,16 +112,28 @@ def _quoted(text: str) -> str:
     return f' (line: {text[:120]})' if text else ''
 
 
-def find_node(folder: str) -> str | None:
+def find_node(folder: str, max_files: int = MAX_FILES) -> str | None:
     """The FK node in a student's folder (searched down 3 levels): among its Python files, the ones that start a
-    node (rospy.init_node), preferring those that read joint_states; ties go to the shortest path, then by name."""
+    node (rospy.init_node), preferring those that read joint_states; ties go to the shortest path, then by name.
+    Regular files only: a symbolic link (in the folder or out of it), a FIFO or a device is never opened, a folder
+    link never followed; at most max_files names are looked at."""
     found = []
+    seen = 0
     top = folder.rstrip(os.sep).count(os.sep)
     for root, dirs, files in os.walk(folder):
+        if seen > max_files:
+            break
         dirs[:] = sorted(d for d in dirs if not d.startswith('.') and root.count(os.sep) - top < 3)
-        for f in files:
+        for f in sorted(files):
+            seen += 1
+            if seen > max_files:
+                break
             path = os.path.join(root, f)
-            if not os.path.isfile(path) or not is_python(path):
+            try:
+                regular = stat.S_ISREG(os.lstat(path).st_mode)
+            except OSError:
+                continue
+            if not regular or not is_python(path):
                 continue
             try:
                 text = read_head(path).decode('utf-8', errors='replace')

@@ -17,7 +17,7 @@ import time
 
 from robot_ai.grading import candidates, sandbox
 from robot_ai.grading.processes import CHUNK, LOG_BYTES, free_port, signal_group
-from robot_ai.grading.report import MAX_NAME, RESULT_BYTES, budget_of
+from robot_ai.grading.report import MAX_NAME, RESULT_BYTES, budget_of, nothing_graded, spreadsheet_cell
 
 REPORT_TAIL = 64 * 1024        # bytes of a judge's report a class run keeps in memory
 JUDGE = 'import sys; from robot_ai.nodes.check_fk import main; sys.exit(main(sys.argv[1:]))'
@@ -99,6 +99,13 @@ class Reader:
         if report is not None:
             report.close()
 
+    def append(self, lines: list[str]) -> None:
+        """Lines the class run adds at the end of the report, once the judge's output has ended."""
+        self.thread.join(5.0)
+        if self.path:
+            with open(self.path, 'a') as report:
+                report.write(''.join(line + '\n' for line in lines))
+
     def last_lines(self, n: int = 3) -> str:
         self.thread.join(5.0)
         lines = self.tail.decode(errors='replace').strip().splitlines()[-n:]
@@ -172,30 +179,39 @@ def grade_class(a, tree, argv) -> int:
                '--seed', str(a.seed), '--tolerance', repr(a.tolerance), '--timeout', repr(a.timeout),
                '--budget', repr(budget), '--expect', 'pass']
     stopping_class = []
+    none_right = nothing_graded(tree, a.configurations)[len('score: '):]   # a student's score when nothing ran
 
     def one(index: int, student: str) -> candidates.Result:
+        t = time.time()         # from the first look at the folder: the CSV's seconds are the student's whole cost
         shown = sandbox.printable(student)
         original = os.path.join(folder, student)
-        node = candidates.find_node(original)
-        if node is None:
-            return candidates.Result(shown, 'FAIL: no node found (no Python file that calls rospy.init_node)',
-                                     '', '', 0.0)
-        t = time.time()
+        no_node = 'FAIL: no node found (no Python file that calls rospy.init_node)'
         cmd, env, copy = [sys.executable, '-c', JUDGE] + options, None, ''
         if a.no_sandbox:
+            node = candidates.find_node(original)
+            if node is None:
+                return candidates.Result(shown, no_node, none_right, '', time.time() - t)
             env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{free_port()}')   # none runs there: its own
             cmd += ['--candidate', node]
         else:
+            # the folder is counted and copied first (links kept as links, nothing else but files and folders), and
+            # the node is looked for in the copy: nothing of the student's is read before it is bounded
             uid = sandbox.uid_for(os.getpid(), index)
             copy = os.path.join(work, str(index))
             try:
                 sandbox.copy_folder(original, copy, uid)
             except (sandbox.SandboxError, OSError) as e:
+                shutil.rmtree(copy, ignore_errors=True)
                 return candidates.Result(shown, f'FAIL: its folder cannot be graded: {sandbox.printable(str(e))}',
-                                         '', '', 0.0)
+                                         none_right, '', time.time() - t)
+            found = candidates.find_node(copy)
+            if found is None:
+                shutil.rmtree(copy, ignore_errors=True)
+                return candidates.Result(shown, no_node, none_right, '', time.time() - t)
+            node = os.path.join(original, os.path.relpath(found, copy))     # as the student named it
             cmd = sandbox.judge_prefix() + cmd + [
-                '--candidate', os.path.join(copy, os.path.relpath(node, original)), '--judge-uid', str(uid),
-                '--judge-folder', copy, '--judge-hide', folder, '--judge-hide', reports, '--judge-hide', work]
+                '--candidate', found, '--judge-uid', str(uid), '--judge-shown', node, '--judge-folder', copy,
+                '--judge-hide', folder, '--judge-hide', reports, '--judge-hide', work]
             env = judge_env()
         read_end, write_end = os.pipe()
         try:
@@ -225,12 +241,12 @@ def grade_class(a, tree, argv) -> int:
         seconds = time.time() - t
         if stopping_class and (result is None or proc.returncode < 0):
             return None
-        if timed_out:
-            verdict = f'FAIL: grading did not end within {limit:.0f} s (its budget and a minute): ended'
-            return candidates.Result(shown, verdict, '', '', seconds)
-        if result is None:
-            return candidates.Result(shown, f'FAIL: check_fk ended with status {proc.returncode} and no result: '
-                                     f'{reader.last_lines()}', '', '', seconds)
+        if timed_out or result is None:    # the judge's own report ends without them: they are added to it
+            verdict = (f'FAIL: grading did not end within {limit:.0f} s (its budget and a minute): ended' if timed_out
+                       else f'FAIL: check_fk ended with status {proc.returncode} and no result: '
+                            f'{reader.last_lines()}')
+            reader.append([f'score: {none_right}', verdict])
+            return candidates.Result(shown, verdict, none_right, '', seconds)
         verdict = sandbox.printable(result['verdict'], 600, backslashes=False)
         if verdict.startswith('PASS') != (proc.returncode == 0):
             verdict = f'FAIL: check_fk said {verdict[:200]} but ended with status {proc.returncode}'
@@ -263,9 +279,10 @@ def grade_class(a, tree, argv) -> int:
             for student in students:
                 r = results.get(student)
                 if r is None:
-                    w.writerow([sandbox.printable(student), 'not graded (check_fk was stopped)', '', '', ''])
+                    row = [sandbox.printable(student), 'not graded (check_fk was stopped)', '', '', '']
                 else:
-                    w.writerow([r.student, r.verdict, r.score, r.first_wrong_link, f'{r.seconds:.1f}'])
+                    row = [r.student, r.verdict, r.score, r.first_wrong_link, f'{r.seconds:.1f}']
+                w.writerow([spreadsheet_cell(cell) for cell in row])
     passed = sum(r.verdict.startswith('PASS') for r in results.values())
     if stopped is not None:
         rest = [sandbox.printable(s) for s in students if s not in results]

@@ -42,6 +42,27 @@ def read_model(path: str, xacro_args: str = '') -> tuple[str, KinematicTree]:
     return xml, tree
 
 
+def nothing_graded(tree: KinematicTree, configurations: int) -> str:
+    """The score line of a check that ended before any configuration was graded (a Python 2 file, a node that died
+    or published nothing): none of the links a grade compares is right, as course staff's spreadsheets need it."""
+    from robot_ai.grading.fk import Grade, comparison_frame
+    try:
+        frame, _ = comparison_frame(tree, set(tree.links), set())
+        links = len(Grade(tree, frame).links)
+    except Exception:       # a tree the grade cannot frame: every link but the root
+        links = len(tree.links) - 1
+    return f'score: 0/{links} links, 0/{configurations} configurations'
+
+
+FORMULA_STARTS = ('=', '+', '-', '@', '\t', '\r')
+
+
+def spreadsheet_cell(text: str) -> str:
+    """A CSV cell no spreadsheet evaluates: text that starts as a formula would (a student folder named `=2+5` or
+    `@SUM(9+9)`) gets a leading apostrophe, as OWASP's CSV-injection advice says; other text is as it is."""
+    return "'" + text if text.startswith(FORMULA_STARTS) else text
+
+
 def budget_of(a) -> float:
     """--budget, or its default for the run's configurations (0 given)."""
     return a.budget or BUDGET_BASE + BUDGET_PER_CONFIGURATION * a.configurations

@@ -20,7 +20,9 @@ ROS Parameters
     ~real_time_factor (float, 1.0): simulated seconds per second of ROS time (5: five times faster than real time);
         with ~wait_for_controller, the most it runs.
     ~wait_for_controller (bool, true): each step waits for the controller's answer to the last state (while a node
-        publishes cart_force). false: a real robot's semantics, steps on the clock whatever the controller does.
+        publishes cart_force), and the first step waits for the first cart_force of all (the start state is
+        published again every second meanwhile): a sim started beside its controller loses no episode before the
+        controller is up. false: a real robot's semantics, steps on the clock whatever the controller does.
     ~answer_timeout (float, 1.0): wall seconds a step waits for that answer before it goes on without it.
     ~seed (int, 0): seed of the start states (numpy's default_rng, as gymnasium's reset(seed) draws them).
     ~reset_pause (float, 0.5): seconds of ROS time between the end of an episode and the next start state.
@@ -199,6 +201,20 @@ class CartPoleSim:
                     return
                 self.changed.wait(min(left, 0.05))    # wall seconds: ROS time may be /clock's
 
+    def _wait_for_first_answer(self) -> None:
+        """~wait_for_controller: no step before the first cart_force, the start state published again every second
+        for a controller that subscribes after it (joint_states is not latched on the clock)."""
+        published = time.monotonic()
+        with self.lock:
+            while not self.answered and not rospy.is_shutdown():
+                self.changed.wait(0.1)
+                if not self.answered and time.monotonic() - published >= 1.0:
+                    if not self.force_sub.get_num_connections():
+                        rospy.loginfo_once('cartpole_sim waits for its controller: the first step comes with the '
+                                           'first cart_force (~wait_for_controller)')
+                    published = time.monotonic()
+                    self._publish_state()
+
     def run(self) -> None:
         """Step in ROS time until shutdown (lockstep: the cart_force callback steps)."""
         with self.lock:
@@ -206,6 +222,8 @@ class CartPoleSim:
         if self.lockstep:
             rospy.spin()
             return
+        if self.wait_for_controller:
+            self._wait_for_first_answer()
         period = self.dynamics.tau / self.real_time_factor
         next_tick = last_step = rospy.get_time()
         while not rospy.is_shutdown():

@@ -30,7 +30,7 @@ from robot_ai.grading.class_run import grade_class, reexec_in_namespaces, sandbo
 from robot_ai.grading.fk import Grade, comparison_frame, configurations
 from robot_ai.grading.processes import Output, end_descendants, log_path, start_master, stop, wait_for_master
 from robot_ai.grading.report import (BUDGET_BASE, BUDGET_PER_CONFIGURATION, MAX_NAME, RESULT_BYTES, budget_of,
-                                     exit_status, read_model, result_of, write_junit)
+                                     exit_status, nothing_graded, read_model, result_of, write_junit)
 from robot_ai.kinematics import prefix_frame
 
 RESEND = 0.2            # seconds without a tf message after which the configuration is sent again
@@ -200,6 +200,8 @@ def finish(a, tree, lines: list[str], seconds: float) -> int:
     """Print the report (every line escaped: one line each, whatever the candidate's names and output held), write
     rostest's results file and a judge's result; the exit status."""
     lines = [sandbox.printable(line, 2000, backslashes=False) for line in lines]
+    if not any(line.startswith('score: ') for line in lines):   # ended before any configuration was graded
+        lines.insert(len(lines) - 1, nothing_graded(tree, a.configurations))
     print('\n'.join(lines), flush=True)
     status = exit_status(lines[-1], a.expect)
     if a.gtest_output.startswith('xml:'):

@@ -37,7 +37,7 @@ from robot_ai.msg import CartPoleEpisode
 from robot_ai.nodes.params import bool_param, int_param, number_param, quiet_on_shutdown, str_param
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.srv import LoadPolicy, PushPole, QLearning, RandomSearch
-from robot_ai.text import counted
+from robot_ai.text import counted, percent
 
 UPRIGHT = 0.02           # rad: the pole counts as back upright within this of vertical
 STALL = 20.0             # seconds without a cart-pole state after which the closed loop counts as stopped
@@ -203,7 +203,7 @@ def reach(ns: str, count: int, seed: int) -> tuple[list[str], list[str]]:
     info = rospy.get_param(f'{controller}/policy_info', '?')
     rate = float(rospy.get_param(f'{controller}/success_rate', -1.0))
     lines = [f'  {info}']
-    failed = [] if rate >= 0.95 else [f'ARS reached {100 * rate:.1f} % of fresh goals (95 % wanted)']
+    failed = [] if rate >= 0.95 else [f'ARS reached {percent(rate)} of fresh goals (95 % wanted)']
     setup = ReachSetup(urdf=rospy.get_param(f'{ns}/robot_description'),
                        tip=rospy.get_param(f'{controller}/tip', '') or None)
     arm, threshold = setup.arm, setup.task.distance_threshold

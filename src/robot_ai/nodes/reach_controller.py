@@ -63,6 +63,7 @@ from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import ReachSetup
 from robot_ai.reach.task import goal_distance_one
+from robot_ai.text import percent
 
 COMMAND_TOPIC = 'joint_group_position_controller/command'
 PROGRESS = 0.001          # m: less than this over ~stalled_after seconds is no progress
@@ -97,6 +98,7 @@ class ReachController:
         self.goal: list[float] | None = None
         self.goal_since = 0.0
         self.best = float('inf')
+        self.progress_mark = float('inf')         # the distance at the last progress of PROGRESS or more
         self.best_q: list[float] | None = None    # the arm's joints when it was closest to the goal
         self.improved_at = 0.0
         self.said = False
@@ -143,7 +145,7 @@ class ReachController:
         t = time.monotonic()
         training = learn.train(dict(urdf=xml, tip=setup.arm.tip), seed=0, evaluate_episodes=1000)
         rate = training.held_out.success_rate
-        info = (f'ARS trained at start on {setup.model.tree.name}: {100 * rate:.1f} % of 1000 fresh goals within '
+        info = (f'ARS trained at start on {setup.model.tree.name}: {percent(rate)} of 1000 fresh goals within '
                 f'{setup.task.distance_threshold:g} m, {time.monotonic() - t:.1f} s, {training.result.steps:,} steps')
         return training.policy, training.setup, info, rate
 
@@ -254,7 +256,9 @@ class ReachController:
             if goal is not self.goal:
                 return
             self._command(joints, target)
-        hold = self._judge(goal, distance, q)     # after the command: whoever hears 'reached' acts after it
+        # judged on the joints' own tip (the kinematics of q), not /tf's: the two can be a message apart under load,
+        # and the configuration held after `not reached` must be the one whose distance was said
+        hold = self._judge(goal, goal_distance_one(self.setup.place_one(q)[0], goal), q)   # after the command
         if hold is not None:
             with self.lock:
                 if goal is self.goal:
@@ -267,8 +271,10 @@ class ReachController:
         with self.lock:
             if goal is not self.goal or self.said:
                 return None
-            if distance < self.best - PROGRESS or self.best_q is None:
-                self.best, self.best_q, self.improved_at = min(distance, self.best), q, now
+            if self.best_q is None or distance < self.progress_mark - PROGRESS:
+                self.progress_mark, self.improved_at = distance, now    # progress: the stall clock starts again
+            if self.best_q is None or distance < self.best:     # the closest configuration, however small the gain
+                self.best, self.best_q = distance, q
             reached = distance < self.setup.task.distance_threshold
             stalled = now - self.improved_at > self.stalled_after
             if not (reached or stalled):
@@ -280,7 +286,7 @@ class ReachController:
         if reached:
             rospy.loginfo(f'reached {where} in {now - since:.2f} s ({distance:.3f} m)')
             return None
-        rospy.loginfo(f'not reached: closest {min(self.best, distance):.3f} m to {where} (outside the '
+        rospy.loginfo(f'not reached: closest {self.best:.3f} m to {where} (outside the '
                       f'workspace, or behind a joint limit); holding there')
         return hold
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from robot_ai.artifacts import write_whole
 from robot_ai.policies.files import PolicyError, read_regular_file, shown
+from robot_ai.text import percent
 
 FORMAT = 'robot_ai-policy/1'
 EXTENSION = '.npz'
@@ -129,11 +130,18 @@ class Policy:
     def describe(self) -> str:
         """One line: kind, env, seed, figures, and the file it came from."""
         m = self.metadata
-        figures = ', '.join(f'{k} {v:.2f}' if isinstance(v, float) else f'{k} {v}'
-                            for k, v in (m.get('figures') or {}).items())
+        figures = ', '.join(_figure(k, v) for k, v in (m.get('figures') or {}).items())
         where = f' from {self.path}' if self.path else ''
         source = f', {m["source"]}' if m.get('source') else ''
         return f'{m["kind"]} policy{where} ({m["env_id"]}, seed {m["seed"]}{source}{"; " + figures if figures else ""})'
+
+
+def _figure(name: str, value) -> str:
+    """A figure as describe() shows it: a rate (a name ending in 'rate') as a percentage with one decimal, other
+    numbers with two."""
+    if name.endswith('rate') and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return f'{name} {percent(value)}'
+    return f'{name} {value:.2f}' if isinstance(value, float) else f'{name} {value}'
 
 
 def arrays_of(actor) -> dict:

@@ -35,6 +35,7 @@ from gymnasium import spaces
 
 from robot_ai.policies.envs import Target, flatten_batch as _flatten, target_of
 from robot_ai.policies.files import PolicyError, read_regular_file
+from robot_ai.text import percent
 
 MAX_BYTES = 64 * 1024 * 1024
 STANDARD_DOMAINS = ('', 'ai.onnx', 'ai.onnx.ml')
@@ -105,7 +106,7 @@ class OnnxPolicy:
         if m.get('producer'):
             parts.append(f'made by {m["producer"]}')
         if isinstance(m.get('success_rate'), (int, float)):
-            parts.append(f'success rate {100 * m["success_rate"]:.1f} %')
+            parts.append(f'success rate {percent(m["success_rate"])}')
         if isinstance(m.get('mean_length'), (int, float)):
             parts.append(f'average length {m["mean_length"]:.1f}')
         return f'ONNX policy from {self.path} ({"; ".join(parts)})'

@@ -25,6 +25,7 @@ from robot_ai.cli import (fraction, output_folder, positive_number, run_command,
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import CONTROLS, STARTS, ReachSetup
+from robot_ai.text import percent
 
 
 def add_robot(p: argparse.ArgumentParser, required_default: str) -> None:
@@ -103,7 +104,7 @@ def run_train(a, parser) -> int:
               file=sys.stderr)
 
     def progress(s: ars.IterationStats) -> None:
-        print(f'iteration {s.iteration:4d}/{settings.iterations}  success {100 * s.success_rate:5.1f} %  final '
+        print(f'iteration {s.iteration:4d}/{settings.iterations}  success {percent(s.success_rate):>7s}  final '
               f'distance {s.final_metric:.3f} m  steps {s.steps:11,d}  {s.elapsed:6.1f} s', flush=True)
     previous = signal.signal(signal.SIGINT, on_sigint)
     try:
@@ -112,11 +113,11 @@ def run_train(a, parser) -> int:
     finally:
         signal.signal(signal.SIGINT, previous)
     result, held = training.result, training.held_out
-    print(f'held-out          {100 * held.success_rate:.1f} % of {len(held.distances)} fresh goals within '
+    print(f'held-out          {percent(held.success_rate)} of {len(held.distances)} fresh goals within '
           f'{setup.task.distance_threshold:g} m (mean final distance {held.mean_distance:.3f} m), the policy of '
           f'iteration {result.best_iteration}')
     if training.p_controller is not None:
-        print(f'P-controller      {100 * training.p_controller.success_rate:.1f} % of the same goals (the plain '
+        print(f'P-controller      {percent(training.p_controller.success_rate)} of the same goals (the plain '
               f'P-controller on the tip error)')
     print(f'training          {len(result.history)} iterations, {result.steps:,} steps, {result.elapsed:.1f} s'
           f'{" (stopped early: best so far kept)" if result.cancelled else ""}')
@@ -137,10 +138,10 @@ def plot_job(training: learn.Training) -> dict:
     hlines = [dict(y=95.0, label='95 %', color='tab:gray', ls=':')]
     if training.p_controller is not None:
         hlines.append(dict(y=100 * training.p_controller.success_rate, color='tab:green', ls='--',
-                           label=f'P-controller on the tip error ({100 * training.p_controller.success_rate:.1f} %)'))
+                           label=f'P-controller on the tip error ({percent(training.p_controller.success_rate)})'))
     if training.held_out is not None:
         hlines.append(dict(y=100 * training.held_out.success_rate, color='tab:red', ls='--',
-                           label=f'ARS, held-out ({100 * training.held_out.success_rate:.1f} % of '
+                           label=f'ARS, held-out ({percent(training.held_out.success_rate)} of '
                                  f'{len(training.held_out.distances)} goals)'))
     return dict(title=f'Reach with ARS: {setup.model.tree.name} ({setup.model.name}), tip {setup.arm.tip}, '
                       f'{setup.control} control, seed {result.seed}: {result.elapsed:.1f} s',
@@ -177,11 +178,11 @@ def run_evaluate(a, parser) -> int:
     result = learn.evaluate(policy.actor, setup, a.episodes, a.seed)
     print(policy.describe())
     print(f'robot             {setup.arm.describe()}')
-    print(f'success rate      {100 * result.success_rate:.1f} % of {a.episodes} fresh goals within '
+    print(f'success rate      {percent(result.success_rate)} of {a.episodes} fresh goals within '
           f'{setup.task.distance_threshold:g} m (mean final distance {result.mean_distance:.3f} m)')
     if setup.control == 'ee':
         p = learn.evaluate(learn.p_controller(setup), setup, a.episodes, a.seed)
-        print(f'P-controller      {100 * p.success_rate:.1f} % of the same goals')
+        print(f'P-controller      {percent(p.success_rate)} of the same goals')
     if a.video:
         stem = artifacts.artifact_stem(folder, 'evaluate-' + stem_name(setup), 'Reach-v0', a.seed)
         write_or_say('video', lambda: learn.record_video(policy.actor, setup, stem + '.mp4', seed=a.seed))

@@ -85,24 +85,58 @@ class ReachSetup:
         return float(value)
 
     def _home(self, home) -> np.ndarray:
+        return self.arm.home.copy() if home is None else self.configuration(home, 'home', self.arm.home)
+
+    def configuration(self, values, what: str, default: np.ndarray | None = None) -> np.ndarray:
+        """Joint positions (n,) within the limits from a list in the arm's order or a dict by joint name (the others
+        from default); ReachError of one line naming `what` otherwise."""
         arm = self.arm
-        if home is None:
-            return arm.home.copy()
-        if isinstance(home, dict):
-            unknown = sorted(set(home) - set(arm.joints))
+        if isinstance(values, dict):
+            unknown = sorted(set(values) - set(arm.joints))
             if unknown:
-                raise ReachError(f'home names joints the arm does not have: {", ".join(unknown)} (its joints: '
+                raise ReachError(f'{what} names joints the arm does not have: {", ".join(unknown)} (its joints: '
                                  f'{", ".join(arm.joints)})')
-            values = np.array([float(home.get(n, h)) for n, h in zip(arm.joints, arm.home)])
+            missing = [n for n in arm.joints if n not in values]
+            if missing and default is None:
+                raise ReachError(f'{what} must name every joint: {", ".join(missing)} missing')
+            try:
+                fallback = arm.home if default is None else default
+                out = np.array([float(values.get(n, d)) for n, d in zip(arm.joints, fallback)])
+            except (TypeError, ValueError):
+                raise ReachError(f'{what} must map joint names to numbers') from None
         else:
-            values = np.asarray(home, dtype=float).reshape(-1)
-            if values.shape != (arm.n,):
-                raise ReachError(f'home must be {arm.n} joint positions ({", ".join(arm.joints)}), got {values.size}')
+            try:
+                out = np.asarray(values, dtype=float).reshape(-1)
+            except (TypeError, ValueError):
+                raise ReachError(f'{what} must be {arm.n} joint positions ({", ".join(arm.joints)})') from None
+            if out.shape != (arm.n,):
+                raise ReachError(f'{what} must be {arm.n} joint positions ({", ".join(arm.joints)}), got {out.size}')
         outside = [f'{n} {v:g} not in [{lo:g}, {hi:g}]'
-                   for n, v, lo, hi in zip(arm.joints, values, arm.lower, arm.upper) if not lo <= v <= hi]
+                   for n, v, lo, hi in zip(arm.joints, out, arm.lower, arm.upper) if not lo <= v <= hi]
         if outside:
-            raise ReachError(f'home outside the joint limits: {"; ".join(outside)}')
-        return values
+            raise ReachError(f'{what} outside the joint limits: {"; ".join(outside)}')
+        return out
+
+    def reset_options(self, options: dict, goal: list, q: list) -> tuple[list, list]:
+        """(goal, start configuration) of an episode with reset options: 'goal' (x, y, z in the root frame, any three
+        finite numbers: a goal out of reach is the user's to try) and 'q' (joint positions, as `configuration`
+        takes them) replace the drawn ones."""
+        unknown = sorted(set(options) - {'goal', 'q'})
+        if unknown:
+            raise ReachError(f'reset options are goal ([x, y, z] in {self.arm.base}) and q (joint positions), got '
+                             f'{", ".join(map(str, unknown))}')
+        if options.get('goal') is not None:
+            try:
+                g = np.asarray(options['goal'], dtype=float).reshape(-1)
+            except (TypeError, ValueError):
+                g = np.zeros(0)
+            if g.shape != (3,) or not np.isfinite(g).all():
+                raise ReachError(f'options goal must be 3 finite numbers (x, y, z in {self.arm.base}, metres), got '
+                                 f'{str(options["goal"])[:80]}')
+            goal = g.tolist()
+        if options.get('q') is not None:
+            q = self.configuration(options['q'], 'options q').tolist()
+        return goal, q
 
     def settings(self) -> dict:
         """The env's kwargs as plain values (a policy file keeps them)."""
@@ -207,10 +241,16 @@ class ReachEnv(gymnasium.Env):
         return self.task.compute_reward(achieved_goal, desired_goal, info)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """A new episode: the goal and the start drawn from np_random (seeded by seed), or given by options:
+        {'goal': [x, y, z]} (in the root frame: the point a click in rviz gives, to try it in-process) and
+        {'q': [...]} (the start configuration, in the arm's joint order or by name). The draws are made either way,
+        so the env's random numbers stay those of the same seed without options."""
         super().reset(seed=seed)
         goal_q, start_q = self.setup.first_states([self.np_random])
-        self._goal = self.arm.forward_one(goal_q[:, 0].tolist())[0]
-        self._q = start_q[:, 0].tolist()
+        goal, q = self.arm.forward_one(goal_q[:, 0].tolist())[0], start_q[:, 0].tolist()
+        if options:
+            goal, q = self.setup.reset_options(options, goal, q)
+        self._goal, self._q = goal, q
         self._tip, self._jac = self.setup.place_one(self._q)
         if self._renderer is not None:
             self._renderer.new_episode()
