@@ -72,3 +72,38 @@ def linear_clip(weights: np.ndarray, env=None) -> onnx.ModelProto:
                  [numpy_helper.from_array(weights.astype(np.float32), 'W'),
                   numpy_helper.from_array(np.array(-1, np.float32), 'lo'),
                   numpy_helper.from_array(np.array(1, np.float32), 'hi')], env)
+
+
+def cartpole_seven_on_real_states(weights: np.ndarray) -> onnx.ModelProto:
+    """The course's policy as an integer action (cartpole_integer), except action 7 for states whose every number is
+    in (-0.1, 0.1) and not 0: every CartPole start state, and none of the loader's trial observations (zeros, and
+    standard normal numbers). A model that passes the checks at load and acts wrongly on every real state."""
+    w = np.zeros((4, 2), np.float32)
+    w[:, 1] = weights
+    nodes = [helper.make_node('MatMul', ['obs', 'W'], ['scores']),
+             helper.make_node('ArgMax', ['scores'], ['good'], axis=1, keepdims=0),
+             helper.make_node('Abs', ['obs'], ['size']),
+             helper.make_node('Less', ['size', 'small'], ['below']),
+             helper.make_node('Greater', ['size', 'zero'], ['above']),
+             helper.make_node('And', ['below', 'above'], ['inside']),
+             helper.make_node('Cast', ['inside'], ['inside_f'], to=TensorProto.FLOAT),
+             helper.make_node('ReduceMin', ['inside_f'], ['all_inside'], axes=[1], keepdims=0),
+             helper.make_node('Cast', ['all_inside'], ['real'], to=TensorProto.BOOL),
+             helper.make_node('Where', ['real', 'seven', 'good'], ['action'])]
+    return model(nodes, [tensor('obs', TensorProto.FLOAT, ['batch', 4])],
+                 [tensor('action', TensorProto.INT64, ['batch'])],
+                 [numpy_helper.from_array(w, 'W'), numpy_helper.from_array(np.array(0.1, np.float32), 'small'),
+                  numpy_helper.from_array(np.array(0.0, np.float32), 'zero'),
+                  numpy_helper.from_array(np.array(7, np.int64), 'seven')], {'env_id': 'CartPole-v1'})
+
+
+def cartpole_three_scores(weights: np.ndarray) -> onnx.ModelProto:
+    """Scores declared (batch, 2) that come out as (batch, 3): (0, observation . weights, 1000), whose argmax would
+    always be action 2."""
+    w = np.zeros((4, 3), np.float32)
+    w[:, 1] = weights
+    nodes = [helper.make_node('MatMul', ['obs', 'W'], ['raw']), helper.make_node('Add', ['raw', 'shift'], ['scores'])]
+    return model(nodes, [tensor('obs', TensorProto.FLOAT, ['batch', 4])],
+                 [tensor('scores', TensorProto.FLOAT, ['batch', 2])],
+                 [numpy_helper.from_array(w, 'W'), numpy_helper.from_array(np.array([0, 0, 1000], np.float32),
+                                                                            'shift')], {'env_id': 'CartPole-v1'})

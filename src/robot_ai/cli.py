@@ -11,6 +11,7 @@ import argparse
 import os
 import signal
 import sys
+from typing import NoReturn
 
 from robot_ai import artifacts
 
@@ -64,6 +65,12 @@ def output_folder(a, parser) -> str:
     return folder
 
 
+def refuse(parser: argparse.ArgumentParser, message: str) -> NoReturn:
+    """End the command with one line and status 2, as argparse's errors do but without its usage: the options were
+    right, the file or robot they name is not (a missing model, a tip that is no link, another robot's policy)."""
+    parser.exit(2, f'{parser.prog}: error: {message}\n')
+
+
 def write_or_say(label: str, write) -> None:
     """Print `label  path` once write() has written its file, or why it could not."""
     try:
@@ -87,7 +94,7 @@ def show_policy(path: str, parser) -> int:
             return 0
         policy = npz.load(path)
     except policies.PolicyError as e:
-        parser.error(str(e))
+        refuse(parser, str(e))
     print(json.dumps(policy.metadata, indent=2))
     for name, array in policies.arrays_of(policy.actor).items():
         value = f' = {np.array2string(array, precision=6)}' if array.size <= 4 else ''

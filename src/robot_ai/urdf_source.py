@@ -227,15 +227,21 @@ def _harden(xacro, substitution_args) -> None:
     substitution_args._eval = eval_substitution
 
 
-def _confine(xacro, roots: list[str]) -> None:
-    """xacro.load_yaml and xacro:include read only files inside roots (the model's folder, then every package folder
-    $(find) gave), links resolved: `${xacro.load_yaml('/etc/shadow')}` would copy any file the user can read into
-    the URDF, and from there into robot_description."""
+def _under(path: str, folder: str) -> bool:
+    return path == folder or path.startswith(folder.rstrip(os.sep) + os.sep)
+
+
+def _confine(xacro, roots: list[str], packages: list[str]) -> None:
+    """xacro.load_yaml and xacro:include read only files inside the model's folder (links resolved: a link in it
+    that leads out is out) and inside the package folders $(find) gave (as found: a workspace's package may be a
+    folder of links, as the Makefile's is). `${xacro.load_yaml('/etc/shadow')}` would copy any file the user can read
+    into the URDF, and from there into robot_description."""
     absolute, include_files = xacro.abs_filename_spec, xacro.get_include_files
 
     def inside(filename: str) -> str:
-        real = os.path.realpath(filename)
-        if not any(real == root or real.startswith(root.rstrip(os.sep) + os.sep) for root in roots):
+        real, plain = os.path.realpath(filename), os.path.abspath(filename)
+        if not (any(_under(real, root) for root in roots + [os.path.realpath(p) for p in packages])
+                or any(_under(plain, package) for package in packages)):
             raise xacro.XacroException(f'{filename} is outside the robot file\'s folder ({roots[0]}) and the '
                                        f'packages found with $(find): a robot file reads only those')
         return filename
@@ -254,14 +260,15 @@ def _expand(path: str, text: str, mappings: dict[str, str] | None) -> str:
     except ImportError:
         raise XacroError(f'{path} is xacro, and the xacro library is not installed (pip install xacro)') from None
     roots = [os.path.dirname(os.path.realpath(path))]
+    packages = []
 
     def find(pkg: str) -> str:                     # $(find pkg): ROS 1's meaning; its folder may be read
         found = _find_ros1(pkg)
-        roots.append(os.path.realpath(found))
+        packages.append(os.path.abspath(found))
         return found
     substitution_args._eval_find = find
     _harden(xacro, substitution_args)
-    _confine(xacro, roots)
+    _confine(xacro, roots, packages)
     try:
         doc = xacro.process_file(os.path.abspath(path), mappings=dict(mappings or {}))
     except Exception as e:       # XacroException, SubstitutionException, XML errors, whatever a file does

@@ -149,3 +149,16 @@ def test_find_node_reads_regular_files_only_and_never_waits(tmp_path):
     with pytest.raises(OSError):
         candidates.read_head(str(folder / 'pipe.py'))
     assert find_node(str(folder), max_files=3) is None      # bounded: real.py is not among the first names
+
+
+def test_the_first_wrong_link_is_the_one_the_verdict_says_to_fix():
+    """Issue 40: the CSV named the root as the first wrong link of a 'frames the URDF does not have' verdict."""
+    from robot_ai.grading.candidates import first_wrong_link
+    links = ['base', 'shoulder', 'forearm', 'tool']
+    assert first_wrong_link('FAIL: forearm, rotation off by 0.1 rad', links) == 'forearm'
+    assert first_wrong_link('FAIL: publish a transform for tool (and 2 more)', links) == 'tool'
+    assert first_wrong_link('FAIL: tool was not published in 3 of 20 configurations', links) == 'tool'
+    assert first_wrong_link('FAIL: the candidate publishes frames the URDF does not have (a, b) and none of its 4 '
+                            'links: is it written for another robot? This one\'s root is base', links) == ''
+    assert first_wrong_link('FAIL: the candidate node exited with status 1', links) == ''
+    assert first_wrong_link('PASS', links) == ''

@@ -292,3 +292,21 @@ def test_both_command_lines_evaluate_and_show_an_onnx_file_and_the_searches_refu
     bad = onnx_models.save(_custom_domain(), str(tmp_path / 'custom.onnx'))
     r = run('robot_ai.reach', 'evaluate', bad)
     assert r.returncode == 2 and 'com.evil' in r.stderr and 'Traceback' not in r.stderr
+
+
+def test_every_action_is_checked_not_only_the_trial_ones(tmp_path):
+    """Issue 40: a model that answers well on the loader's trial observations and 7 on every real state was accepted,
+    and `cartpole evaluate` played 7 as "push left"; a (batch, 2) scores output that returns 3 columns always gave 2.
+    The loader still accepts what it cannot see; every action computed after is checked, and a bad one is one line."""
+    seven = onnx_models.save(onnx_models.cartpole_seven_on_real_states(WEIGHTS), str(tmp_path / 'seven.onnx'))
+    policy = policy_kinds.load(seven)
+    assert policy.act(np.zeros(4, np.float32)) in (0, 1)
+    with pytest.raises(onnx_policy.ActionError, match=r'answers actions outside 0 to 1: \[7\]'):
+        policy.act(np.full(4, 0.02, np.float32))
+    done = subprocess.run([sys.executable, '-m', 'robot_ai.cartpole', 'evaluate', seven, '--episodes', '20'],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1 and 'Traceback' not in done.stderr, done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1 and 'outside 0 to 1' in done.stderr, done.stderr
+    three = onnx_models.save(onnx_models.cartpole_three_scores(WEIGHTS), str(tmp_path / 'three.onnx'))
+    with pytest.raises(PolicyError, match='answers 3 scores for an observation; the env has 2 actions'):
+        policy_kinds.load(three)     # the trial sees it: 3 columns where 2 are declared

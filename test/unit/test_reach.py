@@ -281,6 +281,8 @@ def test_command_line_refusals_are_one_line_and_exit_2(args, words):
     assert done.returncode == 2 and 'Traceback' not in done.stderr
     last = done.stderr.strip().splitlines()[-1]
     assert all(w in last for w in words), done.stderr
+    if '--top-directions' not in args:   # issue 40: a file or robot refused is one line, without argparse's usage
+        assert len(done.stderr.strip().splitlines()) == 1, done.stderr
 
 
 def test_command_line_trains_evaluates_and_shows(tmp_path):

@@ -21,7 +21,8 @@ from robot_ai import policies
 from robot_ai.cartpole import linear_search, outputs, policy_kinds, q_learning
 from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
-from robot_ai.cli import output_folder, positive_number, run_command, show_policy, whole_number, write_or_say
+from robot_ai.cli import (output_folder, positive_number, refuse, run_command, show_policy, whole_number,
+                          write_or_say)
 from robot_ai.text import counted
 
 
@@ -210,7 +211,7 @@ def run_q_learning(a, parser) -> int:
                                       start_settings=start.metadata['settings'] if start else None,
                                       started_from=start.path if start else '')
     except (RequestError, policies.PolicyError) as e:
-        parser.error(str(e))
+        refuse(parser, str(e))
     folder = output_folder(a, parser)
     bar = progress_bar(training.episodes * training.learners, 'episode')
     recent = []
@@ -289,10 +290,14 @@ def run_evaluate(a, parser) -> int:
         dynamics = CartPoleDynamics.of(a.env_id or policy.env_id)
         max_steps = dynamics.resolve_max_steps(a.max_steps)
     except (policies.PolicyError, RequestError) as e:
-        parser.error(str(e))
+        refuse(parser, str(e))
     folder = output_folder(a, parser) if a.video else ''
     if a.ros_env is None:
-        lengths = policy_kinds.evaluate(policy, dynamics, a.episodes, max_steps, a.seed)
+        try:
+            lengths = policy_kinds.evaluate(policy, dynamics, a.episodes, max_steps, a.seed)
+        except policies.PolicyError as e:         # an ONNX model that answers no action on a real state
+            print(f'evaluate: {e}', file=sys.stderr)
+            return 1
     else:
         try:
             from robot_ai.envs.ros_cartpole import RosCartPoleError, episode_lengths   # rospy: only when asked
@@ -305,7 +310,7 @@ def run_evaluate(a, parser) -> int:
         try:
             lengths = episode_lengths(policy.push_right, a.ros_env, dynamics.env_id, a.episodes, max_steps, a.seed,
                                       a.timeout)
-        except RosCartPoleError as e:
+        except (RosCartPoleError, policies.PolicyError) as e:
             print(f'evaluate: {e}', file=sys.stderr)
             return 1
     print(policy.describe())

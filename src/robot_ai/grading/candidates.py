@@ -144,6 +144,24 @@ def find_node(folder: str, max_files: int = MAX_FILES) -> str | None:
     return min(found)[2] if found else None
 
 
+WRONG_LINK_AT = ('publish a transform for ', '')     # where a verdict names its link: 'FAIL: <link>, ...', ...
+
+
+def first_wrong_link(verdict: str, links: list[str]) -> str:
+    """The URDF link a FAIL verdict says to fix first ('FAIL: forearm, rotation off', 'FAIL: publish a transform for
+    tool0', 'FAIL: tool0 was not published in ...'), or '' for a verdict about something else (a node that died, frames
+    the URDF does not have: those may name the root only to say where the tree starts)."""
+    if not verdict.startswith('FAIL: '):
+        return ''
+    rest = verdict[len('FAIL: '):]
+    for prefix in WRONG_LINK_AT:
+        if rest.startswith(prefix):
+            word = re.split(r'[,\s]', rest[len(prefix):], maxsplit=1)[0]
+            if word in set(links):
+                return word
+    return ''
+
+
 @dataclass(frozen=True)
 class Result:
     """A graded student: one row of the class's CSV."""
@@ -161,11 +179,7 @@ class Result:
         verdicts = [line for line in lines if line.startswith(('PASS', 'FAIL'))]
         verdict = verdicts[-1] if verdicts else (lines[-1] if lines else 'no verdict')
         score = next((line[len('score: '):] for line in reversed(lines) if line.startswith('score: ')), '')
-        wrong = ''
-        if verdict.startswith('FAIL: '):
-            known = set(links)
-            wrong = next((word for word in re.findall(r'[\w./-]+', verdict) if word in known), '')
-        return cls(student, verdict, score, wrong, seconds)
+        return cls(student, verdict, score, first_wrong_link(verdict, links), seconds)
 
     def line(self) -> str:
         score = f' [{self.score}]' if self.score else ''

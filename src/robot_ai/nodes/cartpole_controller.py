@@ -101,6 +101,12 @@ class CartPoleController:
         except RequestError as e:
             rospy.logwarn_throttle(5.0, f'state skipped: {e}')
             return
+        except policies.PolicyError as e:     # a model that answers no action for this state (issue 40)
+            rospy.logerr_throttle(60.0, f'the policy gave no action for this state, so no force was sent: {e}')
+            return
+        if action not in (0, 1):
+            rospy.logerr_throttle(60.0, f'the policy answered {action!r}, not 0 or 1: no force was sent')
+            return
         self._wait_for_sim()
         publish(self.force_pub, Float64(self.force_mag if action == 1 else -self.force_mag))
 

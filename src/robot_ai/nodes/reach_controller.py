@@ -42,6 +42,7 @@ over fresh goals (held-out) as its file or its training says, -1 when unknown.
 """
 from __future__ import annotations
 
+import math
 import threading
 import time
 
@@ -67,6 +68,7 @@ from robot_ai.text import percent
 
 COMMAND_TOPIC = 'joint_group_position_controller/command'
 PROGRESS = 0.001          # m: less than this over ~stalled_after seconds is no progress
+MAX_GOAL = 1000.0         # m from the base: a goal farther out is a mistake (a 1e308 goal), not a place to reach
 
 
 def _rotate(q, v) -> list[float]:
@@ -172,7 +174,12 @@ class ReachController:
 
     def _on_goal(self, point: PointStamped) -> None:
         goal = self._in_base(point)
-        if goal is None or not all(np.isfinite(goal)):
+        if goal is None:
+            return
+        if not all(math.isfinite(v) and abs(v) <= MAX_GOAL for v in goal):
+            shown = ', '.join(f'{v:.4g}' for v in goal)
+            rospy.logwarn(f'goal ({shown}) in {self.base} ignored: each coordinate must be a finite number of metres, '
+                          f'at most {MAX_GOAL:g} from the base')
             return
         with self.lock:
             self.goal, self.goal_since, self.best, self.said = goal, time.monotonic(), float('inf'), False
@@ -248,9 +255,13 @@ class ReachController:
         if holding:
             return
         observation = self.setup.observation_one(q, tip, goal)
-        action = policy.act_batch(ars.flatten_batch(self.setup.observation_space,
-                                                        {k: v[None] for k, v in observation.items()}))[0]
-        a = self.setup.check_action_one(np.asarray(action, dtype=np.float64))
+        try:
+            action = policy.act_batch(ars.flatten_batch(self.setup.observation_space,
+                                                            {k: v[None] for k, v in observation.items()}))[0]
+            a = self.setup.check_action_one(np.asarray(action, dtype=np.float64))
+        except (policies.PolicyError, ValueError) as e:      # a model that answers no action here: no command
+            rospy.logerr_throttle(10.0, f'the policy gave no action for this state, so no command was sent: {e}')
+            return
         target = self.setup.move_one(q, self.setup.place_one(q)[1], a)
         with self.lock:                  # a ~home or a new goal that came meanwhile wins: no stale command after it
             if goal is not self.goal:

@@ -48,6 +48,10 @@ def is_onnx_path(path: str) -> bool:
     return str(path).lower().endswith(EXTENSION)
 
 
+class ActionError(PolicyError):
+    """A model's answer that is no action of its env: out of range, the wrong number of scores, NaN or infinite."""
+
+
 @dataclass(eq=False)
 class OnnxPolicy:
     """A checked ONNX model and the env it acts in (see the module's docstring)."""
@@ -80,13 +84,44 @@ class OnnxPolicy:
 
     def act_batch(self, x) -> np.ndarray:
         """Actions of flattened observations x (M, obs): (M,) int64 for a Discrete env, (M, act) float64 clipped to a
-        Box env's bounds."""
-        out = self._run(np.ascontiguousarray(x, dtype=np.float32))
-        if isinstance(self.action_space, spaces.Discrete):
-            a = np.argmax(out.reshape(len(out), -1), axis=1) if self.scores else out.reshape(len(out)).astype(np.int64)
-            return a + int(self.action_space.start)
-        a = out.reshape(len(out), -1).astype(np.float64)
-        return np.minimum(np.maximum(a, self.action_space.low.reshape(-1)), self.action_space.high.reshape(-1))
+        Box env's bounds. Every answer is checked (actions): ActionError, one line, for one that is no action."""
+        x = np.ascontiguousarray(x, dtype=np.float32)
+        return self.actions(self._run(x), len(x))
+
+    def actions(self, out: np.ndarray, m: int, of: str = 'observations') -> np.ndarray:
+        """The env's actions of the model's output for m observations, checked: one answer per observation, finite,
+        as many scores or numbers as the env's actions, integers within a Discrete env's range; ActionError (one line)
+        otherwise. A model may pass the checks at load and answer otherwise on real states."""
+        if len(out) != m:
+            raise ActionError(f'{self.path} answers {len(out)} actions for {m} observations: its first dimension must '
+                              f'be the batch')
+        rows = out.reshape(m, -1)
+        if out.dtype.kind == 'f':
+            bad = int((~np.isfinite(rows)).any(axis=1).sum())
+            if bad:
+                raise ActionError(f'{self.path} answers NaN or infinite actions (on {bad} of {m} {of})')
+        space = self.action_space
+        if isinstance(space, spaces.Discrete):
+            n, start = int(space.n), int(space.start)
+            if self.scores:
+                if rows.shape[1] != n:
+                    raise ActionError(f'{self.path} answers {rows.shape[1]} scores for an observation; the env has '
+                                      f'{n} actions, one score each')
+                return np.argmax(rows, axis=1) + start
+            if rows.shape[1] != 1:
+                raise ActionError(f'{self.path} answers {rows.shape[1]} numbers for an observation; one integer action '
+                                  f'is wanted')
+            a = rows[:, 0].astype(np.int64) + start
+            outside = (a < start) | (a >= start + n)
+            if outside.any():
+                raise ActionError(f'{self.path} answers actions outside {start} to {start + n - 1}: '
+                                  f'{sorted(set(a[outside].tolist()))[:5]} (on {int(outside.sum())} of {m} {of})')
+            return a
+        size = int(np.prod(space.shape))
+        if rows.shape[1] != size:
+            raise ActionError(f'{self.path} answers {rows.shape[1]} numbers for an observation; the env\'s action is '
+                              f'{size}')
+        return np.minimum(np.maximum(rows.astype(np.float64), space.low.reshape(-1)), space.high.reshape(-1))
 
     def act(self, observation):
         """The action of one observation as the env gives it (a Dict env's dict, or an array)."""
@@ -264,18 +299,7 @@ def _trial(policy: OnnxPolicy, where: str) -> None:
     except Exception as e:       # onnxruntime's errors: a model that fails on a well-formed observation
         raise PolicyError(f'{where} fails on a {d}-number observation: {str(e).strip().splitlines()[0][:300]}') \
             from None
-    if len(out) != len(x):
-        raise PolicyError(f'{where} answers {len(out)} actions for {len(x)} observations: its first dimension must '
-                          f'be the batch')
-    if out.dtype.kind == 'f' and not np.isfinite(out).all():
-        bad = int((~np.isfinite(out.reshape(len(out), -1))).any(axis=1).sum())
-        raise PolicyError(f'{where} answers NaN or infinite actions (on {bad} of {len(x)} trial observations)')
-    if isinstance(policy.action_space, spaces.Discrete) and not policy.scores:
-        n, start = int(policy.action_space.n), int(policy.action_space.start)
-        flat = out.reshape(len(out)) + start
-        if ((flat < start) | (flat >= start + n)).any():
-            raise PolicyError(f'{where} answers actions outside {start} to {start + n - 1}: '
-                              f'{sorted(set(flat.tolist()))[:5]}')
+    policy.actions(out, len(x), 'trial observations')
 
 
 @dataclass(eq=False)

@@ -20,7 +20,7 @@ from dataclasses import replace
 
 from robot_ai import ars, artifacts
 from robot_ai import policies
-from robot_ai.cli import (fraction, output_folder, positive_number, run_command, show_policy, whole_number,
+from robot_ai.cli import (fraction, output_folder, positive_number, refuse, run_command, show_policy, whole_number,
                           write_or_say)
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
@@ -80,7 +80,7 @@ def run_train(a, parser) -> int:
     try:
         setup = ReachSetup(**kwargs)
     except ReachError as e:
-        parser.error(str(e))
+        refuse(parser, str(e))
     for warning in setup.arm.warnings:
         print(f'warning: {warning}', file=sys.stderr)
     folder = output_folder(a, parser)
@@ -171,11 +171,15 @@ def run_evaluate(a, parser) -> int:
     try:
         policy, setup, note = policy_files.load(a.policy, model=a.model or None, xacro_args=a.xacro_args or None)
     except (policies.PolicyError, ReachError) as e:
-        parser.error(str(e))
+        refuse(parser, str(e))
     if note:
         print(note, file=sys.stderr)
     folder = output_folder(a, parser) if a.video else ''
-    result = learn.evaluate(policy.actor, setup, a.episodes, a.seed)
+    try:
+        result = learn.evaluate(policy.actor, setup, a.episodes, a.seed)
+    except (policies.PolicyError, ValueError) as e:     # a model that answers no action on a real state
+        print(f'evaluate: {e}', file=sys.stderr)
+        return 1
     print(policy.describe())
     print(f'robot             {setup.arm.describe()}')
     print(f'success rate      {percent(result.success_rate)} of {a.episodes} fresh goals within '
