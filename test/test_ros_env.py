@@ -10,9 +10,11 @@ import tempfile
 import time
 import unittest
 import warnings
+import xmlrpc.client
 
 import gymnasium
 import numpy as np
+import rosgraph
 import rospy
 import rostest
 from gymnasium.utils.env_checker import check_env
@@ -424,6 +426,51 @@ class TestRosEnv(unittest.TestCase):
             for p in (flood, fake):
                 os.killpg(p.pid, signal.SIGINT)
                 p.wait(30)
+
+    def test_a_set_state_of_millions_of_numbers_costs_the_sim_its_size(self):
+        """Issue 40: ~set_state with 20 million numbers cost the sim 1.2 GB (a Python float each) before it refused
+        them. Read by numpy, 10 million numbers (80 MB) cost about their size, and the refusal says why."""
+        from robot_ai.nodes.params import numpy_service
+        from robot_ai.srv import SetCartPoleState
+        uri = rosgraph.Master('/test').lookupNode('/free/cartpole_sim')
+        pid = xmlrpc.client.ServerProxy(uri).getPid('/test')[2]
+
+        def peak_mib():
+            with open(f'/proc/{pid}/status') as f:
+                return next(int(l.split()[1]) for l in f if l.startswith('VmHWM')) / 1024
+        before = peak_mib()
+        call = rospy.ServiceProxy('/free/cartpole_sim/set_state', numpy_service(SetCartPoleState))
+        answer = call(state=np.zeros(10_000_000))
+        self.assertFalse(answer.success)
+        self.assertIn('a state is 4 numbers', answer.message)
+        self.assertLess(peak_mib() - before, 250, f'the sim grew from {before:.0f} to {peak_mib():.0f} MiB')
+
+    def test_a_stopped_env_keeps_its_sim(self):
+        """Issue 40: an env whose process was stopped (Ctrl-Z, a debugger; or busy for seconds in C code) lost its sim
+        to the next env that asked, and raised at its next step. The lease holds across pauses of any length."""
+        code = ("import gymnasium, os, signal, sys, robot_ai.envs; e = gymnasium.make('robot_ai/RosCartPole-v1', "
+                "robot_ns='/cartpole_3'); e.reset(seed=0); print('held', flush=True); os.kill(os.getpid(), "
+                "signal.SIGSTOP); e.step(1); print('stepped', flush=True); e.close()")
+        holder = subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                  text=True, start_new_session=True)
+        try:
+            self.assertEqual(holder.stdout.readline().strip(), 'held')
+            deadline = time.monotonic() + 30
+            while open(f'/proc/{holder.pid}/stat').read().rsplit(')', 1)[1].split()[0] != 'T':
+                self.assertLess(time.monotonic(), deadline)
+                time.sleep(0.05)
+            for _ in range(2):
+                with self.assertRaises(RosCartPoleError) as caught:
+                    self.ros('/cartpole_3', timeout=3.0).reset(seed=0)
+                self.assertIn('leased to', str(caught.exception))
+            os.kill(holder.pid, signal.SIGCONT)
+            out, err = holder.communicate(timeout=60)
+            self.assertEqual(holder.returncode, 0, err[-2000:])
+            self.assertIn('stepped', out)
+        finally:
+            if holder.poll() is None:
+                os.killpg(holder.pid, signal.SIGKILL)
+                holder.wait()
 
     def test_a_killed_env_frees_its_sim(self):
         code = ("import gymnasium, os, signal, robot_ai.envs; e = gymnasium.make('robot_ai/RosCartPole-v1', "

@@ -31,7 +31,10 @@ def caller_of(msg) -> str:
 
 
 def node_alive(name: str, timeout: float = PING_TIMEOUT) -> bool:
-    """Whether a node answers at the address the master has for it (False: unknown to the master, or gone)."""
+    """Whether a node's process still runs at the address the master has for it (False: unknown to the master, or
+    its port refuses: the process is gone). A process that is stopped (Ctrl-Z, a debugger) or busy for seconds in C
+    code holding the GIL (a pickle save) still owns its port: the kernel accepts the connection and the answer is
+    only late, so a timeout means alive, however long the pause."""
     try:
         uri = rosgraph.Master(rospy.get_name()).lookupNode(name)
     except rosgraph.MasterError:       # the master does not know it (any more)
@@ -41,12 +44,14 @@ def node_alive(name: str, timeout: float = PING_TIMEOUT) -> bool:
     try:
         code, _, _ = xmlrpc.client.ServerProxy(uri, transport=_Transport(timeout)).getPid(rospy.get_name())
         return code == 1
-    except (OSError, xmlrpc.client.Error):
+    except TimeoutError:               # connected, no answer yet: paused or busy, not gone
+        return True
+    except (OSError, xmlrpc.client.Error):   # refused, reset, unreachable: its process is gone
         return False
 
 
 class _Transport(xmlrpc.client.Transport):
-    """XML-RPC over HTTP with a timeout (a node that is gone, or stopped, does not hold the caller)."""
+    """XML-RPC over HTTP with a timeout (a node that is stopped does not hold the caller)."""
 
     def __init__(self, timeout: float):
         super().__init__()

@@ -41,7 +41,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from robot_ai.lease import Lease, caller_of
-from robot_ai.nodes.params import bool_param, number_param, publish, quiet_on_shutdown
+from robot_ai.nodes.params import bool_param, number_param, numpy_service, publish, quiet_on_shutdown
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach.arm import joint_limits, joint_velocity
 from robot_ai.srv import Lease as LeaseService
@@ -78,7 +78,7 @@ class ArmSim:
                                              tcp_nodelay=True, latch=self.lockstep)
         self.command_sub = rospy.Subscriber(COMMAND_TOPIC, RawCommand, self._on_command, queue_size=10,
                                             tcp_nodelay=True)
-        self.services = [rospy.Service('~set_state', SetJointPositions, self._on_set_state),
+        self.services = [rospy.Service('~set_state', numpy_service(SetJointPositions), self._on_set_state),
                          rospy.Service('~lease', LeaseService, self.lease.handle)]
         mode = ('lockstep: one step per command, reached at once' if self.lockstep else
                 f'{self.rate * self.real_time_factor:g} ticks per second of ROS time, at the URDF velocity limits')
@@ -160,7 +160,7 @@ class ArmSim:
         if len(values) != len(self.joints):
             return f'{what} of {len(values)} positions ignored: the sim moves {len(self.joints)} joints ' \
                    f'({", ".join(self.joints)})'
-        array = np.asarray(values, dtype=float)
+        array = np.array(values, dtype=float)     # a copy: a numpy request is a read-only view of its bytes
         if not np.isfinite(array).all():
             return f'{what} {array.tolist()} ignored: positions must be finite numbers'
         return array

@@ -65,7 +65,7 @@ from std_srvs.srv import Trigger, TriggerResponse
 from robot_ai.cartpole.dynamics import CartPoleDynamics, rng_for, start_states
 from robot_ai.msg import CartPoleEpisode
 from robot_ai.lease import Lease, caller_of
-from robot_ai.nodes.params import bool_param, int_param, number_param, publish, quiet_on_shutdown
+from robot_ai.nodes.params import bool_param, int_param, number_param, numpy_service, publish, quiet_on_shutdown
 from robot_ai.srv import Lease as LeaseService
 from robot_ai.srv import PushPole, PushPoleResponse, SetCartPoleState, SetCartPoleStateResponse
 
@@ -108,7 +108,7 @@ class CartPoleSim:
         self.force_sub = rospy.Subscriber('cart_force', Float64, self._on_force, queue_size=100, tcp_nodelay=True)
         self.services = [rospy.Service('~reset', Trigger, self._on_reset),
                          rospy.Service('~push', PushPole, self._on_push),
-                         rospy.Service('~set_state', SetCartPoleState, self._on_set_state),
+                         rospy.Service('~set_state', numpy_service(SetCartPoleState), self._on_set_state),
                          rospy.Service('~lease', LeaseService, self.lease.handle)]
         mode = (' (lockstep: one step per state, on the controller\'s cart_force)' if self.lockstep else
                 f', each waiting up to {self.answer_timeout:g} s for the controller\'s answer'
