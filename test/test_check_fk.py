@@ -498,6 +498,7 @@ class TestCheckFk(unittest.TestCase):
             'flood': HOSTILE_FLOOD,
             'slow': HOSTILE_SLOW,
             'x\nPASS': course,
+            'hog': HOSTILE_HOG,
         }
         with tempfile.TemporaryDirectory() as folder:
             klass = os.path.join(folder, 'class')
@@ -522,15 +523,22 @@ class TestCheckFk(unittest.TestCase):
                 alice_after = f.read()
         self.assertIn('each student in a sandbox', out)
         # one line per student, whatever its name holds; the only PASS lines are alice's and the newline folder's
-        self.assertEqual(sorted(rows), sorted(['alice', 'mallory', 'eve', 'flood', 'slow', 'x\\nPASS']))
+        self.assertEqual(sorted(rows), sorted(['alice', 'mallory', 'eve', 'flood', 'slow', 'x\\nPASS', 'hog']))
         self.assertEqual([l for l in lines if l.startswith('PASS')], [])
         self.assertEqual(rows['alice']['verdict'], 'PASS')
         self.assertEqual(rows['x\\nPASS']['verdict'], 'PASS')
-        for name in ('mallory', 'eve', 'flood', 'slow'):
+        for name in ('mallory', 'eve', 'flood', 'slow', 'hog'):
             self.assertTrue(rows[name]['verdict'].startswith('FAIL: '), rows[name])
             self.assertNotIn('\n', rows[name]['verdict'])
             self.assertEqual(len([l for l in lines if l.startswith(name + ': FAIL')]), 1, (name, lines))
         self.assertIn('did not end within its budget of 45 s', rows['slow']['verdict'])
+        # issue 40: the hog's 60 busy loops, each in a session of its own, are its own group's: the right nodes beside
+        # it still PASS (above), the class is told so, and no group is left behind
+        self.assertIn('each student and its judge in a control group of their own', out)
+        for hierarchy in ('cpu', 'memory', 'pids', 'unified'):
+            folder = f'/sys/fs/cgroup/{hierarchy}/robot_ai_grading'
+            left = [d for d in os.listdir(folder) if d.startswith('check_fk_')] if os.path.isdir(folder) else []
+            self.assertEqual(left, [], hierarchy)
         self.assertLess(elapsed, 300)
         # nothing written where the student must not write, nothing of theirs left running
         self.assertEqual(alice_after, course)
@@ -683,6 +691,19 @@ for _ in range(600):
     os.write(1, chunk)
 rospy.spin()
 """
+HOSTILE_HOG = """#!/usr/bin/env python3
+# 60 busy loops, each in a session of its own (the kernel's autogroup makes each a scheduling group), then a node
+import os
+import rospy
+for _ in range(60):
+    if os.fork() == 0:
+        os.setsid()
+        while True:
+            pass
+rospy.init_node('hog')
+rospy.spin()
+"""
+
 HOSTILE_SLOW = """#!/usr/bin/env python3
 import time
 import rospy, tf2_ros

@@ -15,10 +15,13 @@ import tempfile
 import threading
 import time
 
-from robot_ai.grading import candidates, sandbox
+from robot_ai.grading import candidates, cgroups, sandbox
 from robot_ai.grading.processes import CHUNK, LOG_BYTES, free_port, signal_group
 from robot_ai.grading.report import MAX_NAME, RESULT_BYTES, budget_of, nothing_graded, spreadsheet_cell
 
+WALL_LIMIT_FACTOR = 3             # a judge is killed past this many times its budget of wall time, and a minute
+JUDGE_MEMORY = 1024 ** 3          # bytes a judge (check_fk, its roscore and rosout) may use beside its student's
+GROUP_TASKS = 1024                # processes and threads of a student's group: its own and its judge's
 REPORT_TAIL = 64 * 1024        # bytes of a judge's report a class run keeps in memory
 JUDGE = 'import sys; from robot_ai.nodes.check_fk import main; sys.exit(main(sys.argv[1:]))'
 
@@ -154,7 +157,9 @@ def grade_class(a, tree, argv) -> int:
         return 2
     jobs = a.jobs or os.cpu_count() or 1
     budget = budget_of(a)
-    limit = budget + 60.0             # a judge that has not ended by then is killed with its namespaces
+    # the judge's budget counts the time its student was given a CPU (cgroups.BudgetClock): on a loaded machine that
+    # is less than wall time, so the wall-clock limit past which a judge is killed with its namespaces is wider
+    limit = WALL_LIMIT_FACTOR * budget + 60.0
     path = a.csv or f'check_fk_{os.path.basename(folder)}.csv'
     reports = os.path.splitext(os.path.abspath(path))[0] + '_reports'
     os.makedirs(reports, exist_ok=True)
@@ -166,6 +171,8 @@ def grade_class(a, tree, argv) -> int:
     running, lock = {}, threading.Lock()
     on_model = f'{a.model}' + (f' with xacro arguments "{a.xacro_args}"' if a.xacro_args else '')
     limits = sandbox.Limits(cpu_seconds=int(budget) + 60)
+    cores = max(1.0, (os.cpu_count() or 1) / jobs)          # each student's CPU share, at most
+    share = cgroups.version() if not a.no_sandbox else 0
     print(f'check_fk: {len(students)} students in {sandbox.printable(folder)} on {on_model} ({len(tree.links)} '
           f'links), {a.configurations} configurations (seed {a.seed}, tolerance {a.tolerance:g}, timeout '
           f'{a.timeout:g} s), at most {budget:g} s each, {jobs} at a time')
@@ -174,11 +181,16 @@ def grade_class(a, tree, argv) -> int:
     else:
         print(f'check_fk: each student in a sandbox: a user of its own, a copy of its folder, a network of its own, '
               f'{limits.describe()}')
+        print(f'check_fk: each student and its judge in a control group of their own: an equal CPU share (at most '
+              f'{cores:g} cores), {(limits.memory_bytes + JUDGE_MEMORY) / 1024 ** 3:g} GiB of memory together, '
+              f'{GROUP_TASKS} tasks; the budget counts the time a CPU was given' if share else
+              'check_fk: no control groups here (cgroup v1 or v2 with root): limits are per process')
     print(f'check_fk: reports in {reports}', flush=True)
     options = ['--model', a.model, '--xacro-args', a.xacro_args, '--configurations', str(a.configurations),
                '--seed', str(a.seed), '--tolerance', repr(a.tolerance), '--timeout', repr(a.timeout),
                '--budget', repr(budget), '--expect', 'pass']
     stopping_class = []
+    groups = {}            # student -> its control group, while its judge runs
     none_right = nothing_graded(tree, a.configurations)[len('score: '):]   # a student's score when nothing ran
 
     def one(index: int, student: str) -> candidates.Result:
@@ -213,6 +225,12 @@ def grade_class(a, tree, argv) -> int:
                 '--candidate', found, '--judge-uid', str(uid), '--judge-shown', node, '--judge-folder', copy,
                 '--judge-hide', folder, '--judge-hide', reports, '--judge-hide', work]
             env = judge_env()
+            if share:
+                group = cgroups.Group.create(f'check_fk_{os.getpid()}_{index}', cores,
+                                             limits.memory_bytes + JUDGE_MEMORY, GROUP_TASKS)
+                if group is not None:
+                    groups[student] = group
+                    cmd = group.exec_prefix(sys.executable) + cmd + ['--judge-pressure', group.pressure_file]
         read_end, write_end = os.pipe()
         try:
             with lock:
@@ -235,6 +253,10 @@ def grade_class(a, tree, argv) -> int:
         finally:
             with lock:
                 running.pop(student, None)
+            group = groups.pop(student, None)
+            if group is not None:     # whatever its judge or the student left: ended, and the group removed
+                group.kill()
+                group.remove()
         result = read_result(read_end)
         if copy:
             shutil.rmtree(copy, ignore_errors=True)
@@ -242,7 +264,8 @@ def grade_class(a, tree, argv) -> int:
         if stopping_class and (result is None or proc.returncode < 0):
             return None
         if timed_out or result is None:    # the judge's own report ends without them: they are added to it
-            verdict = (f'FAIL: grading did not end within {limit:.0f} s (its budget and a minute): ended' if timed_out
+            verdict = (f'FAIL: grading did not end within {limit:.0f} s of wall time ({WALL_LIMIT_FACTOR} times its '
+                       f'budget and a minute): ended' if timed_out
                        else f'FAIL: check_fk ended with status {proc.returncode} and no result: '
                             f'{reader.last_lines()}')
             reader.append([f'score: {none_right}', verdict])
@@ -271,6 +294,8 @@ def grade_class(a, tree, argv) -> int:
             left = list(running.values())
         for proc in left:
             signal_group(proc.pid, signal.SIGKILL)
+        for group in list(groups.values()):
+            group.kill()
         pool.shutdown(wait=True, cancel_futures=True)
         shutil.rmtree(work, ignore_errors=True)
         with open(path, 'w', newline='') as f:

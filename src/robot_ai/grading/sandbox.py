@@ -108,6 +108,33 @@ def loopback_up() -> None:
         fcntl.ioctl(s.fileno(), SIOCSIFFLAGS, struct.pack('16sH14x', b'lo', flags | IFF_UP))
 
 
+JUDGE_LOG_BYTES = 32 * 1024 ** 2     # a judge's ROS_HOME: its master's and rosout's logs (rosout quotes the student)
+
+
+def private_ros_home(size: int = JUDGE_LOG_BYTES) -> str:
+    """A ROS_HOME of its own for this judge, on a tmpfs of `size` bytes mounted in the judge's own mount namespace:
+    whatever the student sends through the judge's rosout fills it, never the grader's ROS_HOME, and it is gone with
+    the namespace. ROS_HOME and ROS_LOG_DIR name it for the processes the judge starts; its path (end_private_ros_home
+    removes the mount point)."""
+    import subprocess
+    import tempfile
+    folder = tempfile.mkdtemp(prefix='check_fk_judge_')
+    subprocess.run([tool('mount'), '-t', 'tmpfs', '-o', f'size={size},mode=0700', 'tmpfs', folder], check=True,
+                   capture_output=True)
+    os.environ['ROS_HOME'] = folder
+    os.environ['ROS_LOG_DIR'] = os.path.join(folder, 'log')
+    return folder
+
+
+def end_private_ros_home(folder: str) -> None:
+    import subprocess
+    subprocess.run([tool('umount'), '-l', folder], capture_output=True)
+    try:
+        os.rmdir(folder)
+    except OSError:
+        pass
+
+
 def copy_folder(source: str, target: str, uid: int, max_bytes: int = MAX_COPY_BYTES,
                 max_files: int = MAX_COPY_FILES) -> None:
     """Copy a candidate's folder for its sandbox: regular files and folders, symbolic links as links (inside the

@@ -26,6 +26,7 @@ import numpy as np
 
 from robot_ai.child_process import PR_SET_CHILD_SUBREAPER, prctl
 from robot_ai.grading import candidates, sandbox
+from robot_ai.grading.cgroups import BudgetClock
 from robot_ai.grading.class_run import grade_class, reexec_in_namespaces, sandboxed
 from robot_ai.grading.fk import Grade, comparison_frame, configurations
 from robot_ai.grading.processes import Output, end_descendants, log_path, start_master, stop, wait_for_master
@@ -148,6 +149,8 @@ def parse_args(argv):
     # a class run's judge: the check of one student, in a network namespace of its own, the student sandboxed
     p.add_argument('--judge-uid', type=int, default=-1, help=argparse.SUPPRESS)
     p.add_argument('--judge-folder', default='', help=argparse.SUPPRESS)
+    p.add_argument('--judge-pressure', default='', help=argparse.SUPPRESS)   # its group's cpu.pressure: the budget's
+                                                                            # clock (robot_ai.grading.cgroups)
     p.add_argument('--judge-hide', action='append', default=[], help=argparse.SUPPRESS)
     p.add_argument('--result-fd', type=int, default=-1, help=argparse.SUPPRESS)
     p.add_argument('--judge-shown', default='', help=argparse.SUPPRESS)   # the candidate as the user named it
@@ -261,11 +264,13 @@ def main(argv=None) -> int:
     prctl(PR_SET_CHILD_SUBREAPER, 1)
     core = proc = None
     own_global = False
+    ros_home = ''
     env = None
-    budget_end = time.monotonic() + budget_of(a)
+    clock = BudgetClock(budget_of(a), a.judge_pressure)
     try:
         if sandboxed(a):
             sandbox.loopback_up()          # this judge's own network namespace: loopback, and its master on it
+            ros_home = sandbox.private_ros_home()   # its logs: bounded, in its own mount namespace, removed after
         core = start_master()
         wait_for_master(core)
         from sensor_msgs.msg import JointState
@@ -294,7 +299,7 @@ def main(argv=None) -> int:
         t0 = time.time()
         print(f'check_fk: {sandbox.printable(a.judge_shown or a.candidate)} on {a.model} ({len(tree.links)} links, '
               f'{len(tree.active_joints)} driven joints), {a.configurations} configurations', flush=True)
-        lines, _ = grade(tree, a, candidate, proc, output, pub, JointState, budget_end)
+        lines, _ = grade(tree, a, candidate, proc, output, pub, JointState, clock)
         return finish(a, tree, lines[:-1] + [f'(graded in {time.time() - t0:.1f} s)', lines[-1]], time.time() - t0)
     finally:
         stopping.append('clean-up')
@@ -311,6 +316,8 @@ def main(argv=None) -> int:
             rospy.signal_shutdown('check_fk done')
         stop(core)
         end_descendants()
+        if ros_home:
+            sandbox.end_private_ros_home(ros_home)
 
 
 def send(pub, JointState, q: dict) -> None:
@@ -385,15 +392,15 @@ def registered(node: str) -> bool:
         return False
 
 
-def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState, budget_end: float = math.inf):
-    """Drive the candidate through the configurations until budget_end (time.monotonic()); (report lines, exit
-    status)."""
+def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState, clock: BudgetClock | None = None):
+    """Drive the candidate through the configurations until the clock says the budget is spent (the time the
+    candidate was given a CPU: robot_ai.grading.cgroups); (report lines, exit status)."""
     names = {link: tf_name(link) for link in tree.links}     # URDF link -> the frame tf2 keeps
     link_of = {f: link for link, f in names.items()}
     done = [0]       # configurations graded
 
     def over():
-        return time.monotonic() > budget_end
+        return clock is not None and clock.over()
 
     def dead():
         return proc.poll() is not None or over()
