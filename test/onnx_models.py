@@ -107,3 +107,35 @@ def cartpole_three_scores(weights: np.ndarray) -> onnx.ModelProto:
                  [tensor('scores', TensorProto.FLOAT, ['batch', 2])],
                  [numpy_helper.from_array(w, 'W'), numpy_helper.from_array(np.array([0, 0, 1000], np.float32),
                                                                             'shift')], {'env_id': 'CartPole-v1'})
+
+
+def cartpole_endless_loop(weights: np.ndarray) -> onnx.ModelProto:
+    """The course's scores through a Loop of 2**40 iterations that pass them on unchanged: days to answer."""
+    w = np.zeros((4, 2), np.float32)
+    w[:, 1] = weights
+    body = helper.make_graph([helper.make_node('Identity', ['cond_in'], ['cond_out']),
+                              helper.make_node('Identity', ['v_in'], ['v_out'])], 'body',
+                             [tensor('i', TensorProto.INT64, []), tensor('cond_in', TensorProto.BOOL, []),
+                              tensor('v_in', TensorProto.FLOAT, ['batch', 2])],
+                             [tensor('cond_out', TensorProto.BOOL, []),
+                              tensor('v_out', TensorProto.FLOAT, ['batch', 2])])
+    nodes = [helper.make_node('MatMul', ['obs', 'W'], ['raw']),
+             helper.make_node('Loop', ['trips', 'go', 'raw'], ['scores'], body=body)]
+    return model(nodes, [tensor('obs', TensorProto.FLOAT, ['batch', 4])],
+                 [tensor('scores', TensorProto.FLOAT, ['batch', 2])],
+                 [numpy_helper.from_array(w, 'W'), numpy_helper.from_array(np.array(2 ** 40, np.int64), 'trips'),
+                  numpy_helper.from_array(np.array(True), 'go')], {'env_id': 'CartPole-v1'})
+
+
+def cartpole_gigabytes(weights: np.ndarray) -> onnx.ModelProto:
+    """The course's scores plus the sum of one zero expanded to 800 million numbers: a small file, 3.2 GB to run."""
+    w = np.zeros((4, 2), np.float32)
+    w[:, 1] = weights
+    nodes = [helper.make_node('MatMul', ['obs', 'W'], ['raw']),
+             helper.make_node('Expand', ['nothing', 'many'], ['big']),
+             helper.make_node('ReduceSum', ['big'], ['sum'], keepdims=0),
+             helper.make_node('Add', ['raw', 'sum'], ['scores'])]
+    return model(nodes, [tensor('obs', TensorProto.FLOAT, ['batch', 4])],
+                 [tensor('scores', TensorProto.FLOAT, ['batch', 2])],
+                 [numpy_helper.from_array(w, 'W'), numpy_helper.from_array(np.array(0.0, np.float32), 'nothing'),
+                  numpy_helper.from_array(np.array([800_000_000], np.int64), 'many')], {'env_id': 'CartPole-v1'})

@@ -310,3 +310,23 @@ def test_every_action_is_checked_not_only_the_trial_ones(tmp_path):
     three = onnx_models.save(onnx_models.cartpole_three_scores(WEIGHTS), str(tmp_path / 'three.onnx'))
     with pytest.raises(PolicyError, match='answers 3 scores for an observation; the env has 2 actions'):
         policy_kinds.load(three)     # the trial sees it: 3 columns where 2 are declared
+
+
+def test_a_model_that_runs_for_days_or_takes_gigabytes_is_refused_at_load_within_bounds(tmp_path, monkeypatch):
+    """Issue 40: a Loop of 2**40 iterations, or a small file that expands one number to 3.2 GB, is refused in one
+    line within the trial's bounds of time and memory, in a child process: this one builds nothing of it."""
+    import resource
+    import time
+    monkeypatch.setattr(onnx_policy, 'TRIAL_SECONDS', 5.0)
+    endless = onnx_models.save(onnx_models.cartpole_endless_loop(WEIGHTS), str(tmp_path / 'endless.onnx'))
+    t = time.monotonic()
+    with pytest.raises(PolicyError, match=r'endless.onnx takes more than 5 s to answer 16 observations'):
+        policy_kinds.load(endless)
+    assert time.monotonic() - t < 30
+    big = onnx_models.save(onnx_models.cartpole_gigabytes(WEIGHTS), str(tmp_path / 'big.onnx'))
+    assert os.path.getsize(big) < 2000
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    with pytest.raises(PolicyError, match=r'big.onnx needs more than 2 GiB to answer 16 observations') as caught:
+        policy_kinds.load(big)
+    assert '\n' not in str(caught.value)
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 500 * 1024   # KiB: nothing of it here

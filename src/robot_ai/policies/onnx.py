@@ -289,11 +289,60 @@ def session_of(data: bytes):
     return onnxruntime.InferenceSession(data, options, providers=['CPUExecutionProvider'])
 
 
+def trial_observations(observation_space) -> np.ndarray:
+    """The trial's observations: zeros, and TRIAL_OBSERVATIONS - 1 standard normal ones (seeded)."""
+    d = int(spaces.flatdim(observation_space))
+    rng = np.random.default_rng(0)
+    return np.concatenate((np.zeros((1, d)), rng.normal(size=(TRIAL_OBSERVATIONS - 1, d)))).astype(np.float32)
+
+
+TRIAL_SECONDS = 20.0              # wall seconds the bounded trial (a session, one run) may take in its child
+TRIAL_MEMORY = 2 * 1024 ** 3      # bytes of address space it may use
+TRIAL_CHILD = '''
+import resource, sys
+import numpy as np
+resource.setrlimit(resource.RLIMIT_AS, (int(sys.argv[1]), int(sys.argv[1])))
+resource.setrlimit(resource.RLIMIT_CPU, (int(sys.argv[2]), int(sys.argv[2])))
+from robot_ai.policies.onnx import session_of
+raw = sys.stdin.buffer.read()
+n = int.from_bytes(raw[:8], 'little')
+data, x = raw[8:8 + n], np.frombuffer(raw[8 + n:], dtype=np.float32).reshape(int(sys.argv[3]), -1)
+session_of(data).run([sys.argv[5]], {sys.argv[4]: x})
+print('ok', flush=True)
+'''
+
+
+def bounded_trial(data: bytes, input_name: str, output_name: str, x: np.ndarray, where: str) -> None:
+    """The model's session and one run of the trial's observations, first in a child process bounded in time
+    (TRIAL_SECONDS) and memory (TRIAL_MEMORY): a Loop of 2**40 iterations, or a 459-byte file that expands one number
+    to gigabytes, is refused here in one line before this process builds anything of it. Ctrl-C ends the child."""
+    import subprocess
+    import sys
+    command = [sys.executable, '-c', TRIAL_CHILD, str(TRIAL_MEMORY), str(int(TRIAL_SECONDS) + 1), str(len(x)),
+               input_name, output_name]
+    child = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        out, err = child.communicate(len(data).to_bytes(8, 'little') + data + x.tobytes(), timeout=TRIAL_SECONDS)
+    except subprocess.TimeoutExpired:
+        raise PolicyError(f'{where} takes more than {TRIAL_SECONDS:g} s to answer {len(x)} observations: refused '
+                          f'(a policy answers in milliseconds)') from None
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    if child.returncode != 0 or out.strip() != b'ok':
+        said = err.decode(errors='replace').strip().splitlines()
+        cause = said[-1][:300] if said else f'it ended with status {child.returncode}'
+        if child.returncode == -9 or 'MemoryError' in cause or 'bad_alloc' in cause or 'allocat' in cause.lower():
+            raise PolicyError(f'{where} needs more than {TRIAL_MEMORY / 1024 ** 3:g} GiB to answer {len(x)} '
+                              f'observations: refused ({cause})')
+        raise PolicyError(f'{where} fails on a {x.shape[1]}-number observation: {cause}')
+
+
 def _trial(policy: OnnxPolicy, where: str) -> None:
     """Run the model on zero and random observations: it must answer finite actions within the space."""
-    d = int(spaces.flatdim(policy.observation_space))
-    rng = np.random.default_rng(0)
-    x = np.concatenate((np.zeros((1, d)), rng.normal(size=(TRIAL_OBSERVATIONS - 1, d)))).astype(np.float32)
+    x = trial_observations(policy.observation_space)
+    d = x.shape[1]
     try:
         out = policy._run(x)
     except Exception as e:       # onnxruntime's errors: a model that fails on a well-formed observation
@@ -352,6 +401,7 @@ def build(file: OnnxFile, target: Target) -> OnnxPolicy:
     env_id, env_kwargs = target.env_id, target.env_kwargs
     observation_space, action_space = target.observation_space, target.action_space
     input_name, output_name, scores = _fit(model, where, observation_space, action_space)
+    bounded_trial(file.data, input_name, output_name, trial_observations(observation_space), where)
     try:
         session = session_of(file.data)
     except Exception as e:       # onnxruntime refusing what onnx's checker let through
