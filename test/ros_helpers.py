@@ -144,3 +144,14 @@ def wait_file(path, timeout=20.0):
             return True
         time.sleep(0.1)
     return False
+
+
+def on_this_master(pid) -> bool:
+    """Whether process pid is a node of this test's master (its ROS_MASTER_URI, roslaunch's with a trailing '/'): make
+    test runs rostests side by side, and another test's node may have the same name (the demo's cartpole_search)."""
+    mine = os.environ.get('ROS_MASTER_URI', '').rstrip('/').encode()
+    try:
+        with open(f'/proc/{pid}/environ', 'rb') as f:
+            return any(v.rstrip(b'/') == b'ROS_MASTER_URI=' + mine for v in f.read().split(b'\0'))
+    except OSError:
+        return False

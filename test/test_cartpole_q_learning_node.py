@@ -22,7 +22,7 @@ from robot_ai.msg import QLearningAction, QLearningGoal, QLearningProgress
 from robot_ai.srv import Act, EvaluateAgent, LoadPolicy, QLearning
 
 sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
-from ros_helpers import wait_file  # noqa: E402
+from ros_helpers import on_this_master, wait_file  # noqa: E402
 
 NS = '/cartpole_q_learning/'
 
@@ -87,7 +87,7 @@ class TestCartPoleQLearningNode(unittest.TestCase):
         on = self.train(episodes=40, seed=3, initial_policy=first.policy_path)
         self.assertTrue(on.success, on.message)
         self.assertEqual(len(on.total_rewards), 40)
-        from robot_ai.cartpole import policies
+        from robot_ai import policies
         start, kept = policies.load(first.policy_path), policies.load(on.policy_path)
         self.assertEqual(kept.metadata['settings']['started_from'], first.policy_path)
         self.assertEqual(kept.metadata['settings']['start_episode'], 60)
@@ -203,7 +203,7 @@ class TestCartPoleQLearningNode(unittest.TestCase):
 def node_pid(name):
     table = [l.split(None, 1) for l in subprocess.run(['ps', '-eo', 'pid=,args='], capture_output=True,
                                                       text=True).stdout.splitlines()]
-    pids = [int(pid) for pid, args in table if f'__name:={name}' in args.split()]
+    pids = [int(pid) for pid, args in table if f'__name:={name}' in args.split() and on_this_master(pid)]
     assert len(pids) == 1, pids
     return pids[0]
 

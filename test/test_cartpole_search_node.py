@@ -20,7 +20,7 @@ from robot_ai.msg import RandomSearchAction, RandomSearchGoal, SearchProgress
 from robot_ai.srv import Act, EvaluatePolicy, RandomSearch
 
 sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
-from ros_helpers import wait_file, wait_for  # noqa: E402
+from ros_helpers import on_this_master, wait_file, wait_for  # noqa: E402
 
 NS = '/cartpole_search/'
 
@@ -298,7 +298,7 @@ def plot_worker_of(node):
     """The pid of the plot process the node started."""
     table = [l.split(None, 2) for l in subprocess.run(['ps', '-eo', 'pid=,ppid=,args='], capture_output=True,
                                                       text=True).stdout.splitlines()]
-    nodes = {pid for pid, _, args in table if '__name:=%s' % node in args.split()}
+    nodes = {pid for pid, _, args in table if '__name:=%s' % node in args.split() and on_this_master(pid)}
     workers = [int(pid) for pid, ppid, args in table if 'robot_ai.plot_worker' in args and ppid in nodes]
     assert len(workers) == 1, workers
     return workers[0]

@@ -512,11 +512,12 @@ class TestRosEnv(unittest.TestCase):
 
     def test_a_flood_of_invalid_forces_never_stalls_a_free_running_sim(self):
         """Each ignored force still answers its state (the last valid force held): the free sim keeps its 50
-        states a second of ROS time."""
+        states a second of ROS time. (YAML reads 1e308 as a string: rostopic then published nothing at all, and the
+        sim stepped on its clock; 1.0e+308 is the float beyond MAX_FORCE this means.)"""
         counted = []
         sub = rospy.Subscriber('/free/joint_states', JointState, lambda m: counted.append(time.monotonic()))
         flood = subprocess.Popen(['rostopic', 'pub', '-r', '300', '/free/cart_force', 'std_msgs/Float64',
-                                  'data: 1e308'], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                  'data: 1.0e+308'], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                  preexec_fn=os.setsid)
         try:
             time.sleep(3.0)
