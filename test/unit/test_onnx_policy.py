@@ -281,6 +281,11 @@ def test_both_command_lines_evaluate_and_show_an_onnx_file_and_the_searches_refu
     assert f'average length: {expected:.2f}' in r.stdout and 'ONNX policy from' in r.stdout
     shown = json.loads(run('robot_ai.cartpole', 'show', path).stdout)
     assert shown['inputs'] == {'obs': 'FLOAT (batch, 4)'} and shown['outputs'] == {'action': 'INT64 (batch,)'}
+    named = onnx_models.cartpole_scores(WEIGHTS)      # issue 40: a (batch, n) output was shown as (batch, batch)
+    named.graph.output[0].type.tensor_type.shape.dim[1].ClearField('dim_value')
+    named.graph.output[0].type.tensor_type.shape.dim[1].dim_param = 'n'
+    shown = json.loads(run('robot_ai.cartpole', 'show', onnx_models.save(named, str(tmp_path / 'n.onnx'))).stdout)
+    assert shown['outputs'] == {'scores': 'FLOAT (batch, n)'}, shown
     r = run('robot_ai.cartpole', 'q-learning', '--initial-policy', path, '--episodes', '10')
     assert r.returncode == 2 and 'is an ONNX model, not a policy file (.npz)' in r.stderr
     setup = ReachSetup(model=PACKAGE_UR5)

@@ -185,8 +185,21 @@ def _dims(value_info) -> tuple[int, list]:
     return t.tensor_type.elem_type, shape
 
 
-def _shown(shape: list) -> str:
-    return '(' + ', '.join('batch' if d is None else str(d) for d in shape) + (',)' if len(shape) == 1 else ')')
+def _shown(shape: list, names: list | None = None) -> str:
+    """A shape as messages and `show` print it: numbers, and a symbolic dimension by its own name (the model's
+    'n' is n, not batch; an unnamed one is 'batch' first and '?' after)."""
+    names = names or [None] * len(shape)
+    words = [str(d) if d is not None else (name or ('batch' if i == 0 else '?'))
+             for i, (d, name) in enumerate(zip(shape, names))]
+    return '(' + ', '.join(words) + (',)' if len(shape) == 1 else ')')
+
+
+def _dim_names(value_info) -> list:
+    """The symbolic names (dim_param) of a graph input's or output's dimensions, None where a dimension has none."""
+    t = value_info.type
+    if not t.HasField('tensor_type'):
+        return []
+    return [d.dim_param if d.HasField('dim_param') and d.dim_param else None for d in t.tensor_type.shape.dim]
 
 
 def _parse(data: bytes, where: str):
@@ -441,7 +454,7 @@ def summary(file: OnnxFile) -> dict:
             if v.name in initializers:
                 continue
             elem, shape = _dims(v)
-            out[v.name] = f'{onnx.TensorProto.DataType.Name(elem) if elem else "?"} {_shown(shape)}'
+            out[v.name] = f'{onnx.TensorProto.DataType.Name(elem) if elem else "?"} {_shown(shape, _dim_names(v))}'
         return out
     return dict(path=file.path, producer=' '.join(v for v in (model.producer_name, model.producer_version) if v),
                 opset={o.domain or 'ai.onnx': o.version for o in model.opset_import}, ir_version=model.ir_version,
