@@ -430,8 +430,15 @@ class TestRosEnv(unittest.TestCase):
     def test_a_set_state_of_millions_of_numbers_costs_the_sim_its_size(self):
         """Issue 40: ~set_state with 20 million numbers cost the sim 1.2 GB (a Python float each) before it refused
         them. Read by numpy, 10 million numbers (80 MB) cost about their size, and the refusal says why."""
-        from robot_ai.nodes.params import numpy_service
-        from robot_ai.srv import SetCartPoleState
+        import struct
+        from robot_ai.srv import SetCartPoleState, SetCartPoleStateRequest
+
+        class Big(SetCartPoleStateRequest):     # the array's bytes as they are (rospy's numpy writer needs numpy 1)
+            def serialize(self, buff):
+                buff.write(struct.pack('<I', len(self.state)))
+                buff.write(np.ascontiguousarray(self.state, '<f8').tobytes())
+        service = type('BigSetState', (), dict(_type=SetCartPoleState._type, _md5sum=SetCartPoleState._md5sum,
+                                               _request_class=Big, _response_class=SetCartPoleState._response_class))
         uri = rosgraph.Master('/test').lookupNode('/free/cartpole_sim')
         pid = xmlrpc.client.ServerProxy(uri).getPid('/test')[2]
 
@@ -439,7 +446,7 @@ class TestRosEnv(unittest.TestCase):
             with open(f'/proc/{pid}/status') as f:
                 return next(int(l.split()[1]) for l in f if l.startswith('VmHWM')) / 1024
         before = peak_mib()
-        call = rospy.ServiceProxy('/free/cartpole_sim/set_state', numpy_service(SetCartPoleState))
+        call = rospy.ServiceProxy('/free/cartpole_sim/set_state', service)
         answer = call(state=np.zeros(10_000_000))
         self.assertFalse(answer.success)
         self.assertIn('a state is 4 numbers', answer.message)

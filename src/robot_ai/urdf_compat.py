@@ -80,9 +80,11 @@ def install() -> None:
 
 
 def pth_line() -> str:
-    """The .pth line: site runs it at every start; where robot_ai cannot be imported it does nothing."""
+    """The .pth line: site runs it at every start; where robot_ai cannot be imported it does nothing. A Ctrl-C that
+    comes while it runs (roslaunch interrupted as it starts its nodes) ends that interpreter quietly, with the status of
+    an interrupted program, instead of a traceback through this module."""
     return ('import sys; exec("try:\\n import robot_ai.urdf_compat as c\\n c.install()\\n'
-            'except Exception:\\n pass")\n')
+            'except KeyboardInterrupt:\\n import os\\n os._exit(130)\\nexcept Exception:\\n pass")\n')
 
 
 def main(argv=None) -> int:

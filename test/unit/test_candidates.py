@@ -162,3 +162,16 @@ def test_the_first_wrong_link_is_the_one_the_verdict_says_to_fix():
                             'links: is it written for another robot? This one\'s root is base', links) == ''
     assert first_wrong_link('FAIL: the candidate node exited with status 1', links) == ''
     assert first_wrong_link('PASS', links) == ''
+
+
+def test_a_ctrl_c_while_the_venv_starts_ends_the_interpreter_quietly(tmp_path):
+    """launch.test's Ctrl-C at any moment of a start: a SIGINT while site ran the .pth line printed a traceback
+    through robot_ai.urdf_compat; now that interpreter ends at once with 130, an interrupted program's status."""
+    import subprocess
+    fake = tmp_path / 'robot_ai'
+    fake.mkdir()
+    (fake / '__init__.py').write_text('')
+    (fake / 'urdf_compat.py').write_text('raise KeyboardInterrupt\n')
+    done = subprocess.run([sys.executable, '-S', '-c', urdf_compat.pth_line()], capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=str(tmp_path)), timeout=60)
+    assert done.returncode == 130 and done.stderr == '', done.stderr
