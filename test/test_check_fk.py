@@ -722,5 +722,21 @@ while not rospy.is_shutdown():     # a new wrong pose every 2.5 s, just inside -
     time.sleep(2.5)
 """
 
+# The class cases (a class at once, in sandboxes, every option reaching every student, a sandboxed candidate) run as
+# check_fk_class.test, the others as check_fk.test: make test runs the two side by side (each case alone in either).
+CLASS_CASES = ('test_a_class_at_once', 'test_a_class_in_sandboxes_no_student_can_forge_or_escape',
+               'test_every_option_reaches_every_student_and_the_header_says_what_is_graded',
+               'test_a_single_candidate_in_a_sandbox_and_its_budget')
+
+
+def part(classes: bool) -> type:
+    """TestCheckFk with only the class cases, or only the others."""
+    names = [n for n in dir(TestCheckFk) if n.startswith('test_')]
+    assert set(CLASS_CASES) <= set(names), 'CLASS_CASES names a case TestCheckFk does not have'
+    dropped = [n for n in names if (n in CLASS_CASES) != classes]
+    return type('TestCheckFkClasses' if classes else 'TestCheckFkNodes', (TestCheckFk,), dict.fromkeys(dropped))
+
+
 if __name__ == '__main__':
-    rostest.rosrun('robot_ai', 'test_check_fk', TestCheckFk)
+    classes = 'classes' in sys.argv[1:]
+    rostest.rosrun('robot_ai', 'test_check_fk_class' if classes else 'test_check_fk', part(classes))
