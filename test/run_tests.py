@@ -20,8 +20,8 @@ import time
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 # measured on the 2-core machine, seconds alone (CI, 2026-12-03): the longest start first so that the run ends soon
 # after its longest test; a .test file not named here runs after these, in name order
-LONGEST_FIRST = ['launch.test', 'check_fk.test', 'check_fk_class.test', 'pytest', 'reach_ros.test', 'ros_env.test',
-                 'cartpole_robot.test',
+LONGEST_FIRST = ['launch.test', 'launch_rviz.test', 'check_fk.test', 'check_fk_class.test', 'pytest',
+                 'reach_ros.test', 'ros_env.test', 'cartpole_robot.test',
                  'forward_kinematics_vs_rsp.test', 'forward_kinematics_node.test', 'policy_files.test',
                  'cartpole_search.test', 'cartpole_q_learning.test', 'across_machines.test', 'bench_output.test',
                  'check_fk_example.test', 'forward_kinematics_hz.test', 'roslaunch-check']

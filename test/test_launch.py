@@ -11,6 +11,7 @@ import shutil
 import signal
 import socket
 import subprocess
+import sys
 import threading
 import time
 import unittest
@@ -719,5 +720,22 @@ class TestLaunch(unittest.TestCase):
         self.assertGreater(counts['cartpole']['orange'], 40, f'the pole is not drawn: {counts}')
 
 
+# The cases under Xvfb (rviz and the sliders) run as launch_rviz.test, the others as launch.test: make test runs the
+# two side by side (each case alone in either).
+RVIZ_CASES = ('test_sliders_under_xvfb', 'test_sliders_stay_visible_beside_rviz',
+              'test_rviz_screenshot_shows_robot_and_frames', 'test_rviz_finds_the_root_and_frames_any_robot',
+              'test_cartpole_rviz_screenshot_shows_the_pole_balancing', 'test_reach_in_rviz_a_clicked_point_is_reached',
+              'test_demo_rviz_shows_the_arm_and_the_cart_pole')
+
+
+def part(rviz: bool) -> type:
+    """TestLaunch with only the cases under Xvfb, or only the others."""
+    names = [n for n in dir(TestLaunch) if n.startswith('test_')]
+    assert set(RVIZ_CASES) <= set(names), 'RVIZ_CASES names a case TestLaunch does not have'
+    dropped = [n for n in names if (n in RVIZ_CASES) != rviz]
+    return type('TestLaunchRviz' if rviz else 'TestLaunchFiles', (TestLaunch,), dict.fromkeys(dropped))
+
+
 if __name__ == '__main__':
-    rostest.rosrun('robot_ai', 'test_launch', TestLaunch)
+    rviz = 'rviz' in sys.argv[1:]
+    rostest.rosrun('robot_ai', 'test_launch_rviz' if rviz else 'test_launch', part(rviz))
