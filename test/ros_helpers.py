@@ -155,3 +155,11 @@ def on_this_master(pid) -> bool:
             return any(v.rstrip(b'/') == b'ROS_MASTER_URI=' + mine for v in f.read().split(b'\0'))
     except OSError:
         return False
+
+
+def cases_of(test_class, names, chosen: bool, name: str):
+    """test_class with only the cases in names (chosen) or only the others: one script, two rostest files that make
+    test runs side by side."""
+    cases = [n for n in dir(test_class) if n.startswith('test_')]
+    assert set(names) <= set(cases), f'{name}: a case {test_class.__name__} does not have'
+    return type(name, (test_class,), dict.fromkeys(n for n in cases if (n in names) != chosen))

@@ -17,6 +17,7 @@ import rostest
 
 sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
 from fk_helpers import ROBOTS_DIR, write_xacro_package  # noqa: E402
+from ros_helpers import cases_of  # noqa: E402
 
 HERE = os.path.dirname(os.path.realpath(__file__))
 TILTED = os.path.join(HERE, 'urdf', 'tilted_axis_arm.urdf')
@@ -729,14 +730,7 @@ CLASS_CASES = ('test_a_class_at_once', 'test_a_class_in_sandboxes_no_student_can
                'test_a_single_candidate_in_a_sandbox_and_its_budget')
 
 
-def part(classes: bool) -> type:
-    """TestCheckFk with only the class cases, or only the others."""
-    names = [n for n in dir(TestCheckFk) if n.startswith('test_')]
-    assert set(CLASS_CASES) <= set(names), 'CLASS_CASES names a case TestCheckFk does not have'
-    dropped = [n for n in names if (n in CLASS_CASES) != classes]
-    return type('TestCheckFkClasses' if classes else 'TestCheckFkNodes', (TestCheckFk,), dict.fromkeys(dropped))
-
-
 if __name__ == '__main__':
     classes = 'classes' in sys.argv[1:]
-    rostest.rosrun('robot_ai', 'test_check_fk_class' if classes else 'test_check_fk', part(classes))
+    rostest.rosrun('robot_ai', 'test_check_fk_class' if classes else 'test_check_fk',
+                   cases_of(TestCheckFk, CLASS_CASES, classes, 'TestCheckFkClasses' if classes else 'TestCheckFkNodes'))

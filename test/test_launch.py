@@ -22,6 +22,7 @@ import numpy as np
 from PIL import Image
 
 from robot_ai.child_process import process_stat
+from ros_helpers import cases_of
 
 ARTIFACTS = os.path.join(rospkg.RosPack().get_path('robot_ai'), '..', '..', 'build', 'test_artifacts')
 
@@ -728,14 +729,7 @@ RVIZ_CASES = ('test_sliders_under_xvfb', 'test_sliders_stay_visible_beside_rviz'
               'test_demo_rviz_shows_the_arm_and_the_cart_pole')
 
 
-def part(rviz: bool) -> type:
-    """TestLaunch with only the cases under Xvfb, or only the others."""
-    names = [n for n in dir(TestLaunch) if n.startswith('test_')]
-    assert set(RVIZ_CASES) <= set(names), 'RVIZ_CASES names a case TestLaunch does not have'
-    dropped = [n for n in names if (n in RVIZ_CASES) != rviz]
-    return type('TestLaunchRviz' if rviz else 'TestLaunchFiles', (TestLaunch,), dict.fromkeys(dropped))
-
-
 if __name__ == '__main__':
     rviz = 'rviz' in sys.argv[1:]
-    rostest.rosrun('robot_ai', 'test_launch_rviz' if rviz else 'test_launch', part(rviz))
+    rostest.rosrun('robot_ai', 'test_launch_rviz' if rviz else 'test_launch',
+                   cases_of(TestLaunch, RVIZ_CASES, rviz, 'TestLaunchRviz' if rviz else 'TestLaunchFiles'))

@@ -13,6 +13,8 @@ import re
 import stat
 from dataclasses import dataclass
 
+from robot_ai.policies.files import read_fd
+
 MAX_SOURCE = 4 * 1024 * 1024    # bytes of a candidate file read to classify it
 MAX_FILES = 5000                # names of a student's folder looked at for its node (the sandbox copies at most as
                                 # many: robot_ai.grading.sandbox.MAX_COPY_FILES)
@@ -43,14 +45,7 @@ def read_head(path: str, size: int = MAX_SOURCE) -> bytes:
     try:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             raise OSError(errno.EINVAL, 'not a regular file', path)
-        chunks, left = [], size
-        while left > 0:
-            chunk = os.read(fd, min(left, 1 << 20))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            left -= len(chunk)
-        return b''.join(chunks)
+        return read_fd(fd, size)
     finally:
         os.close(fd)
 

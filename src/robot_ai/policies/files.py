@@ -28,6 +28,18 @@ def shown(value) -> str:
     return text if len(text) <= 40 else text[:37] + '...'
 
 
+def read_fd(fd: int, limit: int) -> bytes:
+    """At most limit bytes from an open file descriptor, read a MiB at a time until its end."""
+    chunks, left = [], limit
+    while left > 0:
+        chunk = os.read(fd, min(left, 1 << 20))
+        if not chunk:
+            break
+        chunks.append(chunk)
+        left -= len(chunk)
+    return b''.join(chunks)
+
+
 def read_regular_file(path: str, max_bytes: int, what: str = 'policy file') -> bytes:
     """The bytes of a regular file of at most max_bytes, opened without blocking and checked once open (a path
     swapped for a FIFO or a device between a check and the open is refused, never waited on)."""
@@ -45,16 +57,10 @@ def read_regular_file(path: str, max_bytes: int, what: str = 'policy file') -> b
         if st.st_size > max_bytes:
             raise PolicyError(f'{path} is {size_text(st.st_size)}: too large for {_a(what)} '
                               f'(at most {size_text(max_bytes)})')
-        chunks, left = [], max_bytes + 1
-        while left > 0:
-            chunk = os.read(fd, min(left, 1 << 20))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            left -= len(chunk)
-        if left <= 0:
+        data = read_fd(fd, max_bytes + 1)
+        if len(data) > max_bytes:
             raise PolicyError(f'{path} is too large for {_a(what)} (at most {size_text(max_bytes)})')
-        return b''.join(chunks)
+        return data
     except OSError as e:
         raise PolicyError(f'{path}: cannot read it: {e.strerror}') from None
     finally:
