@@ -28,15 +28,21 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+MASTER_MEMORY = 2 * 1024 ** 3    # bytes of address space of the roscore a check starts (its master and rosout)
+
+
 def start_master():
-    """The roscore process this starts, or None when a master already runs (ROS_MASTER_URI)."""
+    """The roscore process this starts, or None when a master already runs (ROS_MASTER_URI). Its master and rosout
+    have MASTER_MEMORY of address space each: a student that stores a gigabyte of parameters in its judge's master
+    meets a refusal there, not the grader's memory (and in a class, its control group holds them too)."""
     import rosgraph
     if rosgraph.is_master_online():
         return None
     port = free_port()
     os.environ['ROS_MASTER_URI'] = f'http://127.0.0.1:{port}'
-    return subprocess.Popen(['roscore', '-p', str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            preexec_fn=os.setsid)
+    limit = [sandbox.tool('prlimit'), f'--as={MASTER_MEMORY}', '--'] if sandbox.tool('prlimit') else []
+    return subprocess.Popen(limit + ['roscore', '-p', str(port)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, preexec_fn=os.setsid)
 
 
 def wait_for_master(core) -> None:

@@ -45,18 +45,24 @@ SUBSCRIBE = 10.0        # seconds from then to its joint_states subscription (it
 MAX_CONFIGURATIONS = 10000
 MAX_TIMEOUT = 600.0     # seconds
 MAX_FRAMES = 10000      # frame names a candidate's tree may introduce before the rest are only counted
+MAX_NAMED = 100         # frames with non-finite transforms kept for the report
+CACHE_SECONDS = 10      # of moving transforms the judge's tf buffer keeps (it reads the latest)
 
 
 class TfTree:
     """The candidate's tf tree, from its remapped /tf and /tf_static: statics kept, the rest per configuration."""
 
-    def __init__(self, ns: str):
+    def __init__(self, ns: str, keep: int):
+        """keep: the frames whose transforms the buffer holds (the URDF's links and a few parents, the first that
+        come); a flood of new frames is counted, never kept, so the judge's memory stays bounded (issue 40: a
+        student's tf grew its judge to 1.2 GB)."""
         import rospy
         import tf2_ros
         from tf2_msgs.msg import TFMessage
         self._tf2 = tf2_ros
-        self.statics, self.frames, self.children, self.received, self.non_finite = [], set(), set(), 0, []
-        self.buffer = tf2_ros.Buffer(cache_time=rospy.Duration(60))
+        self.statics, self.frames, self.children, self.received, self.non_finite = {}, set(), set(), 0, []
+        self.keep, self.kept = keep, set()
+        self.buffer = tf2_ros.Buffer(cache_time=rospy.Duration(CACHE_SECONDS))
         self.subs = [rospy.Subscriber(f'{ns}/candidate/tf', TFMessage, self._on_tf, queue_size=1000),
                      rospy.Subscriber(f'{ns}/candidate/tf_static', TFMessage, self._on_static, queue_size=100)]
 
@@ -73,8 +79,18 @@ class TfTree:
                 self.frames.update((self._name(t.header.frame_id), child))
                 self.children.add(child)
             r, p = t.transform.rotation, t.transform.translation
-            if not all(math.isfinite(v) for v in (r.x, r.y, r.z, r.w, p.x, p.y, p.z)):
+            if not all(math.isfinite(v) for v in (r.x, r.y, r.z, r.w, p.x, p.y, p.z)) and \
+                    len(self.non_finite) < MAX_NAMED:
                 self.non_finite.append(child)
+
+    def _keeps(self, t) -> bool:
+        """Whether t's child frame is one the buffer holds (the first `keep` frames that come)."""
+        child = t.child_frame_id
+        if child not in self.kept:
+            if len(self.kept) >= self.keep:
+                return False
+            self.kept.add(child)
+        return True
 
     def parentless(self) -> set:
         """Frames that are some transform's parent and no transform's child."""
@@ -85,19 +101,21 @@ class TfTree:
         self.received += 1
         buf = self.buffer
         for t in msg.transforms:
-            buf.set_transform(t, 'check_fk')
+            if self._keeps(t):
+                buf.set_transform(t, 'check_fk')
 
     def _on_static(self, msg) -> None:
         self._check(msg)
-        self.statics.extend(msg.transforms)
         for t in msg.transforms:
-            self.buffer.set_transform_static(t, 'check_fk')
+            if self._keeps(t):
+                self.statics[t.child_frame_id] = t      # the latest of each frame: a flood of them costs nothing
+                self.buffer.set_transform_static(t, 'check_fk')
 
     def next_configuration(self) -> None:
         """Forget the moving transforms of the last configuration; keep the static ones."""
         import rospy
-        buf = self._tf2.Buffer(cache_time=rospy.Duration(60))
-        for t in self.statics:
+        buf = self._tf2.Buffer(cache_time=rospy.Duration(CACHE_SECONDS))
+        for t in self.statics.values():
             buf.set_transform_static(t, 'check_fk')
         self.buffer = buf
 
@@ -281,7 +299,7 @@ def main(argv=None) -> int:
         if not rospy.has_param('/robot_description'):  # for nodes that read the absolute name
             rospy.set_param('/robot_description', xml)
             own_global = True
-        candidate = TfTree(ns)
+        candidate = TfTree(ns, keep=2 * len(tree.links) + 100)
         remaps = ['__name:=candidate', f'__ns:={ns}', f'/joint_states:={ns}/joint_states',
                   f'/tf:={ns}/candidate/tf', f'/tf_static:={ns}/candidate/tf_static']
         if sandboxed(a):
