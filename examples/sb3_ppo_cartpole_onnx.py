@@ -27,6 +27,7 @@ import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.env_util import make_vec_env
 
+from robot_ai.cartpole import policy_kinds
 from robot_ai.policies import onnx as onnx_policy
 
 
@@ -85,7 +86,7 @@ def main() -> int:
     print(f'model.predict: average length {np.mean(lengths):.1f} over 20 episodes')
 
     export(model, a.output, env_id, dict(mean_length=float(np.mean(lengths)), algorithm='PPO', steps=a.steps))
-    policy = onnx_policy.load_cartpole(a.output)
+    policy = policy_kinds.load(a.output)
     rng = np.random.default_rng(a.seed)
     observations = (rng.normal(size=(10_000, 4)) * [1.0, 1.0, 0.1, 1.0]).astype(np.float32)
     expected, _ = model.predict(observations, deterministic=True)

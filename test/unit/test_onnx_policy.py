@@ -240,10 +240,10 @@ def test_other_envs_are_made_to_learn_their_spaces_and_unknown_ones_are_one_line
     path = onnx_models.save(onnx_models.cartpole_scores(WEIGHTS, env={'env_id': 'NoSuchEnv-v9'}),
                             str(tmp_path / 'x.onnx'))
     with pytest.raises(PolicyError, match='its env NoSuchEnv-v9 cannot be made'):
-        onnx_policy.load(path)
+        policies.load(path)
     pendulum = onnx_models.save(onnx_models.linear_tanh(np.ones((3, 1)), np.zeros(1), {'env_id': 'Pendulum-v1'}),
                                 str(tmp_path / 'pendulum.onnx'))
-    policy = onnx_policy.load(pendulum)
+    policy = policies.load(pendulum)
     x = np.random.default_rng(0).normal(size=(100, 3))
     np.testing.assert_allclose(policy.act_batch(x), np.clip(np.tanh(x.sum(axis=1, keepdims=True)), -2, 2), atol=1e-6)
 

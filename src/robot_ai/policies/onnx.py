@@ -5,9 +5,8 @@ stable-baselines3 trains with torch, which a robot's computer should not need; O
 (stable-baselines3's export guide: opset 14 or later; for SAC, the actor only). Here such a file drives the package's
 robots wherever a policy file is taken:
 
-    policy = load('ppo_cartpole.onnx')                        # the env from the file's metadata (robot_ai_env)
-    policy = load('sac_reach.onnx', env_id='robot_ai/Reach-v0', env_kwargs={'control': 'joints'})
-    policy = build(read(path), target_of('CartPole-v1'))      # for an env the caller chose
+    policy = build(read('ppo_cartpole.onnx'), target_of('CartPole-v1'))   # robot_ai.policies.load does this
+    policy = build(read('sac_reach.onnx'), target_of('robot_ai/Reach-v0', {'control': 'joints'}))
     policy.act(observation)          # one observation as the env gives it -> the action the env takes
     policy.act_batch(flat)           # (M, obs) flattened observations -> (M,) integers or (M, act) floats
 
@@ -33,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from gymnasium import spaces
 
-from robot_ai.policies.envs import Target, flatten_batch as _flatten, target_of
+from robot_ai.policies.envs import Target, flatten_batch as _flatten
 from robot_ai.policies.files import PolicyError, read_regular_file
 from robot_ai.text import percent
 
@@ -42,10 +41,6 @@ STANDARD_DOMAINS = ('', 'ai.onnx', 'ai.onnx.ml')
 METADATA_KEY = 'robot_ai_env'
 TRIAL_OBSERVATIONS = 16
 EXTENSION = '.onnx'
-
-
-def is_onnx_path(path: str) -> bool:
-    return str(path).lower().endswith(EXTENSION)
 
 
 class ActionError(PolicyError):
@@ -429,17 +424,6 @@ def build(file: OnnxFile, target: Target) -> OnnxPolicy:
                         output_name, scores, metadata)
     _trial(policy, where)
     return policy
-
-
-def load(path: str, env_id: str = '', env_kwargs: dict | None = None) -> OnnxPolicy:
-    """A checked ONNX policy (see the module's docstring). env_id and env_kwargs: the caller's env, which wins over
-    the model's metadata."""
-    file = read(path)
-    env_id = env_id or file.env_id
-    env_kwargs = dict(env_kwargs or file.env_kwargs)
-    if not env_id:
-        raise PolicyError(f'{file.path} names no env (its metadata has no {METADATA_KEY}): give one (--env-id)')
-    return build(file, target_of(env_id, env_kwargs))
 
 
 def summary(file: OnnxFile) -> dict:
