@@ -145,7 +145,13 @@ class ReachController:
         rospy.loginfo(f'reach_controller: no ~policy: ARS learns to reach with {setup.arm.describe()} (seconds; '
                       f'python -m robot_ai.reach train writes a file to give as ~policy instead)')
         t = time.monotonic()
-        training = learn.train(dict(urdf=xml, tip=setup.arm.tip), seed=0, evaluate_episodes=1000)
+        # a Ctrl-C during the training ends it at the next iteration (it took ARS's seconds, and under load minutes,
+        # before roslaunch's escalation to SIGTERM 15 s later)
+        stop = rospy.core.is_shutdown_requested
+        training = learn.train(dict(urdf=xml, tip=setup.arm.tip), seed=0, should_stop=stop,
+                               evaluate_episodes=1000)
+        if stop():
+            raise rospy.ROSInterruptException('reach_controller: shut down during its training')
         rate = training.held_out.success_rate
         info = (f'ARS trained at start on {setup.model.tree.name}: {percent(rate)} of 1000 fresh goals within '
                 f'{setup.task.distance_threshold:g} m, {time.monotonic() - t:.1f} s, {training.result.steps:,} steps')
