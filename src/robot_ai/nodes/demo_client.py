@@ -73,10 +73,14 @@ def wait_for_node_service(service: str, timeout: float) -> None:
     node = '/' + service.strip('/').rsplit('/', 1)[0]
     deadline = time.time() + timeout
     while True:
+        if rospy.core.is_shutdown_requested():   # a Ctrl-C: the demo ends here, quietly (it waited its 60 s, and
+            raise SystemExit(0)                  # roslaunch escalated to SIGKILL after 17 s)
         try:
             rospy.wait_for_service(service, min(2.0, max(0.1, deadline - time.time())))
             return
         except rospy.ROSException:
+            if rospy.core.is_shutdown_requested():
+                raise SystemExit(0)
             words = last_words(node)
             if words or time.time() >= deadline:
                 raise rospy.ROSException(f'{node} is not serving {service}'
