@@ -15,7 +15,7 @@ import numpy as np
 from gymnasium import spaces
 
 from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics, rng_for, start_states
-from robot_ai.policies import Kind, PolicyError, Target, load as load_policy, register_env, register_kind
+from robot_ai.policies import Kind, PolicyError, Target, is_onnx_path, load as load_policy, register_env, register_kind
 from robot_ai.policies.files import shown
 
 KINDS = ('linear', 'q_learning')
@@ -116,7 +116,6 @@ def load(path: str, env_id: str = ''):
         if given not in CARTPOLE_ENVS:
             raise PolicyError(f'{file.path} acts in {given}, not a cart-pole ({", ".join(CARTPOLE_ENVS)})')
         return target(given)
-    from robot_ai.policies import is_onnx_path
     return load_policy(path, choose if is_onnx_path(path) else None)
 
 

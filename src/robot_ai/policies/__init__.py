@@ -22,10 +22,10 @@ from typing import Callable
 
 from robot_ai.policies.envs import Target, register_env, target_of
 from robot_ai.policies.files import PolicyError, read_regular_file
-from robot_ai.policies.npz import Kind, Policy, arrays_of, kinds, register_kind, save
+from robot_ai.policies.npz import Kind, Policy, arrays_of, register_kind, save
 from robot_ai.policies import npz, onnx
 
-__all__ = ['Kind', 'Policy', 'PolicyError', 'Target', 'arrays_of', 'is_onnx_path', 'kinds', 'load',
+__all__ = ['Kind', 'Policy', 'PolicyError', 'Target', 'arrays_of', 'is_onnx_path', 'load',
            'read_regular_file', 'register_env', 'register_kind', 'save', 'target_of']
 
 

@@ -73,11 +73,6 @@ def register_kind(kind: Kind) -> Kind:
     return kind
 
 
-def kinds() -> tuple[str, ...]:
-    """The kinds this process can read, in the order they were registered."""
-    return tuple(_KINDS)
-
-
 def _kind(name) -> Kind:
     if name not in _KINDS:
         raise PolicyError(f'kind is {shown(name)}, not one of {", ".join(_KINDS)}')

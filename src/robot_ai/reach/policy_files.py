@@ -129,10 +129,7 @@ def load(path: str, setup: ReachSetup | None = None, **overrides):
             raise PolicyError(f'{file.path} is a {file.kind} policy for {file.env_id}, not a reach policy')
         chosen = setup
         if chosen is None:
-            model = file.env_kwargs.get('model')
-            if model and not os.path.exists(model) and not any(given.get(k) for k in ('model', 'urdf')):
-                raise PolicyError(f'{file.path} learned on {model}, which is not there any more: give the '
-                                  f'robot file with --model')
+            _require_model(file, file.env_kwargs, given)
             chosen = setup_of(file, **given)
         return target(chosen, ENV_ID, file.env_kwargs)
 
@@ -151,15 +148,20 @@ def _onnx_target(file, setup: ReachSetup | None, given: dict) -> Target:
     if 'control' not in kwargs and file.action_size() is not None:
         kwargs['control'] = 'ee' if file.action_size() == 3 else 'joints'
     if setup is None:
-        model = kwargs.get('model')
-        if model and not os.path.exists(model) and not any(given.get(k) for k in ('model', 'urdf')):
-            raise PolicyError(f'{file.path} learned on {model}, which is not here: give the robot file '
-                              f'with --model')
+        _require_model(file, kwargs, given)
         setup = _setup_of_kwargs(kwargs, given, file.info.get('robot', ''))
     elif kwargs.get('control', 'ee') != setup.control:
         raise PolicyError(f'{file.path} acts with control={kwargs.get("control", "ee")}; this env has '
                           f'control={setup.control}')
     return target(setup, env_id, kwargs)
+
+
+def _require_model(file, kwargs: dict, given: dict) -> None:
+    """PolicyError when the robot file a policy learned on is gone and the caller names no other."""
+    model = kwargs.get('model')
+    if model and not os.path.exists(model) and not any(given.get(k) for k in ('model', 'urdf')):
+        raise PolicyError(f'{file.path} learned on {model}, which is not there any more: give the robot file with '
+                          f'--model')
 
 
 def _setup_of_kwargs(env_kwargs: dict, given: dict, learned_on: str = '') -> ReachSetup:
