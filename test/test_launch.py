@@ -556,8 +556,9 @@ class TestLaunch(unittest.TestCase):
     def rviz_screenshot(self, launch_args, name, drawn, launch_file='demo.launch', keep_running=True,
                         size='1024x768', crop=None):
         """Counts of colour_counts in a screenshot of rviz under Xvfb, taken once drawn(counts) says yes or after
-        90 s (rviz takes a while to start under software GL); the screenshot is kept as ARTIFACTS/name. crop:
-        {name: (left, top, right, bottom)}: the counts of those parts of the screen instead, by name."""
+        120 s (rviz takes a while to start under software GL, and rviz_view may start it again); the screenshot is
+        kept as ARTIFACTS/name. crop: {name: (left, top, right, bottom)}: the counts of those parts of the screen
+        instead, by name."""
         display, xvfb = start_xvfb(size)
         proc = None
         try:
@@ -567,9 +568,9 @@ class TestLaunch(unittest.TestCase):
             env = dict(os.environ, DISPLAY=display, HOME=home, ROS_HOME=rospkg.get_ros_home())
             proc = launch(launch_args, env, launch_file)
             shot = os.path.abspath(os.path.join(ARTIFACTS, name))
-            counts, output, restarted = {}, b'', False
+            counts, output = {}, b''
             os.set_blocking(proc.stdout.fileno(), False)
-            deadline = time.time() + 90
+            deadline = time.time() + 120
             while time.time() < deadline:
                 time.sleep(3.0)
                 self.assertIsNone(proc.poll(), f'{launch_file} rviz:=true ended by itself')
@@ -584,16 +585,10 @@ class TestLaunch(unittest.TestCase):
                 if drawn(counts):
                     break
                 output += proc.stdout.read() or b''
-                crash = re.search(rb'\[rviz[^\]]*\] process has died \[pid \d+, exit code -\d+', output)
-                if crash and not restarted:
-                    # Debian's rviz under software GL crashed at start (SIGSEGV 1 s in, seen once in about 35
-                    # launches): not this package's doing. Once, the launch starts over; a second crash fails.
-                    print(f'{crash.group().decode()} under {launch_file}: starting the launch again')
-                    stop(proc)
-                    proc = launch(launch_args, env, launch_file)
-                    os.set_blocking(proc.stdout.fileno(), False)
-                    output, restarted, deadline = b'', True, time.time() + 90
             print(f'rviz screenshot: {shot} {counts}')
+            if not drawn(counts):     # what the launch said, rviz_view's restarts among it, for the failure below
+                output += proc.stdout.read() or b''
+                print(output.decode(errors='replace')[-4000:])
             if keep_running:
                 self.assertIsNone(proc.poll(), 'with rviz:=true the launch keeps running until stopped')
             return counts
@@ -709,14 +704,15 @@ class TestLaunch(unittest.TestCase):
     def test_demo_rviz_shows_the_arm_and_the_cart_pole(self):
         """Issue 27: demo.launch rviz:=true showed the arm only, not the cart-pole the demo also drives: a second
         rviz window, to the right of the arm's (x 1030 on a screen wide enough), shows the cart-pole."""
-        def drawn(c):
-            return (c['arm']['orange'] > 3000 and c['arm']['blue'] > 500 and c['cartpole']['blue'] > 200
+        def drawn(c):      # the arm moves: folded, it shows about 900 orange pixels, stretched out 4000
+            return (c['arm']['orange'] > 600 and c['arm']['blue'] > 500 and c['cartpole']['blue'] > 200
                     and c['cartpole']['orange'] > 40)
         counts = self.rviz_screenshot(['rviz:=true', 'record_video:=false',
                                        'output_dir:=' + os.path.join(ARTIFACTS, 'rviz_both')], 'rviz_demo_both.png',
                                       drawn, size='1700x768',
                                       crop={'arm': (0, 0, 1024, 768), 'cartpole': (1030, 0, 1700, 768)})
-        self.assertGreater(counts['arm']['orange'], 3000, f'the arm is not drawn: {counts}')
+        self.assertGreater(counts['arm']['orange'], 600, f'the arm is not drawn: {counts}')
+        self.assertGreater(counts['arm']['blue'], 500, f'the arm is not drawn: {counts}')
         self.assertGreater(counts['cartpole']['blue'], 200, f'the cart is not drawn: {counts}')
         self.assertGreater(counts['cartpole']['orange'], 40, f'the pole is not drawn: {counts}')
 

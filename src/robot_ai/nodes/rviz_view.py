@@ -2,21 +2,30 @@
 
 rviz takes its fixed frame and camera from a config file or `-f`, which a launch file cannot derive from a URDF
 given by model:=. This node reads robot_description (searched up the namespaces, waited for), takes the tree's
-root and the reach of its links at the zero pose, writes the config it is given with those filled in, and
-replaces itself with rviz on that config.
+root and the reach of its links at the zero pose, writes the config it is given with those filled in, and runs
+rviz on that config.
 
     rosrun robot_ai rviz_view $(rospack find robot_ai)/rviz/robot_ai.rviz _fixed_frame:=world_link
+
+Debian's rviz under software GL sometimes dies of SIGSEGV as it opens its window (about 1 launch in 3 with two rviz
+starting at once on a loaded machine): rviz_view starts it again when it dies of a crash signal, up to
+RVIZ_RESTARTS times, and passes a stop (SIGINT, SIGTERM, SIGHUP) on to it. `rviz_view --run COMMAND...` does only
+that, for an rviz with a config of its own (launch-prefix="rosrun robot_ai rviz_view --run" in cartpole.launch).
 
 ROS Parameters
     ~fixed_frame (str, ""): rviz's fixed frame; empty: the URDF's root link, or on a floating base the floating
         joint's child (nothing publishes the root then). The TF display's axes are scaled to the robot's size.
     ~beside_sliders (bool, false): a narrower window (WIDTH_BESIDE_SLIDERS), the sliders' window beside it.
 """
+import ctypes
 import math
 import os
 import re
+import signal
+import subprocess
 import sys
 import tempfile
+import time
 
 import numpy as np
 import rospy
@@ -31,6 +40,10 @@ TF_SCALE = 0.6            # the TF display's marker scale in rviz/robot_ai.rviz,
 FULL_SIZE = 0.8           # m: reach from the view frame at which the axes keep the config's scale
 WIDTH_BESIDE_SLIDERS = 720   # px: rviz's window with ~beside_sliders, leaving room for the sliders (about 300 px)
 NARROW_VIEW_FACTOR = 1.7      # its 3D view's height over its width: the camera steps back by as much
+RVIZ_RESTARTS = 3             # times rviz is started again after a crash
+CRASH_SIGNALS = (signal.SIGSEGV, signal.SIGABRT, signal.SIGBUS, signal.SIGILL, signal.SIGFPE)
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+PR_SET_PDEATHSIG = 1
 
 
 def view_frame(tree: KinematicTree) -> str:
@@ -88,8 +101,53 @@ def configure(template: str, fixed_frame: str, focal: tuple, distance: float, sc
     return re.sub(r'(\n\s*Distance: ).*', lambda m: m.group(1) + f'{distance}', text, count=1)
 
 
-@quiet_on_shutdown
+def crashed(returncode: int) -> bool:
+    """Whether a child's exit status (subprocess's: -N for a signal) is a crash rather than an exit or a stop."""
+    return returncode < 0 and -returncode in CRASH_SIGNALS
+
+
+def _die_with_parent():
+    """In the child before exec: SIGTERM when rviz_view ends, even by SIGKILL (roslaunch's last resort)."""
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+def run_rviz(command: list[str], restarts: int = RVIZ_RESTARTS) -> int:
+    """Run command (rviz) until it ends; started again, up to restarts times, when it dies of a crash signal and no
+    stop was passed on to it. Returns the exit status for this process (128 + N for a signal N)."""
+    stopping = []
+    child = None
+
+    def pass_on(signum, _frame):
+        stopping.append(signum)
+        if child is not None and child.poll() is None:
+            child.send_signal(signum)
+
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, pass_on)
+    for attempt in range(restarts + 1):
+        started = time.monotonic()
+        child = subprocess.Popen(command, preexec_fn=_die_with_parent)
+        if stopping:                       # a stop that came while it was being started
+            child.send_signal(stopping[0])
+        returncode = child.wait()
+        if stopping or not crashed(returncode) or attempt == restarts:
+            break
+        print(f'[rviz_view] rviz died of {signal.Signals(-returncode).name} {time.monotonic() - started:.1f} s '
+              f'after it started: starting it again ({attempt + 1} of {restarts})', file=sys.stderr, flush=True)
+    return 128 - returncode if returncode < 0 else returncode
+
+
 def main():
+    if sys.argv[1:2] == ['--run']:
+        if len(sys.argv) < 3:
+            print('rviz_view --run: give the command to run, e.g. rviz -d my.rviz', file=sys.stderr)
+            raise SystemExit(2)
+        raise SystemExit(run_rviz(sys.argv[2:]))
+    view()
+
+
+@quiet_on_shutdown
+def view():
     argv = rospy.myargv()
     rospy.init_node('rviz_view', anonymous=True)
     if len(argv) < 2 or not os.path.isfile(argv[1]):
@@ -120,6 +178,6 @@ def main():
     for note in floating_base_notes(tree, fixed_frame):
         rospy.loginfo(note)
     rospy.signal_shutdown('rviz takes over')
-    # rviz replaces this process: roslaunch's name and log arguments go to it, as if it were started directly
+    # roslaunch's name and log arguments go to rviz, as if it were started directly
     ros_args = [a for a in sys.argv[1:] if ':=' in a and not a.startswith('_')]
-    os.execvp('rviz', ['rviz', '-d', path, '-f', fixed_frame] + ros_args)
+    raise SystemExit(run_rviz(['rviz', '-d', path, '-f', fixed_frame] + ros_args))
