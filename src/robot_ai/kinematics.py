@@ -21,6 +21,7 @@ stop a robot from loading.
 from __future__ import annotations
 
 import math
+import re
 import xml.etree.ElementTree as ET
 
 import numpy as np
@@ -32,6 +33,15 @@ MOVING_TYPES = ('revolute', 'continuous', 'prismatic')
 STATIC_TYPES = ('fixed', 'planar')  # planar is published as fixed, as robot_state_publisher does
 SKIPPED_TYPES = ('floating',)
 JOINT_CHILD_TAGS = ('parent', 'child', 'origin', 'axis', 'limit', 'mimic')
+# A moving joint whose name has one of these words is part of a hand or a gripper, not of the arm (end_effectors)
+FINGER_WORDS = frozenset(('finger', 'thumb', 'index', 'middle', 'ring', 'pinky', 'little', 'knuckle', 'gripper',
+                          'claw', 'jaw', 'palm', 'hand', 'digit', 'phalanx'))
+# The names of an arm's end, best first (end_effectors): a tool centre point, ROS-Industrial's tool0, an end
+# effector, a tool frame, a flange, a gripper's or a hand's base; a sensor's frame only where nothing else is left
+TIP_NAMES = tuple(re.compile(p) for p in (
+    r'(^|_)tcp(_|$)|tool_?cent(er|re)_?point', r'(^|_)tool0$', r'end_?effector|(^|_)eef?(_link)?$|(^|_)ee_link',
+    r'(^|_)tool(_?frame|_?link)?$', r'(^|_)flange(_link)?$', r'gripper(_base)?(_link)?$|(^|_)hand(_link)?$'))
+SENSOR_NAME = re.compile(r'camera|optical|imu|laser|lidar|depth|rgb|kinect|realsense|sensor|accelerometer|led')
 
 
 class URDFError(ValueError):
@@ -288,17 +298,93 @@ class KinematicTree:
         resolved = self.resolve_positions(positions)
         return {n: self.joints[n].transform(resolved[n]) for n in self.moving_joints if n in resolved}
 
-    def end_effector(self) -> str:
-        """A tip link for a robot nobody named one for: the link below the most moving joints (mimic joints
-        excluded), the deepest of those (a tool frame below the last wrist), the first in link order on a tie."""
-        depth = {self.root: (0, 0)}  # (moving non-mimic joints, joints) from the root
-        for name in self.joint_order:
+    def finger_joints(self) -> set[str]:
+        """The moving joints of hands and grippers: those named with a FINGER_WORDS word, and the prismatic, mimic
+        and mimicked joints with no arm joint below them (a gripper's slide, its mimicking finger)."""
+        mimicked = {j.mimic[0] for j in self.joints.values() if j.mimic is not None}
+        below = self._children()
+        fingers: set[str] = set()
+        for name in reversed(self.joint_order):     # children before parents
             j = self.joints[name]
-            if j.parent in depth:
-                moving, total = depth[j.parent]
-                depth[j.child] = (moving + (name in self.active_joints), total + 1)
-        best = max(depth.values())
-        return next(link for link in self.links if depth.get(link) == best)
+            if not j.moving:
+                continue
+            words = {w.lower() for w in re.findall(r'[A-Z]?[a-z]+|[A-Z]+(?![a-z])|\d+', name)}
+            if words & FINGER_WORDS or any(w.startswith('finger') for w in words):
+                fingers.add(name)
+            elif (j.type == 'prismatic' or j.mimic is not None or name in mimicked) and \
+                    not self._arm_joint_below(j.child, below, fingers):
+                fingers.add(name)
+        return fingers
+
+    def _children(self) -> dict[str, list[tuple[str, str]]]:
+        """{link: [(joint, child link)]}, floating joints included (their names as joints have no entry)."""
+        below: dict[str, list[tuple[str, str]]] = {}
+        for name in self.joint_order:
+            below.setdefault(self.joints[name].parent, []).append((name, self.joints[name].child))
+        for name in self.floating_joints:
+            below.setdefault(self._floating_parent[name], []).append((name, self._floating_child[name]))
+        return below
+
+    def _arm_joint_below(self, link: str, below: dict, fingers: set[str]) -> bool:
+        todo = [link]
+        while todo:
+            for joint, child in below.get(todo.pop(), []):
+                j = self.joints.get(joint)
+                if j is not None and j.moving and j.mimic is None and joint not in fingers:
+                    return True
+                todo.append(child)
+        return False
+
+    def end_effectors(self) -> list[str]:
+        """The ends of the robot's arms, the first being end_effector(): of the links below the most arm joints
+        (moving, not mimic, not finger_joints(); through floating joints too, which do not count), one per arm
+        (per last arm joint), named as an arm's end is (TIP_NAMES), else the deepest; fingers' links are never
+        one. A robot with no arm joint: [its root]."""
+        fingers = self.finger_joints()
+        below = self._children()
+        count = {self.root: (0, None, 0)}        # link: (arm joints above, the last of them, joints since it)
+        order = [self.root]
+        for link in order:
+            arm, last, since = count[link]
+            for joint, child in below.get(link, []):
+                j = self.joints.get(joint)
+                if j is not None and j.moving and joint in fingers:
+                    continue                     # a hand's or a gripper's links
+                if j is not None and j.moving and j.mimic is None:
+                    count[child] = (arm + 1, joint, 0)
+                else:
+                    count[child] = (arm, last, since + 1)
+                order.append(child)
+        most = max(arm for arm, _, _ in count.values())
+        if most == 0:
+            return [self.root]
+        index = {link: i for i, link in enumerate(self.links)}
+        arms: dict[str, list[str]] = {}
+        for link in order:
+            if count[link][0] == most:
+                arms.setdefault(count[link][1], []).append(link)
+
+        def rank(link):
+            lower = link.lower()
+            named = next((i for i, pattern in enumerate(TIP_NAMES) if pattern.search(lower)), len(TIP_NAMES))
+            if named == len(TIP_NAMES) and SENSOR_NAME.search(lower):
+                named += 1
+            return named, -count[link][2], index.get(link, len(index))
+        return sorted((min(links, key=rank) for links in arms.values()), key=lambda l: index.get(l, len(index)))
+
+    def frame_above(self, link: str) -> str:
+        """The frame link's pose is known in from joint_states: the root, or the child of the nearest floating
+        joint above link (nothing publishes a floating joint)."""
+        parent_joint = {j.child: n for n, j in self.joints.items()}
+        floating_children = {self._floating_child[n] for n in self.floating_joints}
+        while link in parent_joint and link not in floating_children:
+            link = self.joints[parent_joint[link]].parent
+        return link if link in floating_children else self.root
+
+    def end_effector(self) -> str:
+        """A tip link for a robot nobody named one for: the first of end_effectors(), the end of its arm (a tool
+        frame such as tool0 or a TCP, else the deepest link below the last arm joint), not a finger."""
+        return self.end_effectors()[0]
 
     def static_transforms(self) -> dict[str, np.ndarray]:
         """{joint: 4x4} for the fixed (and planar) joints."""

@@ -9,7 +9,8 @@ import pytest
 from fk_helpers import robot_path
 from robot_ai.kinematics import KinematicTree
 
-URDF_DIR = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', 'urdf')
+HERE = os.path.dirname(os.path.realpath(__file__))
+URDF_DIR = os.path.join(HERE, '..', '..', 'urdf')
 
 
 @pytest.mark.parametrize('ours, reference, root, tip, zero', [
@@ -36,28 +37,80 @@ def test_package_robot_matches_reference(ours, reference, root, tip, zero):
 @pytest.mark.parametrize('urdf, tip', [
     (os.path.join(URDF_DIR, 'ur5_arm.urdf'), 'tool0'),
     (os.path.join(URDF_DIR, 'kuka_lwr_arm.urdf'), 'lwr_arm_7_link'),
-    (robot_path('ur5.urdf'), 'tool0'),
-    (robot_path('panda.urdf'), 'panda_leftfinger'),     # 7 arm joints + a finger; the mimic finger is not counted
-    (robot_path('pr2.urdf'), None),
-    (robot_path('fixtures/one_link.urdf'), None),
+    (robot_path('ur5.urdf'), 'tool0'),                  # ROS-Industrial's tool frame, not flange or wrist_3_link
+    (robot_path('kuka_lwr_arm.urdf'), 'lwr_arm_7_link'),   # no tool frame: the last link
+    (robot_path('panda.urdf'), 'panda_hand'),           # 7 arm joints; the fingers' slides are not the arm's
+    (robot_path('pr2.urdf'), 'r_gripper_tool_frame'),   # two arms: the first one's tool frame, not a finger tip
+    (os.path.join(HERE, '..', 'urdf', 'mimic_gripper.urdf'), 'wrist'),
 ])
-def test_end_effector_found_from_the_urdf(urdf, tip):
-    """What demo_client shows when no tip_frame is given: the link below the most driven joints."""
+def test_the_default_tip_is_the_arms_end_not_a_finger(urdf, tip):
+    """Issue 38: the default tip (demo_client's tip_frame, reach's tip) was a finger on nearly every real robot.
+    Whatever the robot, it lies below the most arm joints (moving, not mimic, not a hand's), never below a finger
+    joint."""
     tree = KinematicTree.from_file(urdf)
     found = tree.end_effector()
-    if tip is not None:
-        assert found == tip
-    # whatever the robot, the tip is a link whose path from the root crosses the most driven joints
-    poses = tree.link_poses()
-    assert found in poses
-    def driven(link):
+    assert found == tip
+    fingers = tree.finger_joints()
+    parent_joint = {j.child: n for n, j in tree.joints.items()}
+
+    def arm_joints(link):
         n = 0
-        while link != tree.root:
-            j = next(j for j in tree.joints.values() if j.child == link)
-            n += j.name in tree.active_joints
-            link = j.parent
+        while link in parent_joint:
+            name = parent_joint[link]
+            if name in fingers:
+                return -1                    # below a finger
+            n += name in tree.active_joints
+            link = tree.joints[name].parent
         return n
-    assert driven(found) == max(driven(l) for l in poses)
+    assert arm_joints(found) == max(arm_joints(link) for link in tree.links)
+    assert not any(tree.joints[n].type == 'prismatic' and 'finger' in n for n in tree.active_joints
+                   if n not in fingers)
+
+
+def test_every_arm_of_a_two_armed_robot_is_listed_and_reach_says_so():
+    tree = KinematicTree.from_file(robot_path('pr2.urdf'))
+    assert tree.end_effectors() == ['r_gripper_tool_frame', 'l_gripper_tool_frame']
+    assert {'r_gripper_joint', 'l_gripper_joint', 'r_gripper_l_finger_joint'} <= tree.finger_joints()
+    from robot_ai.reach import Arm
+    arm = Arm(tree)
+    assert arm.tip == 'r_gripper_tool_frame' and arm.n == 8
+    assert any('l_gripper_tool_frame' in w and '2 arms' in w for w in arm.warnings), arm.warnings
+    assert Arm(tree, tip='l_gripper_tool_frame').warnings == []     # a tip given: nothing to say
+
+
+def test_the_default_tip_below_a_floating_base_is_the_arms_end_in_the_bases_frame():
+    """Issue 38: on a floating-base file the default tip was the world link, refused with no candidates."""
+    with open(robot_path('ur5.urdf')) as f:
+        text = f.read()
+    root = KinematicTree.from_xml_string(text).root
+    floating = text.replace('</robot>', f'<link name="odom"/><joint name="odom_to_{root}" type="floating">'
+                                        f'<parent link="odom"/><child link="{root}"/></joint></robot>')
+    tree = KinematicTree.from_xml_string(floating)
+    assert tree.root == 'odom' and tree.end_effector() == 'tool0'
+    assert tree.frame_above('tool0') == root and tree.frame_above('odom') == 'odom'
+    from robot_ai.reach import Arm
+    arm = Arm(tree)
+    assert (arm.base, arm.tip, arm.n) == (root, 'tool0', 6)
+    assert 'tool0' in Arm.candidate_tips(tree)
+
+
+def test_fingers_are_told_from_arm_joints_by_name_and_by_place():
+    """Named fingers (a hand's joints), and unnamed prismatic or mimic joints with no arm joint below them; a
+    prismatic joint with an arm below it (a torso lift, a linear axis) is the arm's."""
+    def urdf(joints):
+        links = {'base'} | {c for _, _, _, c in joints}
+        body = ''.join(f'<link name="{n}"/>' for n in sorted(links))
+        for name, kind, parent, child in joints:
+            body += (f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
+                     f'<origin xyz="0 0 0.3"/><axis xyz="0 1 0"/><limit lower="-1" upper="1" effort="1" '
+                     f'velocity="1"/></joint>')
+        return KinematicTree.from_xml_string(f'<robot name="t">{body}</robot>')
+    tree = urdf([('lift', 'prismatic', 'base', 'a'), ('shoulder', 'revolute', 'a', 'b'),
+                 ('elbow', 'revolute', 'b', 'c'), ('RHand', 'revolute', 'c', 'h'), ('slide', 'prismatic', 'c', 's'),
+                 ('index_proximal', 'revolute', 'c', 'i1'), ('index_distal', 'revolute', 'i1', 'i2'),
+                 ('index_tip', 'revolute', 'i2', 'i3')])
+    assert tree.finger_joints() == {'RHand', 'slide', 'index_proximal', 'index_distal', 'index_tip'}
+    assert tree.end_effector() == 'c'
 
 
 def test_cartpole_urdf_has_gymnasiums_frames_and_signs():

@@ -4,8 +4,8 @@ cartpole_q_learning service, then drives the cart-pole robot with the agent's sa
 cartpole_controller's ~load_policy), pushes its pole, and prints a readable summary and a verdict.
 
 ROS Parameters
-    ~base_frame (str, ""), ~tip_frame (str, ""): the pose printed; empty: the robot's root link, and the link
-        below the most driven joints (KinematicTree.end_effector), found from robot_description.
+    ~base_frame (str, ""), ~tip_frame (str, ""): the pose printed; empty: the robot's root link (on a floating
+        base, the floating joint's child), and the arm's end (KinematicTree.end_effector), from robot_description.
     ~samples (int, 3): instants of the pose, ~interval (float, 0.5) seconds apart.
     ~record_video (bool, true): ask the search for a video of the best policy.
     ~search_service (str, /cartpole_search/random_search)
@@ -97,14 +97,15 @@ def artifact_failures(what: str, plot_ok: bool, record_video: bool, video_path: 
 
 
 def frames(base: str, tip: str) -> tuple[str, str]:
-    """The frames to show: as given, or found from robot_description (its root, and the link below the most
-    driven joints) for any robot."""
+    """The frames to show: as given, or found from robot_description for any robot: the arm's end
+    (KinematicTree.end_effector) in the root's frame, or in the floating base's (nothing publishes the root's)."""
     if base and tip:
         return base, tip
     tree, _ = wait_for_tree()
     if tree is None:  # shut down while waiting
         sys.exit(1)
-    return base or tree.root, tip or tree.end_effector()
+    tip = tip or tree.end_effector()
+    return base or tree.frame_above(tip), tip
 
 
 def watch(states: queue.Queue, episodes: list, steps: int, stall: float = STALL) -> tuple[list, list, float]:

@@ -16,7 +16,7 @@ ROS Parameters
         from another library (examples/sb3_sac_her_reach_onnx.py; robot_ai.policies.onnx); empty: ARS trains on the
         robot description at start (seconds) and says so. A bad file, or one of another robot or tip, ends the node
         with one line.
-    ~tip (str, ""): the tip link; empty: the policy's, or the link below the most joints.
+    ~tip (str, ""): the tip link; empty: the policy's, or the arm's end (a tool frame such as tool0, not a finger).
     ~rate (float, 20): control steps per second of ROS time.
     ~command_joints (list of str, [] = the robot's active joints): the joints of the command, in its order (a real
         controller's joints); those the arm does not move hold the positions joint_states reports.
@@ -142,6 +142,8 @@ class ReachController:
             setup = ReachSetup(urdf=xml, tip=tip or None)
         except ReachError as e:
             raise ValueError(f'~tip: {e}') from None
+        for warning in setup.arm.warnings:
+            rospy.logwarn(f'reach_controller: {warning}')
         rospy.loginfo(f'reach_controller: no ~policy: ARS learns to reach with {setup.arm.describe()} (seconds; '
                       f'python -m robot_ai.reach train writes a file to give as ~policy instead)')
         t = time.monotonic()

@@ -43,7 +43,8 @@ def train_parser(sub) -> None:
                        'of any arm (robot_ai/Reach-v0), then the success rate over 1000 fresh goals beside the plain '
                        'P-controller\'s.')
     add_robot(p, 'default: the package\'s UR5')
-    p.add_argument('--tip', default=None, help='the link that reaches; default: the link below the most joints')
+    p.add_argument('--tip', default=None, help='the link that reaches; default: the arm\'s end (tool0, a TCP, a '
+                   'flange, ...; not a finger)')
     p.add_argument('--control', default='ee', choices=CONTROLS,
                    help='ee: tip displacements (damped least squares); joints: joint displacements')
     p.add_argument('--start', default='home', choices=STARTS, help='where each episode starts: home (mid-range) or '

@@ -90,11 +90,20 @@ class Arm:
     tip), chain (every joint from base to tip), joints (active joint names, in chain order), n, lower, upper and
     home (the middle of each range) and velocity (URDF velocity limits, DEFAULT_VELOCITY where none) as arrays
     (n,), length (the offsets summed from the first moving joint to the tip, plus prismatic travel), radius (no tip
-    position is farther than this from the base), warnings (limits that had to be assumed)."""
+    position is farther than this from the base), warnings (limits that had to be assumed; the other arms' ends
+    when no tip was given on a robot with several)."""
 
     def __init__(self, tree: KinematicTree, tip: str | None = None):
         self.tree = tree
-        self.tip = tree.end_effector() if tip is None else str(tip)
+        self.warnings: list[str] = []
+        if tip is None:
+            ends = tree.end_effectors()
+            self.tip = ends[0]
+            if len(ends) > 1:
+                self.warnings.append(f'no tip given: {self.tip}, the end of one of {len(ends)} arms (their ends: '
+                                     f'{_listed(ends)}); give tip to choose')
+        else:
+            self.tip = str(tip)
         if self.tip not in tree.links:
             raise ReachError(f'tip {self.tip!r} is not a link of {tree.name or "the robot"}: it could be '
                              f'{_listed(self.candidate_tips(tree))}')
@@ -103,7 +112,6 @@ class Arm:
         if not moving:
             raise ReachError(f'tip {self.tip!r} has no moving joint between {self.base!r} and it: it could be '
                              f'{_listed(self.candidate_tips(tree))}')
-        self.warnings: list[str] = []
         self.joints: list[str] = []
         sources = {}
         for name in moving:
@@ -133,8 +141,9 @@ class Arm:
     # ------------------------------------------------------------------------------------------- the chain
     @staticmethod
     def candidate_tips(tree: KinematicTree) -> list[str]:
-        """Links with a moving joint above them: what a tip can be, the deepest first."""
+        """Links with a moving joint above them (below a floating joint too): what a tip can be, the deepest first."""
         below_moving = {tree.root: 0}
+        below_moving.update({tree.floating_links(n)[1]: 0 for n in tree.floating_joints})
         for name in tree.joint_order:
             j = tree.joints[name]
             if j.parent in below_moving:

@@ -214,10 +214,10 @@ class ReachEnv(gymnasium.Env):
     """Any arm's reach task (see the module's docstring). Registered as robot_ai/Reach-v0 (50 steps).
 
     Args: model (a URDF or xacro path; default the package's UR5), xacro_args ('a:=1 b:=2' or a dict), tip (a link;
-    default the link below the most joints), control ('ee' or 'joints'), start ('home' or 'random'), reward_type
-    ('sparse' or 'dense'), distance_threshold (0.05 m), ee_step (default: a twentieth of the chain), damping (of the
-    least squares; default ee_step), home (joint positions, a list in the arm's order or a dict; default mid-range),
-    urdf (a URDF text instead of a model file), render_mode ('rgb_array')."""
+    default the arm's end: a tool frame, not a finger), control ('ee' or 'joints'), start ('home' or 'random'),
+    reward_type ('sparse' or 'dense'), distance_threshold (0.05 m), ee_step (default: a twentieth of the chain),
+    damping (of the least squares; default ee_step), home (joint positions, a list in the arm's order or a dict;
+    default mid-range), urdf (a URDF text instead of a model file), render_mode ('rgb_array')."""
 
     metadata = {'render_modes': ['rgb_array'], 'render_fps': RENDER_FPS}
 
