@@ -99,7 +99,8 @@ def main() -> int:
           f'{setup.task.distance_threshold:g} m')
 
     exported = onnx.load(a.output)
-    env_kwargs = dict(model=setup.model.path, tip=setup.arm.tip, control=setup.control)
+    env_kwargs = dict(model=setup.model.path, tip=setup.arm.tip, control=setup.control,
+                      limit_avoidance=setup.limit_avoidance)      # a file without it acts with none
     onnx.helper.set_model_props(exported, {onnx_policy.METADATA_KEY: json.dumps(dict(
         env_id=policy_files.ENV_ID, env_kwargs=env_kwargs, robot=setup.model.tree.name, joints=list(setup.arm.joints),
         success_rate=rate, algorithm='SAC + HER (stable-baselines3)', steps=a.steps))})

@@ -290,10 +290,14 @@ def test_both_command_lines_evaluate_and_show_an_onnx_file_and_the_searches_refu
     assert r.returncode == 2 and 'is an ONNX model, not a policy file (.npz)' in r.stderr
     setup = ReachSetup(model=PACKAGE_UR5)
     reach = reach_model(setup, learn.p_controller(setup).weights.T, tmp_path)
-    r = run('robot_ai.reach', 'evaluate', reach, '--episodes', '200')
+    r = run('robot_ai.reach', 'evaluate', reach, '--episodes', '200', '--start', 'random')
     assert r.returncode == 0, r.stderr
-    rate = learn.evaluate(learn.p_controller(setup), setup, 200).success_rate
-    assert 'of 200 fresh goals' in r.stdout and f'P-controller      {100 * rate:.1f} %' in r.stdout
+    # its metadata names no limit_avoidance: it acts as files from before the term did, with none
+    old = ReachSetup(model=PACKAGE_UR5, limit_avoidance=0.0)
+    rate = learn.evaluate(learn.p_controller(old), old, 200, start='random').success_rate
+    lines = {line.split()[0]: line for line in r.stdout.splitlines() if line.strip()}
+    assert '200 fresh goals' in r.stdout and lines['from'].split()[:3] == ['from', 'random', f'{100 * rate:.1f}']
+    assert lines['P-controller'].split()[1] == f'{100 * rate:.1f}', r.stdout     # the model is the P-controller
     bad = onnx_models.save(_custom_domain(), str(tmp_path / 'custom.onnx'))
     r = run('robot_ai.reach', 'evaluate', bad)
     assert r.returncode == 2 and 'com.evil' in r.stderr and 'Traceback' not in r.stderr

@@ -125,11 +125,13 @@ def assert_same(a, b):
     assert np.array_equal(a, b), (a, b)
 
 
-@pytest.mark.parametrize('model, control, start, n', [
-    (None, 'ee', 'home', 5), (None, 'joints', 'random', 3), (robot_path('panda.urdf'), 'ee', 'random', 4),
-    (robot_path('pr2.urdf'), 'ee', 'home', 3), (XACRO_ARM, 'joints', 'home', 2), (XACRO_ARM, 'ee', 'random', 6)])
-def test_vector_env_equals_sync_vector_env_bit_for_bit(model, control, start, n):
-    kwargs = dict(model=model, control=control, start=start, reward_type='dense')
+@pytest.mark.parametrize('model, control, start, n, extra', [
+    (None, 'ee', 'home', 5, {}), (None, 'joints', 'random', 3, {}), (robot_path('panda.urdf'), 'ee', 'random', 4, {}),
+    (robot_path('pr2.urdf'), 'ee', 'home', 3, {}), (XACRO_ARM, 'joints', 'home', 2, {}),
+    (XACRO_ARM, 'ee', 'random', 6, {}), (robot_path('kuka_lwr_arm.urdf'), 'ee', 'chained', 4, {'limit_avoidance': 0.3}),
+    (None, 'joints', 'chained', 3, {}), (robot_path('panda.urdf'), 'ee', 'random', 3, {'limit_avoidance': 1.0})])
+def test_vector_env_equals_sync_vector_env_bit_for_bit(model, control, start, n, extra):
+    kwargs = dict(model=model, control=control, start=start, reward_type='dense', **extra)
     sync, vec = make_sync(n, **kwargs), gymnasium.make_vec('robot_ai/Reach-v0', num_envs=n, **kwargs)
     assert isinstance(vec.unwrapped, ReachVectorEnv)
     rng = np.random.default_rng(7)
@@ -298,7 +300,13 @@ def test_command_line_trains_evaluates_and_shows(tmp_path):
     with open(tmp_path / files['.csv']) as f:
         assert len(f.read().splitlines()) == 21
     done = run_cli('evaluate', str(tmp_path / files['.npz']), '--episodes', '200')
-    assert done.returncode == 0 and 'success rate' in done.stdout, done.stderr
+    assert done.returncode == 0, done.stderr
+    rates = [line for line in done.stdout.splitlines() if line.startswith('from ')]
+    assert [line.split()[1] for line in rates] == ['home', 'random', 'chained'], done.stdout
+    assert done.stdout.count('P-controller') == 3
+    done = run_cli('evaluate', str(tmp_path / files['.npz']), '--episodes', '100', '--start', 'chained')
+    assert done.returncode == 0 and [line.split()[1] for line in done.stdout.splitlines()
+                                     if line.startswith('from ')] == ['chained'], done.stdout
     done = run_cli('show', str(tmp_path / files['.npz']))
     assert done.returncode == 0 and '"kind": "ars_linear"' in done.stdout and 'weights: float64 (3, 16)' in done.stdout
     done = run_cli('evaluate', str(tmp_path / files['.npz']), '--model', PACKAGE_UR5)
@@ -328,3 +336,83 @@ def test_reset_options_set_the_goal_and_the_start_and_keep_the_random_stream():
             env.reset(seed=3, options=options)
     obs, _ = env.reset(seed=3)           # the env goes on after a refused option
     np.testing.assert_array_equal(obs['desired_goal'], plain['desired_goal'])
+
+
+# ------------------------------------------------------------------------------- issue 38: reach from anywhere
+@pytest.mark.parametrize('path', [robot_path('ur5.urdf'), robot_path('kuka_lwr_arm.urdf'), robot_path('panda.urdf'),
+                                  robot_path('pr2.urdf')])
+def test_the_null_space_term_leaves_the_tip_where_it_is_and_moves_the_joints_off_their_limits(path):
+    """J N g = 0 (the Jacobian identity, up to the projection's small damping), and a step with the term takes
+    the tip where the step without it does, with the joints farther from their limits."""
+    arm = Arm(tree_of(path))
+    rng = np.random.default_rng(3)
+    middle, half = (arm.lower + arm.upper) / 2, (arm.upper - arm.lower) / 2
+    q = middle + half * rng.uniform(-0.95, 0.95, (200, arm.n))           # anywhere, near the limits too
+    q_t = np.ascontiguousarray(q.T)
+    tip, axes, origins = arm.forward(q_t)
+    jac_t = arm.jacobian_t(tip, axes, origins)
+    g_t = arm.limit_gradient_t(q_t, 0.3)
+    projected = arm.null_space_t(jac_t, g_t, 1e-6)
+    moved_tip = np.einsum('ikn,kn->in', jac_t, projected)
+    scale = np.linalg.norm(np.einsum('ikn,kn->in', jac_t, g_t), axis=0)
+    assert (np.linalg.norm(moved_tip, axis=0) <= 1e-6 * scale + 1e-12).all()
+    assert (np.linalg.norm(projected, axis=0) <= np.linalg.norm(g_t, axis=0) + 1e-12).all()   # a projection
+    setup = ReachSetup(model=path, limit_avoidance=1.0)
+    dx = rng.uniform(-1, 1, (3, 200)) * setup.ee_step * 0.2
+    plain = arm.move_t(q_t, jac_t, dx, setup.damping)
+    kept = arm.move_t(q_t, jac_t, dx, setup.damping, limit_gain=setup.limit_gain)
+    free = ((plain > arm.lower[:, None]) & (plain < arm.upper[:, None])).all(axis=0)   # no joint clamped
+    t_plain, t_kept = arm.forward(plain, with_axes=False)[0], arm.forward(kept, with_axes=False)[0]
+    # the same tip up to second order in the step (the term is linear), a small part of what the unprojected
+    # step would move it
+    felt = np.linalg.norm(np.einsum('ikn,kn->in', jac_t, arm.limit_gradient_t(q_t, setup.limit_gain)), axis=0)
+    assert np.median((np.linalg.norm(t_plain - t_kept, axis=0) / felt)[free]) < 0.05
+    # Liegeois' criterion whose gradient the term follows, sum |u|^3 (u: the joint's place in its range, -1 to 1)
+    h_plain = (np.abs((plain - middle[:, None]) / half[:, None]) ** 3).sum(axis=0)
+    h_kept = (np.abs((kept - middle[:, None]) / half[:, None]) ** 3).sum(axis=0)
+    assert (h_kept[free] <= h_plain[free] + 1e-9).mean() > 0.95 and h_kept[free].sum() < h_plain[free].sum()
+
+
+def test_a_chained_start_is_where_the_last_episode_left_the_arm():
+    env = ReachEnv(model=PACKAGE_UR5, start='chained')
+    obs, _ = env.reset(seed=5)
+    np.testing.assert_array_equal(env.joint_positions, env.setup.home)       # the first episode: home
+    for _ in range(10):
+        obs, *_ = env.step(np.clip((obs['desired_goal'] - obs['achieved_goal']) / env.setup.ee_step, -1, 1))
+    left, goal = env.joint_positions, obs['desired_goal']
+    obs, _ = env.reset()
+    np.testing.assert_array_equal(env.joint_positions, left)
+    assert not np.array_equal(obs['desired_goal'], goal)
+    home = ReachEnv(model=PACKAGE_UR5)                                      # the same goals as from home
+    assert np.array_equal(home.reset(seed=5)[0]['desired_goal'], ReachEnv(model=PACKAGE_UR5, start='chained').reset(
+        seed=5)[0]['desired_goal'])
+
+
+def test_an_unreached_goal_says_why_truthfully():
+    from robot_ai.reach.task import why_unreached
+    arm = Arm(tree_of(PACKAGE_UR5))
+    kind, line = why_unreached(arm, [3.0, 0.0, 0.2], arm.home, 2.1)
+    assert kind == 'beyond' and '3.007 m from base_link' in line and f'{arm.radius:.3f} m' in line
+    q = arm.home.copy()
+    q[0], q[2] = arm.upper[0], arm.lower[2]
+    kind, line = why_unreached(arm, [0.3, 0.2, 0.4], q, 0.25)
+    assert kind == 'limits' and 'shoulder_pan_joint, elbow_joint at their limits' in line and '0.250 m' in line
+    kind, line = why_unreached(arm, [0.3, 0.2, 0.4], arm.home, 0.25)
+    assert kind == 'other' and 'no joint at a limit' in line
+
+
+def test_evaluation_from_random_and_chained_starts_counts_the_misses_by_reason():
+    """The P-controller from home reaches nearly every goal; from random starts and chained it misses some, each
+    with a reason; chained evaluation is reproducible and each arm goes through its goals one after another."""
+    setup = ReachSetup(model=robot_path('kuka_lwr_arm.urdf'))
+    p = learn.p_controller(setup)
+    rates = {}
+    for start in ('home', 'random', 'chained'):
+        e = learn.evaluate(p, setup, 300, start=start)
+        assert e.start == start and len(e.distances) == 300
+        assert sum(e.misses.values()) == round((1 - e.success_rate) * 300)
+        rates[start] = e.success_rate
+    assert rates['home'] > 0.97 and rates['random'] < rates['home'] and rates['chained'] < rates['home']
+    again = learn.evaluate(p, setup, 300, start='chained')
+    assert again.success_rate == rates['chained'] and again.misses['limits'] > 0
+    assert setup.start == 'home'                 # the setup given is left as it was

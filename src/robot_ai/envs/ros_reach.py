@@ -36,7 +36,7 @@ from tf2_msgs.msg import TFMessage
 
 from robot_ai.envs.link import (DEFAULT_TIMEOUT, RosEnvError, claim, ensure_node, lease, master_answers, new_token,
                                 release, resolve)
-from robot_ai.reach.env import RENDER_FPS, ReachSetup
+from robot_ai.reach.env import LIMIT_AVOIDANCE, RENDER_FPS, ReachSetup
 from robot_ai.reach.task import goal_distance_one
 from robot_ai.srv import SetJointPositions
 from robot_ai.tf_wire import JointStateDecoder, TFDecoder, WireError, decode_tf, header_of, raw_message_class
@@ -357,13 +357,14 @@ class RosReachEnv(gymnasium.Env):
     def __init__(self, robot_ns: str = '', timeout: float = DEFAULT_TIMEOUT, model: str | None = None,
                  xacro_args=None, tip: str | None = None, control: str = 'ee', start: str = 'home',
                  reward_type: str = 'sparse', distance_threshold: float = 0.05, ee_step: float | None = None,
-                 damping: float | None = None, home=None, urdf: str | None = None, render_mode: str | None = None):
+                 damping: float | None = None, home=None, urdf: str | None = None, render_mode: str | None = None,
+                 limit_avoidance: float = LIMIT_AVOIDANCE):
         if not (isinstance(timeout, (int, float)) and 0 < timeout <= 3600):
             raise ValueError(f'timeout must be a number of seconds in (0, 3600], got {timeout!r}')
         if model is None and urdf is None:
             urdf = description_of(robot_ns, float(timeout))
         self.setup = ReachSetup(model, xacro_args, tip, control, start, reward_type, distance_threshold, ee_step,
-                                damping, home, urdf)
+                                damping, home, urdf, limit_avoidance)
         self.arm, self.task = self.setup.arm, self.setup.task
         self.observation_space = self.setup.observation_space
         self.action_space = self.setup.action_space
@@ -389,7 +390,7 @@ class RosReachEnv(gymnasium.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        goal_q, start_q = self.setup.first_states([self.np_random])
+        goal_q, start_q = self.setup.first_states([self.np_random], [self._q])    # chained: from where it stands
         self._goal = self.arm.forward_one(goal_q[:, 0].tolist())[0]
         self._failure = ''
         try:

@@ -6,9 +6,11 @@ same observation, the policy's action, the same damped least squares) and publis
 JointGroupPositionController command; arm_sim takes it, and so does a real arm's controller (remap the command
 topic to it, and give ~command_joints its joints). Goals come from rviz's Publish Point tool (/clicked_point) or
 ~goal, in any frame tf knows; the goal is drawn as a marker and its distance published. It says `reached <goal> in
-<s> s (<d> m)` once the tip is within the policy's threshold, or `not reached: closest <d> m` when the distance has
-stopped shrinking (a goal outside the workspace), and then takes the arm back to the closest configuration it found
-and holds it until the next goal. ~home takes the arm home and drops the goal.
+<s> s (<d> m)` once the tip is within the policy's threshold. When the distance stops shrinking with joints at their
+limits (a goal the arm must come at another way), it takes the arm home and tries once more from there; then it says
+`not reached: closest <d> m ...` and why (beyond the arm's reach, with the distance; stalled with the joints at their
+limits, named; or neither), takes the arm back to the closest configuration it found and holds it until the next
+goal. ~home takes the arm home and drops the goal.
 
 ROS Parameters
     robot_description (str): the robot, searched up the namespaces and waited for.
@@ -63,11 +65,12 @@ from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import ReachSetup
-from robot_ai.reach.task import goal_distance_one
+from robot_ai.reach.task import goal_distance_one, why_unreached
 from robot_ai.text import percent
 
 COMMAND_TOPIC = 'joint_group_position_controller/command'
 PROGRESS = 0.001          # m: less than this over ~stalled_after seconds is no progress
+AT_HOME = 0.01            # rad (or m): every joint this near home is home (a retry starts there)
 MAX_GOAL = 1000.0         # m from the base: a goal farther out is a mistake (a 1e308 goal), not a place to reach
 
 
@@ -105,6 +108,9 @@ class ReachController:
         self.improved_at = 0.0
         self.said = False
         self.holding = False                      # a goal said not reached: the arm holds at its closest
+        self.homing = False                       # stalled at joint limits: going home to try again from there
+        self.retried = False                      # the goal's one retry from home was made
+        self.homing_since = 0.0
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(10))
         self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
         self.command_pub = rospy.Publisher(COMMAND_TOPIC, Float64MultiArray, queue_size=1, tcp_nodelay=True)
@@ -191,7 +197,7 @@ class ReachController:
             return
         with self.lock:
             self.goal, self.goal_since, self.best, self.said = goal, time.monotonic(), float('inf'), False
-            self.best_q, self.holding = None, False
+            self.best_q, self.holding, self.homing, self.retried = None, False, False, False
             self.improved_at = self.goal_since
         self._draw(goal)
         rospy.loginfo(f'goal ({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f}) m in {self.base}')
@@ -246,7 +252,7 @@ class ReachController:
     def _step(self, event) -> None:
         with self.lock:
             goal, joints, policy = self.goal, dict(self.joints), self.policy
-            holding = self.holding
+            holding, homing = self.holding, self.homing
         if goal is None:
             return
         arm = self.setup.arm
@@ -261,6 +267,9 @@ class ReachController:
         distance = goal_distance_one(tip, goal)
         publish(self.distance_pub, Float64(distance))
         if holding:
+            return
+        if homing:
+            self._home_step(goal, joints, q)
             return
         observation = self.setup.observation_one(q, tip, goal)
         try:
@@ -298,16 +307,33 @@ class ReachController:
             stalled = now - self.improved_at > self.stalled_after
             if not (reached or stalled):
                 return None
+            kind, why = why_unreached(self.setup.arm, goal, q, distance) if not reached else ('', '')
+            if kind == 'limits' and not self.retried:       # home, and once more from there
+                self.homing, self.retried, self.homing_since = True, True, now
+                rospy.loginfo(f'{why}: going home to try again from there')
+                return self.setup.home.tolist()
             self.said = True
             self.holding = not reached
-            since, hold = self.goal_since, self.best_q
+            since, hold, best = self.goal_since, self.best_q, self.best
         where = f'({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f})'
         if reached:
             rospy.loginfo(f'reached {where} in {now - since:.2f} s ({distance:.3f} m)')
             return None
-        rospy.loginfo(f'not reached: closest {self.best:.3f} m to {where} (outside the '
-                      f'workspace, or behind a joint limit); holding there')
+        rospy.loginfo(f'not reached: closest {best:.3f} m to {where}: {why}; holding at the closest')
         return hold
+
+    def _home_step(self, goal: list[float], joints: dict, q: list[float]) -> None:
+        """On the way home for a retry: home commanded until every joint is there (or ~stalled_after has passed
+        twice without getting there), then the policy drives again from home, its stall clock started afresh."""
+        home = self.setup.home.tolist()
+        there = max(abs(a - b) for a, b in zip(q, home)) < AT_HOME
+        with self.lock:
+            if goal is not self.goal:
+                return
+            if there or time.monotonic() - self.homing_since > 2 * self.stalled_after + 30.0:
+                self.homing, self.improved_at, self.progress_mark = False, time.monotonic(), float('inf')
+                return
+            self._command(joints, home)
 
 
 @quiet_on_shutdown

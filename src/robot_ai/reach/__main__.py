@@ -1,7 +1,7 @@
 """Reach without ROS: ``python -m robot_ai.reach <command> [options]`` (see --help).
 
     python -m robot_ai.reach train --model /path/arm.urdf.xacro --xacro-args "hand:=true" --tip tool0 --video
-    python -m robot_ai.reach evaluate ~/.ros/robot_ai/reach_..._seed0.npz --episodes 1000 --video
+    python -m robot_ai.reach evaluate ~/.ros/robot_ai/reach_..._seed0.npz --start chained --video
     python -m robot_ai.reach show ~/.ros/robot_ai/reach_..._seed0.npz
 
 train runs ARS (robot_ai.ars) on the arm's reach task, a line per iteration, and writes the policy file (.npz), its
@@ -47,8 +47,8 @@ def train_parser(sub) -> None:
                    'flange, ...; not a finger)')
     p.add_argument('--control', default='ee', choices=CONTROLS,
                    help='ee: tip displacements (damped least squares); joints: joint displacements')
-    p.add_argument('--start', default='home', choices=STARTS, help='where each episode starts: home (mid-range) or '
-                   'random configurations')
+    p.add_argument('--start', default='home', choices=STARTS, help='where each episode starts: home (mid-range), '
+                   'random configurations, or chained (where the last episode left the arm)')
     p.add_argument('--seed', type=int, default=0, help='random seed; the same seed gives the same policy')
     p.add_argument('--iterations', type=whole_number(1, 100000), default=None,
                    help=f'ARS iterations; default {d.iterations} x (ee_step / 0.05 m) ** 0.3, at least {d.iterations} '
@@ -90,9 +90,9 @@ def run_train(a, parser) -> int:
     if a.iterations:
         settings = replace(settings, iterations=a.iterations)
     print(f'robot             {setup.arm.describe()}')
-    print(f'task              reach within {setup.task.distance_threshold:g} m in 50 steps from '
-          f'{"home" if a.start == "home" else "random starts"}, control {a.control} (ee_step '
-          f'{setup.ee_step:.3f} m)')
+    where = dict(home='home', random='random starts', chained='where the last goal left the arm')[a.start]
+    print(f'task              reach within {setup.task.distance_threshold:g} m in 50 steps from {where}, control '
+          f'{a.control} (ee_step {setup.ee_step:.3f} m)')
     print(f'ARS               {settings.directions} directions, top {settings.top_directions}, step '
           f'{settings.step_size:g}, noise {settings.noise:g}, {settings.episodes} goals each, seed {a.seed}')
     stop = {'asked': False}
@@ -163,6 +163,9 @@ def evaluate_parser(sub) -> None:
     add_robot(p, 'default: the file the policy learned on')
     p.add_argument('--episodes', type=whole_number(1, 10 ** 6), default=learn.HELD_OUT_EPISODES, help='fresh goals')
     p.add_argument('--seed', type=int, default=learn.HELD_OUT_SEED, help='seed of the first goal (goal i: seed + i)')
+    p.add_argument('--start', choices=STARTS, action='append', default=None,
+                   help='where each episode starts: home, random configurations, or chained (where the last goal left '
+                   'the arm, as clicks in rviz come); repeat for several; default: all three')
     p.add_argument('--video', action='store_true', help='also write an mp4 of the arm reaching 3 of the goals')
     p.add_argument('--output-dir', default=artifacts.default_output_dir(), help='where the video goes')
     p.set_defaults(run=run_evaluate)
@@ -176,18 +179,23 @@ def run_evaluate(a, parser) -> int:
     if note:
         print(note, file=sys.stderr)
     folder = output_folder(a, parser) if a.video else ''
-    try:
-        result = learn.evaluate(policy.actor, setup, a.episodes, a.seed)
-    except (policies.PolicyError, ValueError) as e:     # a model that answers no action on a real state
-        print(f'evaluate: {e}', file=sys.stderr)
-        return 1
+    starts = list(dict.fromkeys(a.start or STARTS))
     print(policy.describe())
     print(f'robot             {setup.arm.describe()}')
-    print(f'success rate      {percent(result.success_rate)} of {a.episodes} fresh goals within '
-          f'{setup.task.distance_threshold:g} m (mean final distance {result.mean_distance:.3f} m)')
-    if setup.control == 'ee':
-        p = learn.evaluate(learn.p_controller(setup), setup, a.episodes, a.seed)
-        print(f'P-controller      {percent(p.success_rate)} of the same goals')
+    print(f'goals             {a.episodes} fresh goals within {setup.task.distance_threshold:g} m in 50 steps (seed '
+          f'{a.seed}); the policy learned from {setup.start}')
+    for start in starts:
+        try:
+            result = learn.evaluate(policy.actor, setup, a.episodes, a.seed, start=start)
+        except (policies.PolicyError, ValueError) as e:     # a model that answers no action on a real state
+            print(f'evaluate: {e}', file=sys.stderr)
+            return 1
+        misses = result.misses_text()
+        print(f'from {start:<12s} {percent(result.success_rate):>7s} (mean final distance '
+              f'{result.mean_distance:.3f} m){"; missed: " + misses if misses else ""}')
+        if setup.control == 'ee':
+            p = learn.evaluate(learn.p_controller(setup), setup, a.episodes, a.seed, start=start)
+            print(f'  P-controller    {percent(p.success_rate):>7s} of the same goals from the same starts')
     if a.video:
         stem = artifacts.artifact_stem(folder, 'evaluate-' + stem_name(setup), 'Reach-v0', a.seed)
         write_or_say('video', lambda: learn.record_video(policy.actor, setup, stem + '.mp4', seed=a.seed))

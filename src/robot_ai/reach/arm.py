@@ -27,6 +27,8 @@ from robot_ai.kinematics import KinematicTree
 UNLIMITED = math.pi          # continuous and unlimited joints: [-pi, pi]
 DEFAULT_VELOCITY = 1.0       # rad/s (or m/s) where the URDF gives no velocity limit
 CLAMP_PASSES = 3             # damped least squares solved again after locking joints at their limits
+NULL_DAMPING = 0.01          # the null-space projection's damping, in the task's damping
+LIMIT_TOLERANCE = 1e-3       # rad (or m): a joint this near a limit is at it
 _NEXT = np.array([1, 2, 0])  # cross products and cofactors: the index after i, and the one after that (mod 3)
 _AFTER = np.array([2, 0, 1])
 
@@ -199,6 +201,9 @@ class Arm:
         self._tip_offset = translation        # the tip's origin in the last moving joint's (turned) frame
         self._tip_t = tuple(float(v) for v in translation)
         self._lower, self._upper = self.lower.tolist(), self.upper.tolist()
+        self._middle = (self.lower + self.upper) / 2.0
+        self._half = (self.upper - self.lower) / 2.0
+        self._middle_list, self._half_list = self._middle.tolist(), self._half.tolist()
 
     # ----------------------------------------------------------------------------------- batched kinematics
     def forward(self, q_t: np.ndarray, with_axes: bool = True):
@@ -280,15 +285,35 @@ class Arm:
         """q_t (n, N) within the joint limits."""
         return np.minimum(np.maximum(q_t, self.lower[:, None]), self.upper[:, None])
 
+    def limit_gradient_t(self, q_t: np.ndarray, gain: float) -> np.ndarray:
+        """(n, N): each joint's step away from its nearer limit, gain x u |u| (rad or m), u = (q - middle) / half
+        range in [-1, 1]: nothing at mid-range, gain at a limit (Liegeois 1977's gradient of the distance to the
+        limits, steeper near them)."""
+        u = (q_t - self._middle[:, None]) / self._half[:, None]
+        return -gain * (u * np.abs(u))
+
+    def null_space_t(self, jac_t: np.ndarray, g_t: np.ndarray, damping: float) -> np.ndarray:
+        """(n, N): g_t projected onto the Jacobian's null space, g - J^T (J J^T + damping^2 I)^-1 J g: joint motion
+        that leaves the tip where it is (up to damping^2 / sigma^2 along a singular value sigma of J)."""
+        jg = jac_t[:, 0] * g_t[0]
+        for k in range(1, self.n):
+            jg = jg + jac_t[:, k] * g_t[k]
+        return g_t - self.damped_least_squares(jac_t, jg, damping)
+
     def move_t(self, q_t: np.ndarray, jac_t: np.ndarray, dx_t: np.ndarray, damping: float,
-               passes: int = CLAMP_PASSES) -> np.ndarray:
+               passes: int = CLAMP_PASSES, limit_gain: float = 0.0) -> np.ndarray:
         """Joint positions (n, N) after moving the tip by dx_t (3, N) from q_t (n, N), within the limits.
 
         Damped least squares, clamped: a joint the solution would take past a limit goes to that limit and is locked,
         and the rest of the displacement is solved again with the other joints (up to `passes` times), so that a
         joint stuck at a limit (a finger's 4 cm slide, which least squares favours) does not swallow every step.
-        A pass changes nothing for an arm that locks no new joint, so an arm's result does not depend on its batch."""
+        A pass changes nothing for an arm that locks no new joint, so an arm's result does not depend on its batch.
+        limit_gain > 0 (rad or m per step at a limit): plus the joints' steps away from their limits
+        (limit_gradient_t) in the Jacobian's null space (null_space_t, damped by NULL_DAMPING x damping), which the
+        tip does not feel."""
         dq = self.damped_least_squares(jac_t, dx_t, damping)
+        if limit_gain > 0:
+            dq = dq + self.null_space_t(jac_t, self.limit_gradient_t(q_t, limit_gain), damping * NULL_DAMPING)
         lower, upper = self.lower[:, None], self.upper[:, None]
         locked = np.zeros(q_t.shape, dtype=bool)
         fixed = np.zeros(q_t.shape)               # the locked joints' motion, to their limit
@@ -303,14 +328,16 @@ class Arm:
             done = jac_t[:, 0] * fixed[0]
             for k in range(1, self.n):
                 done = done + jac_t[:, k] * fixed[k]
-            dq = np.where(locked, fixed, self.damped_least_squares(free, dx_t - done, damping))
+            solved = np.where(locked, fixed, self.damped_least_squares(free, dx_t - done, damping))
+            dq = np.where(locked.any(axis=0), solved, dq)    # an arm with no joint locked keeps its step as it was
         return self.clip(q_t + dq)
 
-    def move_tip(self, q, dx, damping: float) -> np.ndarray:
+    def move_tip(self, q, dx, damping: float, limit_gain: float = 0.0) -> np.ndarray:
         """Joint positions (N, n) after moving the tip by dx (N, 3) from q (N, n) (see move_t)."""
         q_t = np.ascontiguousarray(np.atleast_2d(np.asarray(q, dtype=float)).T)
         dx_t = np.ascontiguousarray(np.atleast_2d(np.asarray(dx, dtype=float)).T)
-        return self.move_t(q_t, self.jacobian_t(*self.forward(q_t)), dx_t, damping).T.copy()
+        return self.move_t(q_t, self.jacobian_t(*self.forward(q_t)), dx_t, damping,
+                           limit_gain=limit_gain).T.copy()
 
     # ------------------------------------------------------------------------------------------------ one arm
     # The same operations as forward, jacobian_t, damped_least_squares and move_t, in the same order, on plain
@@ -383,10 +410,20 @@ class Arm:
         y = [(cof[i][0] * dx[0] + cof[i][1] * dx[1] + cof[i][2] * dx[2]) / det for i in range(3)]
         return [jac[0][k] * y[0] + jac[1][k] * y[1] + jac[2][k] * y[2] for k in range(n)]
 
-    def move_one(self, q: list, jac: list, dx: list, damping: float, passes: int = CLAMP_PASSES) -> list[float]:
+    def move_one(self, q: list, jac: list, dx: list, damping: float, passes: int = CLAMP_PASSES,
+                 limit_gain: float = 0.0) -> list[float]:
         """As move_t for one arm."""
         n, lower, upper = self.n, self._lower, self._upper
         dq = self.damped_least_squares_one(jac, dx, damping)
+        if limit_gain > 0:
+            middle, half = self._middle_list, self._half_list
+            u = [(q[k] - middle[k]) / half[k] for k in range(n)]
+            g = [-limit_gain * (u[k] * abs(u[k])) for k in range(n)]
+            jg = [jac[i][0] * g[0] for i in range(3)]
+            for k in range(1, n):
+                jg = [jg[i] + jac[i][k] * g[k] for i in range(3)]
+            back = self.damped_least_squares_one(jac, jg, damping * NULL_DAMPING)
+            dq = [dq[k] + (g[k] - back[k]) for k in range(n)]
         locked, fixed = [False] * n, [0.0] * n
         for _ in range(passes):
             target = [q[k] + dq[k] for k in range(n)]
@@ -405,6 +442,12 @@ class Arm:
         return [min(max(q[k] + dq[k], lower[k]), upper[k]) for k in range(n)]
 
     # -------------------------------------------------------------------------------------------- the robot
+    def at_limits(self, q, tolerance: float = LIMIT_TOLERANCE) -> list[str]:
+        """The joints of one configuration q (n,) at one of their limits (within tolerance, rad or m)."""
+        q = np.asarray(q, dtype=float)
+        at = (q <= self.lower + tolerance) | (q >= self.upper - tolerance)
+        return [name for name, flag in zip(self.joints, at) if flag]
+
     def positions(self, q) -> dict[str, float]:
         """{joint: position} of the arm's joints for one configuration (n,), as joint_states carries them."""
         return {name: float(v) for name, v in zip(self.joints, np.asarray(q, dtype=float))}

@@ -16,9 +16,13 @@ defaults to a twentieth of the chain's length, so that 50 steps cross any arm's 
 infinite ones are refused (ValueError).
 
 Episode: reset draws the goal as the tip of a configuration uniform within the limits (every goal reachable), then
-puts the arm at its start: start='home' (the middle of every joint's range, or ``home``) or 'random' (uniform within
-the limits), from the env's np_random. 50 steps (TimeLimit); no termination on success (Fetch's convention: the
-policy has to stay there). reward_type 'sparse': -1 outside the threshold, 0 inside; 'dense': -distance.
+puts the arm at its start: start='home' (the middle of every joint's range, or ``home``), 'random' (uniform within
+the limits, from the env's np_random) or 'chained' (where the last episode left the arm, home at the first: how
+goals clicked one after another in rviz arrive). limit_avoidance (ee control; 0 = none, default 4): joint motion away
+from the limits in the Jacobian's null space (Arm.move_t), which the tip does not feel; at 1 a joint at its limit
+steps back as far as a joint turns for a full ee_step. 50 steps (TimeLimit); no
+termination on success (Fetch's convention: the policy has to stay there). reward_type 'sparse': -1 outside the
+threshold, 0 inside; 'dense': -distance.
 
 ReachVectorEnv computes its N arms in one numpy pass per step and equals gymnasium's SyncVectorEnv over N ReachEnvs
 bit for bit (autoreset next-step, reset(seed=s) seeds env i with s + i).
@@ -41,11 +45,12 @@ from robot_ai.reach.model import Model, load_model
 from robot_ai.reach.task import DISTANCE_THRESHOLD, ReachTask, goal_distance, goal_distance_one
 
 CONTROLS = ('ee', 'joints')
-STARTS = ('home', 'random')
+STARTS = ('home', 'random', 'chained')
 EPISODE_STEPS = 50
 JOINT_STEP = 0.05            # rad (or m) per unit of a joints action
 EE_STEP_FRACTION = 1 / 20    # of the chain's length: 50 steps cross the workspace
 DAMPING_FRACTION = 0.5       # damped least squares' damping, in ee_steps
+LIMIT_AVOIDANCE = 4.0        # ee control: the null-space step away from a joint limit, at the limit, in ee_step's turn
 RENDER_FPS = 10
 
 
@@ -55,7 +60,8 @@ class ReachSetup:
 
     def __init__(self, model: str | None = None, xacro_args=None, tip: str | None = None, control: str = 'ee',
                  start: str = 'home', reward_type: str = 'sparse', distance_threshold: float = DISTANCE_THRESHOLD,
-                 ee_step: float | None = None, damping: float | None = None, home=None, urdf: str | None = None):
+                 ee_step: float | None = None, damping: float | None = None, home=None, urdf: str | None = None,
+                 limit_avoidance: float = LIMIT_AVOIDANCE):
         if control not in CONTROLS:
             raise ReachError(f'control must be one of {", ".join(CONTROLS)}, got {control!r}')
         if start not in STARTS:
@@ -66,6 +72,12 @@ class ReachSetup:
         self.control, self.start = control, start
         self.ee_step = self._positive('ee_step', ee_step, self.arm.length * EE_STEP_FRACTION)
         self.damping = self._positive('damping', damping, self.ee_step * DAMPING_FRACTION)
+        if isinstance(limit_avoidance, bool) or not isinstance(limit_avoidance, (int, float)) \
+                or not 0 <= limit_avoidance <= 10:
+            raise ReachError(f'limit_avoidance must be a number from 0 (none) to 10, got {limit_avoidance!r}')
+        self.limit_avoidance = float(limit_avoidance)
+        # at 1, a joint at its limit steps back as far as a joint turns in a full ee_step (ee_step / the chain)
+        self.limit_gain = self.limit_avoidance * self.ee_step / self.arm.length
         self.home = self._home(home)
         bound = self.arm.radius + 1e-6
         goal_space = spaces.Box(-bound, bound, (3,), np.float64)
@@ -142,7 +154,7 @@ class ReachSetup:
         """The env's kwargs as plain values (a policy file keeps them)."""
         return dict(tip=self.arm.tip, control=self.control, start=self.start, reward_type=self.task.reward_type,
                     distance_threshold=self.task.distance_threshold, ee_step=self.ee_step, damping=self.damping,
-                    home=[float(v) for v in self.home])
+                    home=[float(v) for v in self.home], limit_avoidance=self.limit_avoidance)
 
     # -------------------------------------------------------------------------------- batched steps
     def check_actions(self, actions: np.ndarray) -> np.ndarray:
@@ -166,12 +178,18 @@ class ReachSetup:
             raise ValueError(f'an action must be finite numbers in [-1, 1], got {values[:4]}')
         return [min(max(v, -1.0), 1.0) for v in values]
 
-    def first_states(self, rngs: list) -> tuple[np.ndarray, np.ndarray]:
-        """(goal configurations, start configurations), each (n, k), drawn from each env's np_random in turn."""
+    def first_states(self, rngs: list, where: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(goal configurations, start configurations), each (n, k), drawn from each env's np_random in turn.
+        start 'chained': each env's start is where its arm stands (where[i], (n,)), home where that is None."""
         goals, starts = [], []
-        for rng in rngs:
+        for i, rng in enumerate(rngs):
             goals.append(self.task.goal_configuration(self.arm, rng))
-            starts.append(self.home if self.start == 'home' else rng.uniform(self.arm.lower, self.arm.upper))
+            if self.start == 'random':
+                starts.append(rng.uniform(self.arm.lower, self.arm.upper))
+            elif self.start == 'chained' and where is not None and where[i] is not None:
+                starts.append(where[i])
+            else:
+                starts.append(self.home)
         return np.ascontiguousarray(np.array(goals).T), np.ascontiguousarray(np.array(starts).T)
 
     def place(self, q_t: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -184,7 +202,7 @@ class ReachSetup:
     def move(self, q_t: np.ndarray, jac_t: np.ndarray | None, actions_t: np.ndarray) -> np.ndarray:
         """Joint positions (n, N) after actions_t (a, N), within the limits."""
         if self.control == 'ee':
-            return self.arm.move_t(q_t, jac_t, actions_t * self.ee_step, self.damping)
+            return self.arm.move_t(q_t, jac_t, actions_t * self.ee_step, self.damping, limit_gain=self.limit_gain)
         return self.arm.clip(q_t + actions_t * JOINT_STEP)
 
     # ------------------------------------------------------------------------------- one arm (plain floats)
@@ -196,7 +214,8 @@ class ReachSetup:
     def move_one(self, q: list, jac: list | None, a: list) -> list:
         """move's numbers for a batch of one: a, the action's floats already clipped (check_action_one)."""
         if self.control == 'ee':
-            return self.arm.move_one(q, jac, [v * self.ee_step for v in a], self.damping)
+            return self.arm.move_one(q, jac, [v * self.ee_step for v in a], self.damping,
+                                     limit_gain=self.limit_gain)
         lower, upper = self.arm._lower, self.arm._upper
         return [min(max(q[k] + a[k] * JOINT_STEP, lower[k]), upper[k]) for k in range(self.arm.n)]
 
@@ -214,21 +233,23 @@ class ReachEnv(gymnasium.Env):
     """Any arm's reach task (see the module's docstring). Registered as robot_ai/Reach-v0 (50 steps).
 
     Args: model (a URDF or xacro path; default the package's UR5), xacro_args ('a:=1 b:=2' or a dict), tip (a link;
-    default the arm's end: a tool frame, not a finger), control ('ee' or 'joints'), start ('home' or 'random'),
+    default the arm's end: a tool frame, not a finger), control ('ee' or 'joints'), start ('home', 'random' or
+    'chained'),
     reward_type ('sparse' or 'dense'), distance_threshold (0.05 m), ee_step (default: a twentieth of the chain),
     damping (of the least squares; default ee_step), home (joint positions, a list in the arm's order or a dict;
-    default mid-range), urdf (a URDF text instead of a model file), render_mode ('rgb_array')."""
+    default mid-range), urdf (a URDF text instead of a model file), render_mode ('rgb_array'), limit_avoidance
+    (0 to 10, default 4)."""
 
     metadata = {'render_modes': ['rgb_array'], 'render_fps': RENDER_FPS}
 
     def __init__(self, model: str | None = None, xacro_args=None, tip: str | None = None, control: str = 'ee',
                  start: str = 'home', reward_type: str = 'sparse', distance_threshold: float = DISTANCE_THRESHOLD,
                  ee_step: float | None = None, damping: float | None = None, home=None, urdf: str | None = None,
-                 render_mode: str | None = None):
+                 render_mode: str | None = None, limit_avoidance: float = LIMIT_AVOIDANCE):
         if render_mode not in (None, *self.metadata['render_modes']):
             raise ReachError(f'render_mode must be one of {self.metadata["render_modes"]} or None, got {render_mode!r}')
         self.setup = ReachSetup(model, xacro_args, tip, control, start, reward_type, distance_threshold, ee_step,
-                                damping, home, urdf)
+                                damping, home, urdf, limit_avoidance)
         self.arm = self.setup.arm
         self.task = self.setup.task
         self.observation_space = self.setup.observation_space
@@ -246,7 +267,7 @@ class ReachEnv(gymnasium.Env):
         {'q': [...]} (the start configuration, in the arm's joint order or by name). The draws are made either way,
         so the env's random numbers stay those of the same seed without options."""
         super().reset(seed=seed)
-        goal_q, start_q = self.setup.first_states([self.np_random])
+        goal_q, start_q = self.setup.first_states([self.np_random], [self._q])
         goal, q = self.arm.forward_one(goal_q[:, 0].tolist())[0], start_q[:, 0].tolist()
         if options:
             goal, q = self.setup.reset_options(options, goal, q)
@@ -338,7 +359,8 @@ class ReachVectorEnv(VectorEnv):
 
     def _reset_envs(self, chosen: np.ndarray, seeds: list) -> None:
         rngs = [self._rng(int(i), seeds[i]) for i in chosen]
-        goal_q, q = self.setup.first_states(rngs)
+        goal_q, q = self.setup.first_states(rngs, [self._q[:, i].copy() if self._started[i] else None
+                                                   for i in chosen])
         goal = self.arm.forward(goal_q, with_axes=False)[0]
         tip, jac = self.setup.place(q)
         self._q[:, chosen], self._goal[:, chosen], self._tip[:, chosen] = q, goal, tip

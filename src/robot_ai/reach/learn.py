@@ -19,6 +19,7 @@ Its policy files (save, load) are robot_ai.reach.policy_files'.
 """
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass, field, replace
 
@@ -26,12 +27,14 @@ import numpy as np
 
 from robot_ai import ars
 from robot_ai.reach.env import ReachSetup, ReachVectorEnv
-from robot_ai.reach.task import goal_distance
+from robot_ai.reach.task import goal_distance, why_unreached
 
 JOINT_SCALE = 10.0              # joint positions normalised by 10 x their range (see the module's docstring)
 PRIOR_STATES = 2000             # random configurations and goals that seed the goal coordinates' statistics
 HELD_OUT_EPISODES = 1000
 HELD_OUT_SEED = 2 ** 31         # held-out goals: seeds no training iteration draws (those are below 2 ** 31)
+CHAIN_ENVS = 100               # chained evaluation: this many arms, each through its episodes one after another
+MISSES = {'beyond': 'beyond the arm\'s reach', 'limits': 'stalled at joint limits', 'other': 'stalled elsewhere'}
 SETTINGS = ars.ARSSettings(iterations=80, directions=32, top_directions=16, step_size=0.1, noise=0.1, episodes=8,
                            eval_episodes=256, decay=0.9, bias=True, normalize=True)
 
@@ -39,14 +42,21 @@ SETTINGS = ars.ARSSettings(iterations=80, directions=32, top_directions=16, step
 @dataclass
 class Evaluation:
     """A policy over fresh goals: the success rate (tip within the threshold at the last step), the final
-    distances (episodes,), and the seed of the first episode."""
+    distances (episodes,), the seed of the first episode, where episodes started ('home', 'random' or 'chained'),
+    and the goals missed by reason (beyond reach, at joint limits, neither: MISSES' keys)."""
     success_rate: float
     distances: np.ndarray
     seed: int
+    start: str = 'home'
+    misses: dict[str, int] = field(default_factory=dict)
 
     @property
     def mean_distance(self) -> float:
         return float(self.distances.mean())
+
+    def misses_text(self) -> str:
+        """The misses by reason in a few words, '' without any."""
+        return ', '.join(f'{count} {MISSES[reason]}' for reason, count in self.misses.items() if count)
 
 
 @dataclass
@@ -139,21 +149,39 @@ def train(env_kwargs: dict | None = None, settings: ars.ARSSettings | None = Non
 
 
 def evaluate(policy, setup: ReachSetup, episodes: int = HELD_OUT_EPISODES, seed: int = HELD_OUT_SEED,
-             batch: int = 4096) -> Evaluation:
+             batch: int = 4096, start: str | None = None) -> Evaluation:
     """policy (anything with act_batch(flat observations) -> actions) over `episodes` fresh goals of setup's task,
-    env i seeded seed + i, all in one vector env (or batches of `batch`)."""
-    distances, successes = [], []
-    for first in range(0, episodes, batch):
-        k = min(batch, episodes - first)
+    env i seeded seed + i, all in one vector env (or batches of `batch`). start: where episodes start instead of
+    setup's ('home', 'random', or 'chained': CHAIN_ENVS arms each reach their goals one after another, every
+    episode from where the last one left the arm)."""
+    start = start or setup.start
+    if start != setup.start:
+        setup = copy.copy(setup)
+        setup.start = start
+    chained = start == 'chained'
+    width = min(episodes, CHAIN_ENVS if chained else batch)
+    distances, successes, goals, configurations = [], [], [], []
+    for first in range(0, episodes, width if not chained else episodes):
+        k = min(width, episodes - first)
         env = ReachVectorEnv(k, setup=setup)
         obs, _ = env.reset(seed=seed + first)
         space = env.single_observation_space
-        for _ in range(env.max_episode_steps):
-            obs, _, _, _, infos = env.step(policy.act_batch(ars.flatten_batch(space, obs)))
-        distances.append(final_distance(obs))
-        successes.append(infos['is_success'])
+        for chain in range(-(-episodes // k) if chained else 1):
+            if chain:                                        # the autoreset step: the next goal, the arm where it is
+                obs, *_ = env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+            for _ in range(env.max_episode_steps):
+                obs, _, _, _, infos = env.step(policy.act_batch(ars.flatten_batch(space, obs)))
+            distances.append(final_distance(obs))
+            successes.append(infos['is_success'])
+            goals.append(obs['desired_goal'])
+            configurations.append(env._q.T.copy())
         env.close()
-    return Evaluation(float(np.concatenate(successes).mean()), np.concatenate(distances), seed)
+    distances, successes = np.concatenate(distances)[:episodes], np.concatenate(successes)[:episodes]
+    goals, configurations = np.concatenate(goals)[:episodes], np.concatenate(configurations)[:episodes]
+    misses = dict.fromkeys(MISSES, 0)
+    for i in np.flatnonzero(~successes):
+        misses[why_unreached(setup.arm, goals[i], configurations[i], float(distances[i]))[0]] += 1
+    return Evaluation(float(successes.mean()), distances, seed, start, misses)
 
 
 def p_controller(setup: ReachSetup, gain: float = 1.0) -> ars.LinearPolicy:

@@ -23,7 +23,8 @@ from robot_ai.reach.env import ReachSetup
 
 ENV_ID = 'robot_ai/Reach-v0'
 REACH_ENVS = (ENV_ID, 'robot_ai/RosReach-v0')
-ENV_SETTINGS = ('model', 'xacro_args', 'tip', 'control', 'start', 'distance_threshold', 'ee_step', 'damping', 'home')
+ENV_SETTINGS = ('model', 'xacro_args', 'tip', 'control', 'start', 'distance_threshold', 'ee_step', 'damping', 'home',
+                'limit_avoidance')
 
 
 def save(training, path: str) -> str:
@@ -168,6 +169,7 @@ def _setup_of_kwargs(env_kwargs: dict, given: dict, learned_on: str = '') -> Rea
     """The setup of a policy's env kwargs with the caller's overrides; a robot file without the policy's tip is a
     PolicyError naming the robot the policy learned on (learned_on)."""
     kwargs = {k: v for k, v in env_kwargs.items() if k in ENV_SETTINGS}
+    kwargs.setdefault('limit_avoidance', 0.0)     # a file from before the term learned without it
     other_file = 'model' in given or 'urdf' in given
     if other_file:      # another robot file (or text): its own limits and sizes
         kwargs = {k: v for k, v in kwargs.items() if k not in ('model', 'xacro_args', 'home', 'ee_step', 'damping')}

@@ -67,3 +67,19 @@ class ReachTask:
 
     def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
         return goal_distance(achieved_goal, desired_goal) < self.distance_threshold
+
+
+def why_unreached(arm: Arm, goal, q, distance: float) -> tuple[str, str]:
+    """(kind, a line) of why the tip stopped distance metres from goal (3,) with the arm at q (n,), truthfully:
+    'beyond' (the goal lies farther than the tip can ever be), 'limits' (joints at their limits, named) or 'other'
+    (neither: a singular configuration, or a point the arm cannot take)."""
+    away = math.sqrt(sum(float(v) * float(v) for v in goal))
+    if away > arm.radius:
+        return 'beyond', (f'beyond the arm\'s reach: {away:.3f} m from {arm.base}, and its tip is never farther than '
+                          f'{arm.radius:.3f} m')
+    stuck = arm.at_limits(q)
+    if stuck:
+        return 'limits', (f'stalled {distance:.3f} m away with {", ".join(stuck)} at '
+                          f'{"its limit" if len(stuck) == 1 else "their limits"}')
+    return 'other', (f'stalled {distance:.3f} m away with no joint at a limit (a singular configuration, or a point '
+                     f'the arm cannot take)')
