@@ -41,7 +41,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from robot_ai.lease import Lease, caller_of
-from robot_ai.nodes.params import bool_param, number_param, numpy_service, publish, quiet_on_shutdown
+from robot_ai.nodes.params import bool_param, init_node, number_param, numpy_service, publish, quiet_on_shutdown
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach.arm import joint_limits, joint_velocity
 from robot_ai.srv import Lease as LeaseService
@@ -207,7 +207,7 @@ class ArmSim:
 
 @quiet_on_shutdown
 def main():
-    rospy.init_node('arm_sim')
+    init_node('arm_sim')
     tree, _ = wait_for_tree()
     if tree is None:
         return

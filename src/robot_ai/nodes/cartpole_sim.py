@@ -65,7 +65,8 @@ from std_srvs.srv import Trigger, TriggerResponse
 from robot_ai.cartpole.dynamics import CartPoleDynamics, rng_for, start_states
 from robot_ai.msg import CartPoleEpisode
 from robot_ai.lease import Lease, caller_of
-from robot_ai.nodes.params import bool_param, int_param, number_param, numpy_service, publish, quiet_on_shutdown
+from robot_ai.nodes.params import (bool_param, init_node, int_param, number_param, numpy_service, publish,
+                                  quiet_on_shutdown)
 from robot_ai.srv import Lease as LeaseService
 from robot_ai.srv import PushPole, PushPoleResponse, SetCartPoleState, SetCartPoleStateResponse
 
@@ -350,5 +351,5 @@ class CartPoleSim:
 
 @quiet_on_shutdown
 def main():
-    rospy.init_node('cartpole_sim')
+    init_node('cartpole_sim')
     CartPoleSim().run()

@@ -34,7 +34,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from robot_ai.msg import CartPoleEpisode
-from robot_ai.nodes.params import bool_param, int_param, number_param, quiet_on_shutdown, str_param
+from robot_ai.nodes.params import bool_param, init_node, int_param, number_param, quiet_on_shutdown, str_param
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.srv import LoadPolicy, PushPole, QLearning, RandomSearch
 from robot_ai.text import counted, percent
@@ -250,9 +250,22 @@ def reach(ns: str, count: int, seed: int) -> tuple[list[str], list[str]]:
     return lines, failed
 
 
+def lookup(buf: tf2_ros.Buffer, base: str, tip: str, timeout: float):
+    """buf.lookup_transform(base, tip) of the latest, waited for up to timeout seconds but not past a shutdown: tf2's
+    own wait polls with wall-clock sleeps that no Ctrl-C ends (the node then ignored SIGINT and SIGTERM until its
+    timeout), so it waits here in short slices and raises ROSInterruptException on shutdown."""
+    deadline = time.monotonic() + timeout
+    while not buf.can_transform(base, tip, rospy.Time(0), rospy.Duration(0.05)):
+        if rospy.is_shutdown() or rospy.core.is_shutdown_requested():
+            raise rospy.ROSInterruptException('shut down while waiting for a transform')
+        if time.monotonic() >= deadline:
+            break
+    return buf.lookup_transform(base, tip, rospy.Time(0))
+
+
 @quiet_on_shutdown
 def main():
-    rospy.init_node('demo_client')
+    init_node('demo_client')
     base, tip = frames(str_param('~base_frame', ''), str_param('~tip_frame', ''))
     samples = int_param('~samples', 3, 'a whole number of at least 2', lambda v: v >= 2)
     interval = number_param('~interval', 0.5, 'a positive number (s)', lambda v: v > 0)
@@ -273,7 +286,7 @@ def main():
     positions, first = [], None
     for i in range(samples):
         try:
-            t = buf.lookup_transform(base, tip, rospy.Time(0), rospy.Duration(20.0 if i == 0 else 2.0))
+            t = lookup(buf, base, tip, 20.0 if i == 0 else 2.0)
         except (tf2_ros.LookupException, tf2_ros.ExtrapolationException, tf2_ros.ConnectivityException) as e:
             lines.append(f'  no transform: {e}')
             failed.append(f'no transform {base} -> {tip} on /tf')

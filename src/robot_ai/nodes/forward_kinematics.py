@@ -37,7 +37,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger, TriggerResponse
 from tf2_msgs.msg import TFMessage
 
-from robot_ai.nodes.params import bool_param, number_param, publish, quiet_on_shutdown
+from robot_ai.nodes.params import bool_param, init_node, number_param, publish, quiet_on_shutdown
 from robot_ai.nodes.robot_description import load_tree, wait_for_tree
 from robot_ai.tf_wire import JointStateDecoder, TFMessageEncoder, WireError, raw_message_class
 
@@ -267,7 +267,7 @@ class ForwardKinematicsNode:
 
 @quiet_on_shutdown
 def main():
-    rospy.init_node('forward_kinematics')
+    init_node('forward_kinematics')
     node = ForwardKinematicsNode()
     if node.robot is not None:
         rospy.spin()

@@ -20,7 +20,7 @@ import math
 import rospy
 from sensor_msgs.msg import JointState
 
-from robot_ai.nodes.params import number_param, quiet_on_shutdown
+from robot_ai.nodes.params import init_node, number_param, quiet_on_shutdown
 from robot_ai.nodes.robot_description import wait_for_tree
 
 
@@ -58,7 +58,7 @@ def joint_map(name: str) -> dict:
 
 @quiet_on_shutdown
 def main():
-    rospy.init_node('joint_sweep')
+    init_node('joint_sweep')
     rate = number_param('~rate', 50.0, 'a positive number (Hz)', lambda v: v > 0)
     period = number_param('~period', 8.0, 'a positive number (s)', lambda v: v > 0)
     amplitude = number_param('~amplitude', 0.8, 'a number from 0 to 1', lambda v: 0 <= v <= 1)

@@ -1,11 +1,27 @@
 """Private parameters read once at start: a value of the wrong kind falls back to the default with one warning
 that names the parameter and says what is allowed, never a traceback; run_node for nodes whose bad parameters
-end them with one line instead."""
+end them with one line instead; init_node, whose Ctrl-C cannot deadlock rospy."""
 import functools
 import math
+import signal
+import threading
 from typing import Callable
 
 import rospy
+
+
+def init_node(name: str, **kwargs) -> None:
+    """rospy.init_node with rospy's Ctrl-C (SIGINT) and SIGTERM handling moved off the main thread. rospy shuts down
+    inside its signal handler, on the main thread: a signal that lands while that thread is inside a call to the
+    master (registering a service, say) makes the shutdown's own calls wait for the master proxy's lock, which the
+    interrupted call holds, so the node deadlocks and ignores SIGINT and SIGTERM until roslaunch's SIGKILL 17 s later
+    (a Ctrl-C 2 s into demo.launch, one launch in six on a loaded machine). Here the handler only starts a thread
+    that shuts rospy down; the interrupted call completes and lets go of the lock."""
+    def deferred(signum, _frame):
+        threading.Thread(target=rospy.signal_shutdown, args=(f'signal-{signum}',), daemon=True).start()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, deferred)
+    rospy.init_node(name, disable_signals=True, **kwargs)
 
 
 def quiet_on_shutdown(main: Callable) -> Callable:
@@ -25,7 +41,7 @@ def quiet_on_shutdown(main: Callable) -> Callable:
 @quiet_on_shutdown
 def run_node(name: str, build: Callable[[], object]) -> None:
     """init_node(name), build the node, spin; a bad parameter (a ValueError from build) ends it with one line."""
-    rospy.init_node(name)
+    init_node(name)
     try:
         build()
     except ValueError as e:  # robot_ai's RequestError and PolicyError are ValueErrors

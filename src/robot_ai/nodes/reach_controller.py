@@ -59,7 +59,7 @@ from visualization_msgs.msg import Marker
 
 from robot_ai import ars
 from robot_ai import policies
-from robot_ai.nodes.params import number_param, publish, quiet_on_shutdown, str_param
+from robot_ai.nodes.params import init_node, number_param, publish, quiet_on_shutdown, str_param
 from robot_ai.srv import LoadPolicy, LoadPolicyResponse
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach import learn, policy_files
@@ -338,7 +338,7 @@ class ReachController:
 
 @quiet_on_shutdown
 def main():
-    rospy.init_node('reach_controller')
+    init_node('reach_controller')
     tree, key = wait_for_tree()
     if tree is None:
         return

@@ -31,7 +31,7 @@ import numpy as np
 import rospy
 
 from robot_ai.kinematics import KinematicTree
-from robot_ai.nodes.params import bool_param, quiet_on_shutdown, str_param
+from robot_ai.nodes.params import bool_param, init_node, quiet_on_shutdown, str_param
 from robot_ai.nodes.robot_description import wait_for_tree
 
 VIEW_ANGLE = 0.785        # rviz's vertical field of view (rad)
@@ -149,7 +149,7 @@ def main():
 @quiet_on_shutdown
 def view():
     argv = rospy.myargv()
-    rospy.init_node('rviz_view', anonymous=True)
+    init_node('rviz_view', anonymous=True)
     if len(argv) < 2 or not os.path.isfile(argv[1]):
         rospy.logfatal('rviz_view: give the rviz config to start from, e.g. $(find robot_ai)/rviz/robot_ai.rviz')
         raise SystemExit(2)
