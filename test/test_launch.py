@@ -279,15 +279,19 @@ class TestLaunch(unittest.TestCase):
             fk_only = launch_file == 'forward_kinematics.launch'
             args = [] if fk_only else ['output_dir:=' + os.path.join(ARTIFACTS, 'ctrl_c')]
             proc = launch(args, launch_file=launch_file)
+            t0 = time.time()
             os.set_blocking(proc.stdout.fileno(), False)
             early, deadline = b'', time.time() + 120
             while b'started with pid' not in early.split(b'started core service')[-1] and time.time() < deadline:
                 time.sleep(0.05)
                 early += proc.stdout.read() or b''
+            started = time.time()
             time.sleep(wait)
             os.killpg(proc.pid, signal.SIGINT)
             os.set_blocking(proc.stdout.fileno(), True)
             text = early.decode(errors='replace') + ended_output(proc)
+            print(f'{launch_file} {wait} s: nodes started {started - t0:.1f} s after the launch, ended '
+                  f'{time.time() - started - wait:.1f} s after the Ctrl-C', flush=True)
             self.assertEqual(tracebacks(text), [], f'{launch_file} {wait} s after its nodes started:\n{text[-3000:]}')
             self.assertNotIn('KeyboardInterrupt', text, launch_file)
 
@@ -372,7 +376,7 @@ class TestLaunch(unittest.TestCase):
         panda = os.path.join(rospkg.RosPack().get_path('robot_ai'), '..', '..', '..', '..', 'shared', 'robots',
                              'panda.urdf')
         for args, frames in ((['robot:=kuka_lwr'], 'world_link -> lwr_arm_7_link'),
-                             (['model:=' + os.path.realpath(panda)], 'panda_link0 -> panda_leftfinger')):
+                             (['model:=' + os.path.realpath(panda)], 'panda_link0 -> panda_hand')):   # the arm's end
             _, text = run_to_end(args + ['q_learners:=1', 'record_video:=false',
                                          'output_dir:=' + os.path.join(ARTIFACTS, 'robots')])
             self.assertIn('verdict: OK', text, text[-3000:])
