@@ -88,8 +88,9 @@ check: build
 # launch_guard: whatever ends roslaunch (a SIGKILL too), the processes it started end with it and tee sees the end.
 demo: build
 	mkdir -p $(OUT)
+	@# unbuffered: into tee's pipe Python would hold the demo's lines back in 8 KB blocks
 	port=$$($(SYS_PYTHON) -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'); \
-	$(RUN) export ROS_MASTER_URI=http://localhost:$$port && \
+	$(RUN) export ROS_MASTER_URI=http://localhost:$$port PYTHONUNBUFFERED=1 && \
 	  python -m robot_ai.launch_guard roslaunch -p $$port robot_ai demo.launch output_dir:=$(OUT) 2>&1 | tee $(OUT)/demo.log
 	@# roslaunch exits 0 when its required client ends, whatever the client's status: the verdict decides
 	@grep -q '^verdict: OK' $(OUT)/demo.log

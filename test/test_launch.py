@@ -57,7 +57,10 @@ def free_display():
 
 def launch(args, env=None, launch_file='demo.launch'):
     port = free_port()
-    env = dict(env or os.environ, ROS_MASTER_URI='http://127.0.0.1:%d' % port)
+    # unbuffered: the cases read roslaunch's lines as they come; into a pipe Python holds them back in 8 KB blocks,
+    # and a case that waited for 'started with pid' waited its full 120 s (600 s of the suite where CI's clean
+    # environment has no PYTHONUNBUFFERED)
+    env = dict(env or os.environ, ROS_MASTER_URI='http://127.0.0.1:%d' % port, PYTHONUNBUFFERED='1')
     proc = subprocess.Popen(['roslaunch', '-p', str(port), 'robot_ai', launch_file] + args, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, preexec_fn=os.setsid)
     proc.env = env

@@ -193,8 +193,10 @@ class ArmLink:
                       rospy.Subscriber(self.static_topic, RawTFMessage, self._on_static, tcp_nodelay=True)]
         self.set_state = rospy.ServiceProxy(f'{self.sim_node}/set_state', SetJointPositions, persistent=True)
         fixed = {child for _, child, moving in self.chain if not moving}
+        tf_sub = self.parts[2]        # connected to forward_kinematics before the first reset: else its frames of
+        #                               the start state can go out before this env listens (a 10 s wait, then a fail)
         self._wait(lambda: self.command_pub.get_num_connections() > 0 and self.last_seq >= 0
-                   and fixed <= set(self.static),
+                   and fixed <= set(self.static) and tf_sub.get_num_connections() > 0,
                    f'the arm_sim and forward_kinematics did not connect within {self.timeout:g} s (commands on '
                    f'{self.command_pub.resolved_name}, states on {self.state_topic}, fixed frames on '
                    f'{self.static_topic}): start forward_kinematics in the namespace ({LAUNCH_HINT} does)')
