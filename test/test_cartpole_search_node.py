@@ -116,8 +116,8 @@ class TestCartPoleSearchNode(unittest.TestCase):
         result = client.get_result()
         self.assertTrue(result.success)
         self.assertEqual(len(result.avg_lengths), 40)
-        deadline = time.time() + 5
-        while len(feedback) < 40 and time.time() < deadline:
+        deadline = time.time() + 30      # feedback and result come on topics of their own: under load the
+        while len(feedback) < 40 and time.time() < deadline:     # result can overtake the last feedback by seconds
             time.sleep(0.05)
         self.assertEqual([fb.iteration for fb in feedback], list(range(1, 41)))
         self.assertTrue(all(b.best_avg_length >= a.best_avg_length for a, b in zip(feedback, feedback[1:])))
