@@ -191,7 +191,7 @@ class TestPolicyFiles(unittest.TestCase):
         client = actionlib.SimpleActionClient(QL + 'training', QLearningAction)
         self.assertTrue(client.wait_for_server(rospy.Duration(30)))
         feedback = []
-        # 8 learners, 2 at a time: learners 0 and 1 finish in seconds, then cancel while 2 and 3 run
+        # 8 learners, 2 at a time: two of them finish in seconds, then cancel while others run
         client.send_goal(QLearningGoal(learners=8, episodes=1000, components=100, seed=5),
                          feedback_cb=feedback.append)
         deadline = time.time() + 120
@@ -206,7 +206,10 @@ class TestPolicyFiles(unittest.TestCase):
         self.assertGreaterEqual(len(result.last100_averages), 2)
         self.assertLess(len(result.last100_averages), 8)
         self.assertEqual(len(result.learner_seeds), len(result.last100_averages))
-        self.assertTrue(set(result.learner_seeds) >= {5, 6}, result.learner_seeds)
+        # the learners that finished, whichever they were: a learner's time grows with how long its pole stays up,
+        # so under load seed 7 (the third) can finish before seed 6 (seen: (5, 7))
+        seeds = list(result.learner_seeds)
+        self.assertTrue(set(seeds) <= set(range(5, 13)) and len(set(seeds)) == len(seeds), seeds)
         self.assertIn('had finished', result.message)
         for seed, avg in zip(result.learner_seeds, result.last100_averages):
             self.assertIn(str(seed), result.message)
