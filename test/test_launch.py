@@ -150,13 +150,16 @@ def ended_output(proc, timeout=60):
     except subprocess.TimeoutExpired:   # Debian's roslaunch can hang in that same race: its bug, not the package's
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait(30)
-    uri = proc.env['ROS_MASTER_URI'].encode().rstrip(b'/')
+    port = proc.env['ROS_MASTER_URI'].encode().rstrip(b'/').rsplit(b':', 1)[1]
     for pid in filter(str.isdigit, os.listdir('/proc')):
         try:
-            with open(f'/proc/{pid}/environ', 'rb') as f:     # roslaunch gives its nodes the URI with a '/'
-                mine = any(v.rstrip(b'/') == b'ROS_MASTER_URI=' + uri for v in f.read().split(b'\0'))
+            # roslaunch -p gives its nodes http://localhost:<port>/, not the launch's own 127.0.0.1: match the port
+            # (an orphaned cartpole_search per interrupted start outlived the suite when only the URI was matched)
+            with open(f'/proc/{pid}/environ', 'rb') as f:
+                mine = any(v.startswith(b'ROS_MASTER_URI=') and v.rstrip(b'/').endswith(b':' + port)
+                           for v in f.read().split(b'\0'))
             with open(f'/proc/{pid}/cmdline', 'rb') as f:
-                mine = mine or b'-p\0' + uri.rsplit(b':', 1)[1] + b'\0' in f.read()
+                mine = mine or b'-p\0' + port + b'\0' in f.read()
             if mine and int(pid) != os.getpid():
                 os.kill(int(pid), signal.SIGKILL)
         except (OSError, ValueError):
