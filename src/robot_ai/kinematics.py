@@ -372,14 +372,20 @@ class KinematicTree:
             return named, -count[link][2], index.get(link, len(index))
         return sorted((min(links, key=rank) for links in arms.values()), key=lambda l: index.get(l, len(index)))
 
-    def frame_above(self, link: str) -> str:
-        """The frame link's pose is known in from joint_states: the root, or the child of the nearest floating
-        joint above link (nothing publishes a floating joint)."""
+    def chain_to(self, link: str) -> tuple[str, list[str]]:
+        """(base, joints from base to link): up from link to the root, or to the child of the nearest floating joint
+        above it (nothing publishes a floating joint, so that child is the frame link's pose is known in)."""
         parent_joint = {j.child: n for n, j in self.joints.items()}
         floating_children = {self._floating_child[n] for n in self.floating_joints}
+        chain = []
         while link in parent_joint and link not in floating_children:
-            link = self.joints[parent_joint[link]].parent
-        return link if link in floating_children else self.root
+            chain.append(parent_joint[link])
+            link = self.joints[chain[-1]].parent
+        return link, chain[::-1]
+
+    def frame_above(self, link: str) -> str:
+        """The frame link's pose is known in from joint_states: chain_to(link)'s base."""
+        return self.chain_to(link)[0]
 
     def end_effector(self) -> str:
         """A tip link for a robot nobody named one for: the first of end_effectors(), the end of its arm (a tool

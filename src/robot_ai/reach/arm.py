@@ -109,7 +109,7 @@ class Arm:
         if self.tip not in tree.links:
             raise ReachError(f'tip {self.tip!r} is not a link of {tree.name or "the robot"}: it could be '
                              f'{_listed(self.candidate_tips(tree))}')
-        self.base, self.chain = self._chain(tree, self.tip)
+        self.base, self.chain = tree.chain_to(self.tip)
         moving = [n for n in self.chain if tree.joints[n].moving]
         if not moving:
             raise ReachError(f'tip {self.tip!r} has no moving joint between {self.base!r} and it: it could be '
@@ -153,18 +153,6 @@ class Arm:
         return sorted((link for link, k in below_moving.items() if k), key=lambda link: -below_moving[link])
 
     @staticmethod
-    def _chain(tree: KinematicTree, tip: str) -> tuple[str, list[str]]:
-        """(base, joints from base to tip): up from the tip to the root, or to the child of a floating joint."""
-        parent_joint = {j.child: name for name, j in tree.joints.items()}
-        floating_children = {tree.floating_links(n)[1] for n in tree.floating_joints}
-        chain, link = [], tip
-        while link in parent_joint and link not in floating_children:
-            name = parent_joint[link]
-            chain.append(name)
-            link = tree.joints[name].parent
-        return link, chain[::-1]
-
-    @staticmethod
     def _source(tree: KinematicTree, name: str) -> tuple[str, float, float]:
         """The joint that drives name (itself unless it is a mimic), and the value's multiplier and offset."""
         multiplier, offset = 1.0, 0.0
@@ -201,9 +189,8 @@ class Arm:
         self._tip_offset = translation        # the tip's origin in the last moving joint's (turned) frame
         self._tip_t = tuple(float(v) for v in translation)
         self._lower, self._upper = self.lower.tolist(), self.upper.tolist()
-        self._middle = (self.lower + self.upper) / 2.0
         self._half = (self.upper - self.lower) / 2.0
-        self._middle_list, self._half_list = self._middle.tolist(), self._half.tolist()
+        self._home_list, self._half_list = self.home.tolist(), self._half.tolist()
 
     # ----------------------------------------------------------------------------------- batched kinematics
     def forward(self, q_t: np.ndarray, with_axes: bool = True):
@@ -289,7 +276,7 @@ class Arm:
         """(n, N): each joint's step away from its nearer limit, gain x u |u| (rad or m), u = (q - middle) / half
         range in [-1, 1]: nothing at mid-range, gain at a limit (Liegeois 1977's gradient of the distance to the
         limits, steeper near them)."""
-        u = (q_t - self._middle[:, None]) / self._half[:, None]
+        u = (q_t - self.home[:, None]) / self._half[:, None]
         return -gain * (u * np.abs(u))
 
     def null_space_t(self, jac_t: np.ndarray, g_t: np.ndarray, damping: float) -> np.ndarray:
@@ -416,7 +403,7 @@ class Arm:
         n, lower, upper = self.n, self._lower, self._upper
         dq = self.damped_least_squares_one(jac, dx, damping)
         if limit_gain > 0:
-            middle, half = self._middle_list, self._half_list
+            middle, half = self._home_list, self._half_list
             u = [(q[k] - middle[k]) / half[k] for k in range(n)]
             g = [-limit_gain * (u[k] * abs(u[k])) for k in range(n)]
             jg = [jac[i][0] * g[0] for i in range(3)]

@@ -20,9 +20,9 @@ puts the arm at its start: start='home' (the middle of every joint's range, or `
 the limits, from the env's np_random) or 'chained' (where the last episode left the arm, home at the first: how
 goals clicked one after another in rviz arrive). limit_avoidance (ee control; 0 = none, default 4): joint motion away
 from the limits in the Jacobian's null space (Arm.move_t), which the tip does not feel; at 1 a joint at its limit
-steps back as far as a joint turns for a full ee_step. 50 steps (TimeLimit); no
-termination on success (Fetch's convention: the policy has to stay there). reward_type 'sparse': -1 outside the
-threshold, 0 inside; 'dense': -distance.
+steps back as far as a joint turns for a full ee_step. 50 steps (TimeLimit); no termination on success (Fetch's
+convention: the policy has to stay there). reward_type 'sparse': -1 outside the threshold, 0 inside; 'dense':
+-distance.
 
 ReachVectorEnv computes its N arms in one numpy pass per step and equals gymnasium's SyncVectorEnv over N ReachEnvs
 bit for bit (autoreset next-step, reset(seed=s) seeds env i with s + i).
@@ -234,10 +234,9 @@ class ReachEnv(gymnasium.Env):
 
     Args: model (a URDF or xacro path; default the package's UR5), xacro_args ('a:=1 b:=2' or a dict), tip (a link;
     default the arm's end: a tool frame, not a finger), control ('ee' or 'joints'), start ('home', 'random' or
-    'chained'),
-    reward_type ('sparse' or 'dense'), distance_threshold (0.05 m), ee_step (default: a twentieth of the chain),
-    damping (of the least squares; default ee_step), home (joint positions, a list in the arm's order or a dict;
-    default mid-range), urdf (a URDF text instead of a model file), render_mode ('rgb_array'), limit_avoidance
+    'chained'), reward_type ('sparse' or 'dense'), distance_threshold (0.05 m), ee_step (default: a twentieth of the
+    chain), damping (of the least squares; default ee_step), home (joint positions, a list in the arm's order or a
+    dict; default mid-range), urdf (a URDF text instead of a model file), render_mode ('rgb_array'), limit_avoidance
     (0 to 10, default 4)."""
 
     metadata = {'render_modes': ['rgb_array'], 'render_fps': RENDER_FPS}
