@@ -186,3 +186,39 @@ class BudgetClock:
 
     def over(self) -> bool:
         return self.used() > self.budget
+
+
+def sweep(prefix: str = 'check_fk_') -> list[str]:
+    """Kill and remove the groups named `<prefix><pid>_<n>` whose maker (process pid) has ended without removing them:
+    a class run's grader, or a Ray worker, killed with SIGKILL (a Ray node's worker dies with its task's cancel or its
+    raylet). Their names."""
+    if version() == 0:
+        return []
+    parents = [os.path.join(ROOT, PARENT)] + [os.path.join(ROOT, c, PARENT) for c in V1_CONTROLLERS + ('unified',)]
+    stale = {}
+    for parent in parents:
+        try:
+            names = os.listdir(parent)
+        except OSError:
+            continue
+        for name in names:
+            pid = name[len(prefix):].split('_')[0] if name.startswith(prefix) else ''
+            if pid.isdigit() and not _alive(int(pid)) and os.path.isdir(os.path.join(parent, name)):
+                stale.setdefault(name, []).append(os.path.join(parent, name))
+    for name, folders in stale.items():
+        group = Group(name, folders=folders)
+        unified = [f for f in folders if os.path.exists(os.path.join(f, 'cgroup.kill'))]
+        group.kill_file = os.path.join(unified[0], 'cgroup.kill') if unified else ''
+        group.kill()
+        group.remove()
+    return sorted(stale)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

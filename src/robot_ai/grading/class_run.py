@@ -6,6 +6,9 @@ holds.
     status = grade_class(args, tree, argv)        # args: check_fk's parsed options (--candidates DIR, ...)
     status = reexec_in_namespaces(args, argv)     # --candidate FILE --sandbox
 """
+from __future__ import annotations
+
+import ctypes
 import os
 import shutil
 import signal
@@ -14,7 +17,9 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 
+from robot_ai.child_process import PR_SET_PDEATHSIG, prctl
 from robot_ai.grading import candidates, cgroups, sandbox
 from robot_ai.grading.processes import CHUNK, LOG_BYTES, free_port, signal_group
 from robot_ai.grading.report import MAX_NAME, RESULT_BYTES, budget_of, nothing_graded, spreadsheet_cell
@@ -140,120 +145,124 @@ def read_result(fd: int) -> dict | None:
     return result
 
 
-def grade_class(a, tree, argv) -> int:
-    """--candidates DIR: the node in each student folder of DIR graded by a judge of its own (a check_fk in a network,
-    PID and mount namespace of its own, its own roscore; the student's node in a sandbox: see robot_ai.grading.sandbox),
-    --jobs at a time; one line per student as each ends, then the CSV. A student's verdict is the judge's result and
-    exit status, which the student's code cannot write; a crash, a hang or an escape attempt is that student's
-    verdict and the others go on. A signal stops the run: the CSV holds the students graded, and the rest are named.
-    0 once every student has a line."""
-    import concurrent.futures
-    import csv
-    import shutil
-    folder = os.path.abspath(a.candidates)
-    students = sorted(d for d in os.listdir(folder) if os.path.isdir(os.path.join(folder, d)) and d[0] != '.')
-    if not students:
-        print(f'check_fk: {folder} has no student folders', file=sys.stderr)
-        return 2
-    jobs = a.jobs or os.cpu_count() or 1
-    budget = budget_of(a)
-    # the judge's budget counts the time its student was given a CPU (cgroups.BudgetClock): on a loaded machine that
-    # is less than wall time, so the wall-clock limit past which a judge is killed with its namespaces is wider
-    limit = WALL_LIMIT_FACTOR * budget + 60.0
-    path = a.csv or f'check_fk_{os.path.basename(folder)}.csv'
-    reports = os.path.splitext(os.path.abspath(path))[0] + '_reports'
-    os.makedirs(reports, exist_ok=True)
-    for old in os.listdir(reports):        # an earlier run's reports: this run's numbering may differ
-        if old[:3].isdigit() and old[3:4] == '_' and old.endswith('.txt'):
-            os.remove(os.path.join(reports, old))
-    work = tempfile.mkdtemp(prefix='check_fk_class_')
-    os.chmod(work, 0o711)
-    running, lock = {}, threading.Lock()
-    on_model = f'{a.model}' + (f' with xacro arguments "{a.xacro_args}"' if a.xacro_args else '')
-    limits = sandbox.Limits(cpu_seconds=int(budget) + 60)
-    cores = max(1.0, (os.cpu_count() or 1) / jobs)          # each student's CPU share, at most
-    share = cgroups.version() if not a.no_sandbox else 0
-    print(f'check_fk: {len(students)} students in {sandbox.printable(folder)} on {on_model} ({len(tree.links)} '
-          f'links), {a.configurations} configurations (seed {a.seed}, tolerance {a.tolerance:g}, timeout '
-          f'{a.timeout:g} s), at most {budget:g} s each, {jobs} at a time')
-    if a.no_sandbox:
-        print('check_fk: NOT sandboxed (--no-sandbox): every student runs as you, with your files and network')
-    else:
-        print(f'check_fk: each student in a sandbox: a user of its own, a copy of its folder, a network of its own, '
-              f'{limits.describe()}')
-        print(f'check_fk: each student and its judge in a control group of their own: an equal CPU share (at most '
-              f'{cores:g} cores), {(limits.memory_bytes + JUDGE_MEMORY) / 1024 ** 3:g} GiB of memory together, '
-              f'{GROUP_TASKS} tasks; the budget counts the time a CPU was given' if share else
-              'check_fk: no control groups here (cgroup v1 or v2 with root): limits are per process')
-    print(f'check_fk: reports in {reports}', flush=True)
-    options = ['--model', a.model, '--xacro-args', a.xacro_args, '--configurations', str(a.configurations),
-               '--seed', str(a.seed), '--tolerance', repr(a.tolerance), '--timeout', repr(a.timeout),
-               '--budget', repr(budget), '--expect', 'pass']
-    stopping_class = []
-    groups = {}            # student -> its control group, while its judge runs
-    none_right = nothing_graded(tree, a.configurations)[len('score: '):]   # a student's score when nothing ran
+@dataclass(frozen=True)
+class Judging:
+    """What every student's judge of a class run is given, the same on each machine that grades one (a record that
+    travels to a Ray node as it is)."""
+    options: tuple[str, ...]        # check_fk's options for each judge: the model, the configurations, the budget
+    sandboxed: bool                 # false: --no-sandbox
+    limit: float                    # wall-clock seconds past which a judge is killed with its namespaces
+    limits: sandbox.Limits
+    none_right: str                 # a student's score when nothing ran
 
-    def one(index: int, student: str) -> candidates.Result:
+
+class Judges:
+    """The judges of one class run on this machine: each student's judge started, waited for and cleaned up, in a
+    control group of its own where the machine has them; stop() ends every judge still running, and none starts after.
+
+        judges = Judges(judging, cores=1.0, work=tempfile.mkdtemp())
+        result = judges.one(index, student, folder_on_this_machine, folder_as_shown, report_path, hide=[...])
+    """
+
+    def __init__(self, judging: Judging, cores: float, work: str, die_with_parent: bool = False):
+        # die_with_parent: the judges of a Ray task (robot_ai.grading.on_ray), which end with its worker
+        self.judging, self.cores, self.work, self.die_with_parent = judging, cores, work, die_with_parent
+        self.share = cgroups.version() if judging.sandboxed else 0
+        if self.share:
+            cgroups.sweep()           # the groups of graders and Ray workers killed before they could remove them
+        self.running, self.groups, self.lock, self.stopping = {}, {}, threading.Lock(), []
+
+    def stop(self) -> None:
+        """No judge starts from now on; those running are killed with their groups (their students: not graded)."""
+        with self.lock:
+            self.stopping.append(True)
+            left = list(self.running.values())
+        for proc in left:
+            signal_group(proc.pid, signal.SIGKILL)
+        for group in list(self.groups.values()):
+            group.kill()
+
+    def one(self, index: int, student: str, original: str, shown_folder: str, report_path: str,
+            hide: list[str]) -> candidates.Result | None:
+        """Grade the student folder at `original` (named as `shown_folder` in the report); the report goes to
+        report_path; `hide`: folders the student must not see. None when stopped."""
+        j = self.judging
         t = time.time()         # from the first look at the folder: the CSV's seconds are the student's whole cost
         shown = sandbox.printable(student)
-        original = os.path.join(folder, student)
         no_node = 'FAIL: no node found (no Python file that calls rospy.init_node)'
-        cmd, env, copy = [sys.executable, '-c', JUDGE] + options, None, ''
-        if a.no_sandbox:
+        cmd, env, copy = [sys.executable, '-c', JUDGE] + list(j.options), None, ''
+        if not j.sandboxed:
             node = candidates.find_node(original)
             if node is None:
-                return candidates.Result(shown, no_node, none_right, '', time.time() - t)
+                return candidates.Result(shown, no_node, j.none_right, '', time.time() - t)
             env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{free_port()}')   # none runs there: its own
-            cmd += ['--candidate', node]
+            cmd += ['--candidate', node, '--judge-shown', os.path.join(shown_folder, os.path.relpath(node, original))]
         else:
             # the folder is counted and copied first (links kept as links, nothing else but files and folders), and
             # the node is looked for in the copy: nothing of the student's is read before it is bounded
             uid = sandbox.uid_for(os.getpid(), index)
-            copy = os.path.join(work, str(index))
+            copy = os.path.join(self.work, str(index))
             try:
                 sandbox.copy_folder(original, copy, uid)
             except (sandbox.SandboxError, OSError) as e:
                 shutil.rmtree(copy, ignore_errors=True)
                 return candidates.Result(shown, f'FAIL: its folder cannot be graded: {sandbox.printable(str(e))}',
-                                         none_right, '', time.time() - t)
+                                         j.none_right, '', time.time() - t)
             found = candidates.find_node(copy)
             if found is None:
                 shutil.rmtree(copy, ignore_errors=True)
-                return candidates.Result(shown, no_node, none_right, '', time.time() - t)
-            node = os.path.join(original, os.path.relpath(found, copy))     # as the student named it
+                return candidates.Result(shown, no_node, j.none_right, '', time.time() - t)
+            node = os.path.join(shown_folder, os.path.relpath(found, copy))     # as the student named it
             cmd = sandbox.judge_prefix() + cmd + [
-                '--candidate', found, '--judge-uid', str(uid), '--judge-shown', node, '--judge-folder', copy,
-                '--judge-hide', folder, '--judge-hide', reports, '--judge-hide', work]
+                '--candidate', found, '--judge-uid', str(uid), '--judge-shown', node, '--judge-folder', copy]
+            for folder in hide:
+                cmd += ['--judge-hide', folder]
             env = judge_env()
-            if share:
-                group = cgroups.Group.create(f'check_fk_{os.getpid()}_{index}', cores,
-                                             limits.memory_bytes + JUDGE_MEMORY, GROUP_TASKS)
+            if self.share:
+                group = cgroups.Group.create(f'check_fk_{os.getpid()}_{index}', self.cores,
+                                             j.limits.memory_bytes + JUDGE_MEMORY, GROUP_TASKS)
                 if group is not None:
-                    groups[student] = group
+                    self.groups[student] = group
                     cmd = group.exec_prefix(sys.executable) + cmd + ['--judge-pressure', group.pressure_file]
         read_end, write_end = os.pipe()
         try:
-            with lock:
-                if stopping_class:
+            with self.lock:
+                if self.stopping:
                     return None
+                # a Ray worker that is killed takes its judge (and with unshare's --kill-child, the namespaces)
                 proc = subprocess.Popen(cmd + ['--result-fd', str(write_end)], env=env, stdout=subprocess.PIPE,
                                         stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True,
-                                        pass_fds=(write_end,))
-                running[student] = proc
+                                        pass_fds=(write_end,),
+                                        preexec_fn=_as_a_fresh_process if self.die_with_parent else None)
+                self.running[student] = proc
         finally:
             os.close(write_end)
-        reader = Reader(proc.stdout, os.path.join(reports, f'{index:03d}_{_file_name(student)}.txt'))
+        reader = Reader(proc.stdout, report_path)
+        ended = False
         try:
-            proc.wait(timeout=limit)
-            timed_out = False
-        except subprocess.TimeoutExpired:
-            signal_group(proc.pid, signal.SIGKILL)       # unshare, and with it the judge's namespaces
-            proc.wait()
-            timed_out = True
+            deadline = time.monotonic() + j.limit
+            while True:       # in slices: a Ray task's cancel (a KeyboardInterrupt) is seen between them
+                try:
+                    proc.wait(timeout=min(1.0, max(0.0, deadline - time.monotonic())))
+                    timed_out = False
+                    break
+                except subprocess.TimeoutExpired:
+                    if time.monotonic() >= deadline:
+                        signal_group(proc.pid, signal.SIGKILL)       # unshare, and with it the judge's namespaces
+                        proc.wait()
+                        timed_out = True
+                        break
+            ended = True
         finally:
-            with lock:
-                running.pop(student, None)
-            group = groups.pop(student, None)
+            if not ended:     # interrupted (a cancel, a signal): the judge goes with whatever stopped the wait
+                signal_group(proc.pid, signal.SIGKILL)
+                proc.wait()
+                os.close(read_end)
+                if copy:
+                    shutil.rmtree(copy, ignore_errors=True)
+            with self.lock:
+                self.running.pop(student, None)
+            group = self.groups.pop(student, None)
             if group is not None:     # whatever its judge or the student left: ended, and the group removed
                 group.kill()
                 group.remove()
@@ -261,26 +270,155 @@ def grade_class(a, tree, argv) -> int:
         if copy:
             shutil.rmtree(copy, ignore_errors=True)
         seconds = time.time() - t
-        if stopping_class and (result is None or proc.returncode < 0):
+        if self.stopping and (result is None or proc.returncode < 0):
             return None
         if timed_out or result is None:    # the judge's own report ends without them: they are added to it
-            verdict = (f'FAIL: grading did not end within {limit:.0f} s of wall time ({WALL_LIMIT_FACTOR} times its '
+            verdict = (f'FAIL: grading did not end within {j.limit:.0f} s of wall time ({WALL_LIMIT_FACTOR} times its '
                        f'budget and a minute): ended' if timed_out
                        else f'FAIL: check_fk ended with status {proc.returncode} and no result: '
                             f'{reader.last_lines()}')
-            reader.append([f'score: {none_right}', verdict])
-            return candidates.Result(shown, verdict, none_right, '', seconds)
+            reader.append([f'score: {j.none_right}', verdict])
+            return candidates.Result(shown, verdict, j.none_right, '', seconds)
+        reader.thread.join(5.0)
         verdict = sandbox.printable(result['verdict'], 600, backslashes=False)
         if verdict.startswith('PASS') != (proc.returncode == 0):
             verdict = f'FAIL: check_fk said {verdict[:200]} but ended with status {proc.returncode}'
         return candidates.Result(shown, verdict, sandbox.printable(result['score'], 100, backslashes=False),
                                  sandbox.printable(result['first_wrong_link'], MAX_NAME, backslashes=False), seconds)
 
+
+_LIBC = ctypes.CDLL(None, use_errno=True)
+_LIBC.signal.restype = ctypes.c_void_p
+_LIBC.signal.argtypes = [ctypes.c_int, ctypes.c_void_p]
+
+
+def _as_a_fresh_process() -> None:
+    """A judge started by a Ray worker (in the child, before exec): killed with the worker, and with the signals a
+    terminal's process has: a Ray worker blocks and ignores SIGINT, and a judge (and the roscore and the student it
+    starts) would inherit both, so that its clean-up waited out every SIGINT's timeout."""
+    prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    signal.pthread_sigmask(signal.SIG_SETMASK, [])
+    for sig in (signal.SIGINT, signal.SIGQUIT):
+        _LIBC.signal(sig, None)      # SIG_DFL
+
+
+@dataclass
+class ClassRun:
+    """What a class run is, wherever its students are graded: the students (folder names, sorted), where the CSV and
+    the reports go, the judges' record; header() prints what is graded, write_csv() and summary() end it."""
+    folder: str
+    students: list[str]
+    csv_path: str
+    reports: str
+    judging: Judging
+    budget: float
+
+    @classmethod
+    def of(cls, a, tree) -> ClassRun | None:
+        """check_fk's options -> the run; None (after one line on stderr) for a folder without student folders."""
+        folder = os.path.abspath(a.candidates)
+        students = sorted(d for d in os.listdir(folder) if os.path.isdir(os.path.join(folder, d)) and d[0] != '.')
+        if not students:
+            print(f'check_fk: {folder} has no student folders', file=sys.stderr)
+            return None
+        budget = budget_of(a)
+        path = a.csv or f'check_fk_{os.path.basename(folder)}.csv'
+        reports = os.path.splitext(os.path.abspath(path))[0] + '_reports'
+        options = ('--model', a.model, '--xacro-args', a.xacro_args, '--configurations', str(a.configurations),
+                   '--seed', str(a.seed), '--tolerance', repr(a.tolerance), '--timeout', repr(a.timeout),
+                   '--budget', repr(budget), '--expect', 'pass')
+        # the judge's budget counts the time its student was given a CPU (cgroups.BudgetClock): on a loaded machine
+        # that is less than wall time, so the wall-clock limit past which a judge is killed with its namespaces is wider
+        judging = Judging(options, not a.no_sandbox, WALL_LIMIT_FACTOR * budget + 60.0,
+                          sandbox.Limits(cpu_seconds=int(budget) + 60),
+                          nothing_graded(tree, a.configurations)[len('score: '):])
+        return cls(folder, students, path, reports, judging, budget)
+
+    def prepare_reports(self) -> None:
+        os.makedirs(self.reports, exist_ok=True)
+        for old in os.listdir(self.reports):        # an earlier run's reports: this run's numbering may differ
+            if old[:3].isdigit() and old[3:4] == '_' and old.endswith('.txt'):
+                os.remove(os.path.join(self.reports, old))
+
+    def report_path(self, index: int, student: str) -> str:
+        return os.path.join(self.reports, f'{index:03d}_{_file_name(student)}.txt')
+
+    def header(self, a, tree, where: str, cores: str, share: int) -> None:
+        """The lines that open a run: the class, the model, the checks, where the students are graded (`where`: 'N at
+        a time'), the sandbox and the control groups (`cores`: each student's CPU share, in words)."""
+        on_model = f'{a.model}' + (f' with xacro arguments "{a.xacro_args}"' if a.xacro_args else '')
+        limits = self.judging.limits
+        print(f'check_fk: {len(self.students)} students in {sandbox.printable(self.folder)} on {on_model} '
+              f'({len(tree.links)} links), {a.configurations} configurations (seed {a.seed}, tolerance '
+              f'{a.tolerance:g}, timeout {a.timeout:g} s), at most {self.budget:g} s each, {where}')
+        if not self.judging.sandboxed:
+            print('check_fk: NOT sandboxed (--no-sandbox): every student runs as you, with your files and network')
+        else:
+            print(f'check_fk: each student in a sandbox: a user of its own, a copy of its folder, a network of its '
+                  f'own, {limits.describe()}')
+            print(f'check_fk: each student and its judge in a control group of their own: an equal CPU share ({cores}'
+                  f'), {(limits.memory_bytes + JUDGE_MEMORY) / 1024 ** 3:g} GiB of memory together, {GROUP_TASKS} '
+                  f'tasks; the budget counts the time a CPU was given' if share else
+                  'check_fk: no control groups here (cgroup v1 or v2 with root): limits are per process')
+        print(f'check_fk: reports in {self.reports}', flush=True)
+
+    def write_csv(self, results: dict) -> None:
+        """The CSV: one row per student in the folder's sorted order; a student without a result: not graded."""
+        import csv
+        with open(self.csv_path, 'w', newline='') as f:
+            w = csv.writer(f)
+            w.writerow(['student', 'verdict', 'score', 'first_wrong_link', 'seconds'])
+            for student in self.students:
+                r = results.get(student)
+                if r is None:
+                    row = [sandbox.printable(student), 'not graded (check_fk was stopped)', '', '', '']
+                else:
+                    row = [r.student, r.verdict, r.score, r.first_wrong_link, f'{r.seconds:.1f}']
+                w.writerow([spreadsheet_cell(cell) for cell in row])
+
+    def summary(self, results: dict, stopped: BaseException | None) -> int:
+        """The last line (the students graded and not, when stopped) and the exit status; a stop is raised again."""
+        passed = sum(r.verdict.startswith('PASS') for r in results.values())
+        if stopped is not None:
+            rest = [sandbox.printable(s) for s in self.students if s not in results]
+            print(f'check_fk: stopped: {len(results)} of {len(self.students)} graded ({passed} PASS); CSV: '
+                  f'{os.path.abspath(self.csv_path)}; not graded: {", ".join(rest)}', flush=True)
+            if isinstance(stopped, SystemExit):
+                return stopped.code if isinstance(stopped.code, int) else 1
+            raise stopped
+        print(f'{passed} of {len(self.students)} PASS; CSV: {os.path.abspath(self.csv_path)}')
+        return 0
+
+
+def grade_class(a, tree, argv) -> int:
+    """--candidates DIR: the node in each student folder of DIR graded by a judge of its own (a check_fk in a network,
+    PID and mount namespace of its own, its own roscore; the student's node in a sandbox: see robot_ai.grading.sandbox),
+    --jobs at a time; one line per student as each ends, then the CSV. A student's verdict is the judge's result and
+    exit status, which the student's code cannot write; a crash, a hang or an escape attempt is that student's
+    verdict and the others go on. A signal stops the run: the CSV holds the students graded, and the rest are named.
+    0 once every student has a line. (With --ray: robot_ai.grading.on_ray, the same lines and CSV.)"""
+    import concurrent.futures
+    run = ClassRun.of(a, tree)
+    if run is None:
+        return 2
+    jobs = a.jobs or os.cpu_count() or 1
+    run.prepare_reports()
+    work = tempfile.mkdtemp(prefix='check_fk_class_')
+    os.chmod(work, 0o711)
+    cores = max(1.0, (os.cpu_count() or 1) / jobs)          # each student's CPU share, at most
+    judges = Judges(run.judging, cores, work)
+    run.header(a, tree, f'{jobs} at a time', f'at most {cores:g} cores', judges.share)
+    hide = [run.folder, run.reports, work]
+
+    def one(index: int, student: str) -> candidates.Result | None:
+        return judges.one(index, student, os.path.join(run.folder, student), os.path.join(run.folder, student),
+                          run.report_path(index, student), hide)
+
     results = {}
     pool = concurrent.futures.ThreadPoolExecutor(max_workers=jobs)
     stopped = None
     try:
-        futures = {pool.submit(one, i, student): student for i, student in enumerate(students)}
+        futures = {pool.submit(one, i, student): student for i, student in enumerate(run.students)}
         for future in concurrent.futures.as_completed(futures):
             result = future.result()
             if result is not None:
@@ -289,35 +427,11 @@ def grade_class(a, tree, argv) -> int:
     except BaseException as e:   # a signal: the students being graded are stopped, none starts, the CSV is written
         stopped = e
     finally:
-        with lock:
-            stopping_class.append(True)
-            left = list(running.values())
-        for proc in left:
-            signal_group(proc.pid, signal.SIGKILL)
-        for group in list(groups.values()):
-            group.kill()
+        judges.stop()
         pool.shutdown(wait=True, cancel_futures=True)
         shutil.rmtree(work, ignore_errors=True)
-        with open(path, 'w', newline='') as f:
-            w = csv.writer(f)
-            w.writerow(['student', 'verdict', 'score', 'first_wrong_link', 'seconds'])
-            for student in students:
-                r = results.get(student)
-                if r is None:
-                    row = [sandbox.printable(student), 'not graded (check_fk was stopped)', '', '', '']
-                else:
-                    row = [r.student, r.verdict, r.score, r.first_wrong_link, f'{r.seconds:.1f}']
-                w.writerow([spreadsheet_cell(cell) for cell in row])
-    passed = sum(r.verdict.startswith('PASS') for r in results.values())
-    if stopped is not None:
-        rest = [sandbox.printable(s) for s in students if s not in results]
-        print(f'check_fk: stopped: {len(results)} of {len(students)} graded ({passed} PASS); CSV: '
-              f'{os.path.abspath(path)}; not graded: {", ".join(rest)}', flush=True)
-        if isinstance(stopped, SystemExit):
-            return stopped.code if isinstance(stopped.code, int) else 1
-        raise stopped
-    print(f'{passed} of {len(students)} PASS; CSV: {os.path.abspath(path)}')
-    return 0
+        run.write_csv(results)
+    return run.summary(results, stopped)
 
 
 def _file_name(student: str) -> str:

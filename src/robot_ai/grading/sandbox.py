@@ -140,14 +140,7 @@ def copy_folder(source: str, target: str, uid: int, max_bytes: int = MAX_COPY_BY
     """Copy a candidate's folder for its sandbox: regular files and folders, symbolic links as links (inside the
     sandbox they point into its own view), nothing else (FIFOs, devices); owned by uid, read-only. SandboxError when it
     holds more than max_bytes or max_files."""
-    total = files = 0
-    for root, dirs, names in os.walk(source, followlinks=False):
-        for name in names + [d for d in dirs if os.path.islink(os.path.join(root, d))]:
-            st = os.lstat(os.path.join(root, name))
-            files += 1
-            total += st.st_size if stat.S_ISREG(st.st_mode) else 0
-            if files > max_files or total > max_bytes:
-                raise SandboxError(f'the folder holds more than {max_files} files or {max_bytes // 1024 ** 2} MiB')
+    _bounded(source, max_bytes, max_files)
     shutil.copytree(source, target, symlinks=True, ignore=_not_regular, dirs_exist_ok=False)
     for root, dirs, names in os.walk(target):
         for name in dirs + names:
@@ -157,6 +150,107 @@ def copy_folder(source: str, target: str, uid: int, max_bytes: int = MAX_COPY_BY
                 os.chmod(path, 0o555 if os.path.isdir(path) else (0o555 if os.access(path, os.X_OK) else 0o444))
     os.chown(target, uid, uid)
     os.chmod(target, 0o555)
+
+
+def _bounded(source: str, max_bytes: int, max_files: int) -> None:
+    """SandboxError when the folder holds more than max_files entries (files and links) or max_bytes of files; nothing
+    is read or followed."""
+    total = files = 0
+    for root, dirs, names in os.walk(source, followlinks=False):
+        for name in names + [d for d in dirs if os.path.islink(os.path.join(root, d))]:
+            st = os.lstat(os.path.join(root, name))
+            files += 1
+            total += st.st_size if stat.S_ISREG(st.st_mode) else 0
+            if files > max_files or total > max_bytes:
+                raise SandboxError(f'the folder holds more than {max_files} files or {max_bytes // 1024 ** 2} MiB')
+
+
+@dataclass(frozen=True)
+class Packed:
+    """A candidate's folder as data, what a class run ships to the machine that grades it (robot_ai.grading.on_ray):
+    what copy_folder copies (files, folders, symbolic links as links), within the same bounds. entries: (relative
+    path, kind 'dir' | 'file' | 'link', mode, content: a file's bytes, a link's target, b'' for a folder), each
+    folder before what it holds."""
+    entries: tuple[tuple[str, str, int, bytes | str], ...]
+
+    @property
+    def size(self) -> int:
+        return sum(len(e[3]) for e in self.entries)
+
+
+def pack_folder(source: str, max_bytes: int = MAX_COPY_BYTES, max_files: int = MAX_COPY_FILES) -> Packed:
+    """The folder as a Packed: counted first (SandboxError past max_files or max_bytes, as copy_folder), then read
+    without following a link; what is neither a file, a folder nor a link is left out, as copy_folder does."""
+    _bounded(source, max_bytes, max_files)
+    entries, total = [], 0
+    for root, dirs, names in os.walk(source, followlinks=False):
+        rel_root = os.path.relpath(root, source)
+        dirs.sort()
+        for name in dirs + sorted(names):
+            path = os.path.join(root, name)
+            rel = name if rel_root == '.' else os.path.join(rel_root, name)
+            st = os.lstat(path)
+            if stat.S_ISLNK(st.st_mode):
+                entries.append((rel, 'link', 0, os.readlink(path)))
+            elif stat.S_ISDIR(st.st_mode):
+                entries.append((rel, 'dir', 0o755, b''))
+            elif stat.S_ISREG(st.st_mode):
+                fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+                try:
+                    if not stat.S_ISREG(os.fstat(fd).st_mode):    # swapped for something else since the walk
+                        continue
+                    data = _read_at_most(fd, max_bytes - total + 1)
+                finally:
+                    os.close(fd)
+                total += len(data)
+                if total > max_bytes:                              # grown since it was counted
+                    raise SandboxError(f'the folder holds more than {max_files} files or '
+                                       f'{max_bytes // 1024 ** 2} MiB')
+                entries.append((rel, 'file', 0o755 if st.st_mode & 0o111 else 0o644, data))
+        dirs[:] = [d for d in dirs if not os.path.islink(os.path.join(root, d))]
+    return Packed(tuple(entries))
+
+
+def _read_at_most(fd: int, size: int) -> bytes:
+    chunks, left = [], size
+    while left > 0:
+        chunk = os.read(fd, min(left, 1 << 20))
+        if not chunk:
+            break
+        chunks.append(chunk)
+        left -= len(chunk)
+    return b''.join(chunks)
+
+
+def unpack_folder(packed: Packed, target: str) -> None:
+    """Make the folder a Packed describes at target (which must not exist), owned by this process's user. An entry
+    whose path is absolute, climbs with '..', or lies below anything but a folder made here is SandboxError: the data
+    came over the network, and nothing outside target is written."""
+    os.mkdir(target, 0o700)
+    made = {''}
+    for entry in packed.entries:
+        if not (isinstance(entry, tuple) and len(entry) == 4):
+            raise SandboxError('a packed folder entry is not (path, kind, mode, content)')
+        rel, kind, mode, content = entry
+        parts = rel.split('/') if isinstance(rel, str) else []
+        if not parts or any(p in ('', '.', '..') or '\0' in p for p in parts) or os.path.dirname(rel) not in made:
+            raise SandboxError(f'a packed folder holds a path that leaves it: {printable(str(rel))}')
+        path = os.path.join(target, rel)
+        if kind == 'dir':
+            os.mkdir(path, 0o755)
+            made.add(rel)
+        elif kind == 'link' and isinstance(content, str):
+            os.symlink(content, path)
+        elif kind == 'file' and isinstance(content, bytes):
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o755 if mode & 0o111 else 0o644)
+            try:
+                view = memoryview(content)
+                while view:
+                    view = view[os.write(fd, view):]
+            finally:
+                os.close(fd)
+        else:
+            raise SandboxError(f'a packed folder holds an entry of an unknown kind: {printable(str(kind))}')
 
 
 def _not_regular(folder: str, names: list[str]) -> set[str]:
