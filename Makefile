@@ -4,6 +4,7 @@
 #   make check  the edit loop: a lint (flake8) and the unit tests, no roscore
 #   make build  Debian packages + .venv + .catkin_ws (catkin_make); a second run with nothing changed is quick
 #   make bench  the benchmarks in bench/, figures beside the reference's, kept in output/bench.txt
+#   make ray    the optional fleet engine (Ray) in the venv; make test and make bench install it
 #   make clean  remove .venv, .catkin_ws and outputs
 SHELL := /bin/bash
 .SHELLFLAGS := -e -o pipefail -c  # not -u: ROS's setup.bash reads unset variables
@@ -32,7 +33,7 @@ export PYTHONDONTWRITEBYTECODE := 1
 RUN := source $(WS)/devel/setup.bash && export PATH="$(VENV)/bin:$$PATH" ROS_HOSTNAME=localhost \
 	ROS_MASTER_URI=http://localhost:11311 &&
 
-.PHONY: build test check demo bench clean apt venv
+.PHONY: build test check demo bench clean apt venv ray
 
 # Tests at a time in make test: each rostest has a master of its own; most of their time is waiting for ROS, not CPU.
 TEST_JOBS ?= 3
@@ -62,6 +63,13 @@ $(VENV)/.pth.stamp: $(VENV)/.requirements.stamp src/robot_ai/urdf_compat.py
 
 venv: apt $(VENV)/.requirements.stamp $(VENV)/.pth.stamp
 
+# Ray, the optional fleet engine: the tests and benchmarks of a class on a cluster need it; make demo does not
+$(VENV)/.ray.stamp: requirements-ray.txt $(VENV)/.requirements.stamp
+	$(VENV)/bin/python -m pip install --disable-pip-version-check -q -r requirements-ray.txt
+	touch $@
+
+ray: $(VENV)/.ray.stamp
+
 build: venv
 	@# The package in the workspace is a folder of links to the repository's entries, not a link to the root:
 	@# that would put .catkin_ws inside the package, and rosrun/roslaunch would find every executable twice.
@@ -74,7 +82,7 @@ build: venv
 	  || { tail -n 40 $(WS)/build.log; echo "catkin_make failed; full log: $(WS)/build.log"; exit 1; }
 	@echo "built: source $(WS)/devel/setup.bash (with $(VENV)/bin first on PATH)"
 
-test: build
+test: build ray
 	rm -rf $(WS)/build/test_results $(WS)/build/test_logs
 	$(RUN) python $(ROOT)/test/run_tests.py --build $(WS)/build --jobs $(TEST_JOBS)
 	$(RUN) python $(ROOT)/test/summarize.py $(WS)/build/test_results/robot_ai
@@ -97,11 +105,11 @@ demo: build
 
 # The last recorded figures (docs/benchmarks.md) first, then today's; the scripts' stderr (ROS's own log lines, warnings) goes to a log file
 # so that the tables hold only figures.
-bench: build
+bench: build ray
 	mkdir -p $(OUT)
 	@{ python3 $(ROOT)/bench/last_figures.py; \
 	  echo "load average at start: $$(cut -d' ' -f1-3 /proc/loadavg)"; \
-	  for b in fk_load search_speed q_learning_speed cartpole_loop ros_env_speed reach_speed reach_ars ros_reach_speed policy_latency; do \
+	  for b in fk_load search_speed q_learning_speed cartpole_loop ros_env_speed reach_speed reach_ars ros_reach_speed policy_latency class_on_ray; do \
 	    $(RUN) python $(ROOT)/bench/$$b.py 2>>$(OUT)/bench-stderr.log \
 	      || { echo "bench/$$b.py failed; its stderr: $(OUT)/bench-stderr.log"; tail -n 20 $(OUT)/bench-stderr.log; exit 1; }; \
 	  done; \

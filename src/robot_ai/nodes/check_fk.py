@@ -149,6 +149,11 @@ def parse_args(argv):
     p.add_argument('--csv', default='', help='with --candidates: where the CSV goes (default: check_fk_<DIR>.csv '
                    'in the current folder); each student\'s report goes to a folder beside it')
     p.add_argument('--jobs', type=int, default=0, help='with --candidates: students graded at once (0: one per core)')
+    p.add_argument('--ray', default='', metavar='ADDRESS',
+                   help='with --candidates: grade the class on a Ray cluster (HOST:PORT of its head, ray://HOST:PORT, '
+                   'or auto: the cluster this machine joined), each student a task on whichever node it lands, in a '
+                   'sandbox there; --jobs then says students per node (0: one per CPU). Ray is an optional extra: '
+                   'docs/fleet.md')
     p.add_argument('--expect', choices=('pass', 'fail'), default='pass',
                    help='the verdict that makes the exit status 0 (fail: a course\'s test that a wrong node is caught)')
     p.add_argument('--configurations', type=int, default=50, help='joint configurations: the zero pose, then random')
@@ -189,9 +194,17 @@ def parse_args(argv):
                 f'{a.tolerance:g} and {a.timeout:g}')
     if not 0 <= a.budget <= 24 * 3600:
         p.error(f'--budget must be 0 (the default) to {24 * 3600} seconds, got {a.budget:g}')
+    if a.ray and a.candidates is None:
+        p.error('--ray grades a class: give it with --candidates')
+    if a.ray:
+        from robot_ai import fleet
+        problem = fleet.available()
+        if problem:
+            p.error(f'--ray: {problem}')
     if a.sandbox and a.candidates is not None:
         p.error('--sandbox is for --candidate; --candidates sandboxes every student unless --no-sandbox')
-    if (a.sandbox or (a.candidates is not None and not a.no_sandbox)) and a.judge_uid < 0:
+    # a class on Ray is sandboxed on its nodes, which say so when they cannot; this machine only sends the folders
+    if (a.sandbox or (a.candidates is not None and not a.no_sandbox and not a.ray)) and a.judge_uid < 0:
         problem = sandbox.unavailable()
         if problem:
             p.error(problem)
@@ -276,6 +289,9 @@ def main(argv=None) -> int:
         signal.signal(sig, on_signal)
     if a.candidates is not None:
         try:
+            if a.ray:
+                from robot_ai.grading.on_ray import grade_class_on_ray
+                return grade_class_on_ray(a, tree)
             return grade_class(a, tree, argv)
         finally:
             stopping.append('clean-up')
