@@ -248,11 +248,87 @@ def _rollouts(env, weights: np.ndarray, biases: np.ndarray | None, mean: np.ndar
     return _Rollouts(returns, lengths, success, metric, states)
 
 
+def chunk_sizes(total: int, chunks: int) -> list[int]:
+    """total slots split into `chunks` envs (at most one per slot), the first ones one slot larger."""
+    chunks = max(1, min(chunks, total))
+    return [total // chunks + (i < total % chunks) for i in range(chunks)]
+
+
+class _Players:
+    """The envs that play an iteration's slots: one env (chunks 0 or 1), or `chunks` envs each holding a run of the
+    slots, played one after another here or, with a Ray address, by actors on the cluster (robot_ai.fleet), each
+    keeping its env from one iteration to the next. The same chunks give the same numbers here and on Ray."""
+
+    def __init__(self, make_env: Callable[[int], object], total: int, chunks: int = 0, ray_address: str = ''):
+        self.ray = None
+        if ray_address:
+            from robot_ai import fleet
+            self.ray = fleet.connect(ray_address)
+            chunks = chunks or int(sum(fleet.cluster_cpus(self.ray).values()))
+        self.sizes = chunk_sizes(total, chunks or 1)
+        if ray_address:
+            actor = self.ray.remote(_RolloutActor).options(num_cpus=1, max_restarts=RAY_RESTARTS,
+                                                           max_task_retries=RAY_RESTARTS)
+            self.envs = [actor.remote(make_env, n) for n in self.sizes]
+            probe = make_env(1)          # the spaces, here
+            try:
+                self.single_observation_space = probe.single_observation_space
+                self.single_action_space = probe.single_action_space
+            finally:
+                probe.close()
+        else:
+            self.envs = [make_env(n) for n in self.sizes]
+            self.single_observation_space = self.envs[0].single_observation_space
+            self.single_action_space = self.envs[0].single_action_space
+
+    def play(self, weights, biases, mean, std, policy, seeds, train_slots, final_metric) -> _Rollouts:
+        if len(self.envs) == 1 and self.ray is None:
+            return _rollouts(self.envs[0], weights, biases, mean, std, policy, seeds, train_slots, final_metric)
+        jobs, start = [], 0
+        for n in self.sizes:
+            end = start + n
+            jobs.append((weights[start:end], None if biases is None else biases[start:end], mean, std, policy,
+                         seeds[start:end], max(0, min(end, train_slots) - start), final_metric))
+            start = end
+        if self.ray is None:
+            parts = [_rollouts(env, *job) for env, job in zip(self.envs, jobs)]
+        else:
+            parts = self.ray.get([env.play.remote(*job) for env, job in zip(self.envs, jobs)])
+        steps = max(len(p.states) for p in parts)      # each step's states in slot order, as one env gives them
+        states = [np.concatenate([p.states[t] for p in parts if t < len(p.states)]) for t in range(steps)]
+        return _Rollouts(np.concatenate([p.returns for p in parts]), np.concatenate([p.lengths for p in parts]),
+                         np.concatenate([p.success for p in parts]), np.concatenate([p.metric for p in parts]),
+                         states)
+
+    def close(self) -> None:
+        for env in self.envs:
+            if self.ray is None:
+                env.close()
+            else:
+                self.ray.kill(env)
+
+
+RAY_RESTARTS = 2      # an actor whose node or worker dies is made again (its env anew) this many times
+
+
+class _RolloutActor:
+    """A Ray actor (robot_ai.fleet): one chunk's env, kept between iterations (a chained start goes on from where its
+    arms stopped)."""
+
+    def __init__(self, make_env: Callable[[int], object], size: int):
+        from threadpoolctl import threadpool_limits
+        threadpool_limits(1)
+        self.env = make_env(size)
+
+    def play(self, *job) -> _Rollouts:
+        return _rollouts(self.env, *job)
+
+
 def train(make_env: Callable[[int], object], settings: ARSSettings, seed: int = 0,
           progress: Callable[[IterationStats], None] | None = None, should_stop: Callable[[], bool] | None = None,
           shared_statistics: list[list[int]] | None = None, final_metric=None,
           initial: LinearPolicy | None = None, prior_states: np.ndarray | None = None,
-          fixed_statistics: dict | None = None) -> ARSResult:
+          fixed_statistics: dict | None = None, chunks: int = 0, ray_address: str = '') -> ARSResult:
     """ARS with settings, reproducible from seed.
 
     make_env(num_envs) -> a gymnasium vector env (next-step autoreset) of that many copies; it is made once.
@@ -261,11 +337,15 @@ def train(make_env: Callable[[int], object], settings: ARSSettings, seed: int = 
     share V2's mean and std. final_metric(observations) -> (M,) a figure of each env's last observation (the reach
     task's final distance). initial: a policy to start from (its statistics too), instead of zeros.
     prior_states (K, obs): flattened observations that seed V2's statistics; fixed_statistics {index: (mean, std)}:
-    coordinates whose statistics are given, not measured."""
+    coordinates whose statistics are given, not measured. chunks: the slots played by that many envs of their own
+    (make_env(size) each; 0: one env, or one per CPU of the Ray cluster); ray_address: those envs kept by actors on
+    the Ray cluster there (robot_ai.fleet), one CPU each, with the same numbers as the same chunks here. An env whose
+    slots are seeded one by one (reset(seed=[...])) and that starts every episode afresh (not a chained start) gives
+    the same numbers in any chunks."""
     settings.check()
     n_dir, episodes = settings.directions, settings.episodes
     train_slots = 2 * n_dir * episodes
-    env = make_env(train_slots + settings.eval_episodes)
+    env = _Players(make_env, train_slots + settings.eval_episodes, chunks, ray_address)
     try:
         policy = initial or LinearPolicy.zeros(env.single_observation_space, env.single_action_space, settings.bias)
         stats = RunningStats(policy.weights.shape[1], shared_statistics, fixed_statistics)
@@ -300,7 +380,7 @@ def train(make_env: Callable[[int], object], settings: ARSSettings, seed: int = 
                 if slot_b is not None:
                     slot_b = np.concatenate((slot_b, np.broadcast_to(bias, (settings.eval_episodes,) + bias.shape)))
             seeds = episode_seeds * (2 * n_dir) + eval_seeds
-            rollouts = _rollouts(env, slot_w, slot_b, mean, std, policy, seeds, train_slots, final_metric)
+            rollouts = env.play(slot_w, slot_b, mean, std, policy, seeds, train_slots, final_metric)
             steps = int(rollouts.lengths.sum())
             if settings.max_steps and result.steps + steps > settings.max_steps and iteration > 1:
                 break

@@ -71,6 +71,25 @@ def refuse(parser: argparse.ArgumentParser, message: str) -> NoReturn:
     parser.exit(2, f'{parser.prog}: error: {message}\n')
 
 
+def add_ray(p: argparse.ArgumentParser, what: str) -> None:
+    """--ray ADDRESS: `what` on a Ray cluster (robot_ai.fleet)."""
+    p.add_argument('--ray', default='', metavar='ADDRESS',
+                   help=f'{what} on a Ray cluster: HOST:PORT of its head, ray://HOST:PORT, or auto (the cluster this '
+                   f'machine joined with `ray start`); the same seed gives the same numbers as here. Ray is an '
+                   f'optional extra: docs/fleet.md')
+
+
+def connect_ray(parser: argparse.ArgumentParser, address: str) -> None:
+    """With --ray: the connection made now, or one line and status 2 (Ray not installed, no cluster there)."""
+    if not address:
+        return
+    from robot_ai import fleet
+    try:
+        fleet.connect(address)
+    except fleet.FleetError as e:
+        refuse(parser, f'--ray: {e}')
+
+
 def write_or_say(label: str, write) -> None:
     """Print `label  path` once write() has written its file, or why it could not."""
     try:

@@ -21,8 +21,8 @@ from robot_ai import policies
 from robot_ai.cartpole import linear_search, outputs, policy_kinds, q_learning
 from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
-from robot_ai.cli import (output_folder, positive_number, refuse, run_command, show_policy, whole_number,
-                          write_or_say)
+from robot_ai.cli import (add_ray, connect_ray, output_folder, positive_number, refuse, run_command, show_policy,
+                          whole_number, write_or_say)
 from robot_ai.text import counted
 
 
@@ -122,12 +122,18 @@ def ars_parser(sub) -> None:
                    help='training steps the run may take (rl-baselines3-zoo trains CartPole for 50,000)')
     p.add_argument('--final-episodes', type=whole_number(1, linear_search.MAX_EPISODES), default=100,
                    help='episodes of the final evaluation (gymnasium\'s equations, start states from the seed)')
+    add_ray(p, 'the rollouts of every iteration, in --chunks envs kept by actors,')
+    p.add_argument('--chunks', type=whole_number(0, 1000), default=0,
+                   help='envs the rollouts are split into (0: one here, one per CPU of the cluster with --ray); '
+                   'gymnasium\'s CartPole vector env draws every start from one generator, so other chunks give '
+                   'other numbers (the same chunks the same, here and on Ray)')
     p.set_defaults(run=run_ars)
 
 
 def run_ars(a, parser) -> int:
     if a.top_directions > a.directions:
         parser.error(f'--top-directions ({a.top_directions}) must be at most --directions ({a.directions})')
+    connect_ray(parser, a.ray)
     dynamics = CartPoleDynamics.of(a.env_id)
     settings = replace(linear_search.ARS_SETTINGS, directions=a.directions, top_directions=a.top_directions,
                        step_size=a.step_size, noise=a.noise, max_steps=a.max_steps)
@@ -138,7 +144,8 @@ def run_ars(a, parser) -> int:
     def progress(stats):
         print(f'iteration {stats.iteration:3d}  average length of the perturbed policies {stats.rollout_return:6.1f}  '
               f'steps {stats.steps:7,d}  {stats.elapsed:5.2f} s', flush=True)
-    result = linear_search.ars_search(a.env_id, a.seed, settings, progress=progress)
+    result = linear_search.ars_search(a.env_id, a.seed, settings, progress=progress, chunks=a.chunks,
+                                      ray_address=a.ray)
     weights = result.policy.weights[0].copy()
     final = linear_search.evaluate(dynamics, weights, a.final_episodes, dynamics.max_episode_steps, a.seed)
     ars_episodes = 2 * settings.directions * settings.episodes * len(result.history)
@@ -196,6 +203,7 @@ def q_learning_parser(sub) -> None:
     p.add_argument('--initial-policy', default='', metavar='FILE',
                    help='train on from a q_learning policy file, as stable-baselines3\'s load() then learn(): its '
                    'features and weights start every learner, epsilon goes on from its episodes')
+    add_ray(p, 'every learner a task')
     p.set_defaults(run=run_q_learning)
 
 
@@ -212,6 +220,7 @@ def run_q_learning(a, parser) -> int:
                                       started_from=start.path if start else '')
     except (RequestError, policies.PolicyError) as e:
         refuse(parser, str(e))
+    connect_ray(parser, a.ray)
     folder = output_folder(a, parser)
     bar = progress_bar(training.episodes * training.learners, 'episode')
     recent = []
@@ -223,7 +232,7 @@ def run_q_learning(a, parser) -> int:
             if episode % 10 == 0:
                 bar.set_postfix(learner0_avg100=f'{np.mean(recent[-100:]):.1f}', eps=f'{eps:.3f}')
     try:
-        result = q_learning.train(training, a.seed, progress=progress)
+        result = q_learning.train(training, a.seed, progress=progress, ray_address=a.ray)
     finally:  # an interrupted run's message goes on a line of its own
         bar.close()
     for j, why in result.failed.items():

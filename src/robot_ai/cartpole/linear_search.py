@@ -179,15 +179,19 @@ ARS_SETTINGS = ars.ARSSettings(iterations=1000, directions=8, top_directions=8, 
 
 
 def ars_search(env_id: str = 'CartPole-v1', seed: int = 0, settings: ars.ARSSettings = ARS_SETTINGS,
-               progress: Callable | None = None, should_stop: Callable[[], bool] | None = None) -> ars.ARSResult:
+               progress: Callable | None = None, should_stop: Callable[[], bool] | None = None, chunks: int = 0,
+               ray_address: str = '') -> ars.ARSResult:
     """Augmented Random Search of the course's linear policy on gymnasium's CartPole (its native vector env: every
-    rollout of an iteration in one pass). result.policy.weights[0] are the 4 weights."""
+    rollout of an iteration in one pass). result.policy.weights[0] are the 4 weights. chunks, ray_address: the
+    rollouts in that many envs, on a Ray cluster (ars.train); the native env draws every start state of an env from
+    one generator, so other chunks give other numbers (the same chunks give the same, here and on Ray)."""
     import gymnasium
     CartPoleDynamics.of(env_id)      # RequestError for anything but the course's CartPoles
 
     def make(n: int):
         return gymnasium.make_vec(env_id, num_envs=n, vectorization_mode='vector_entry_point')
-    return ars.train(make, settings, seed, progress=progress, should_stop=should_stop)
+    return ars.train(make, settings, seed, progress=progress, should_stop=should_stop, chunks=chunks,
+                     ray_address=ray_address)
 
 
 def episodes_used(result: SearchResult) -> tuple[int, int]:

@@ -469,19 +469,27 @@ def _finish(training: Training, batch_seed: int, j: int, totals: np.ndarray, age
 
 
 def train(training: Training, seed: int = 0, progress: Callable | None = None,
-          should_stop: Callable[[], bool] | None = None, workers: int | None = None) -> TrainingResult:
+          should_stop: Callable[[], bool] | None = None, workers: int | None = None,
+          ray_address: str = '') -> TrainingResult:
     """Train training.learners independent learners, seeds seed, seed + 1, ...; return a TrainingResult.
 
     progress(learner, episode, total_reward, epsilon) after every episode of every learner (each learner's in
     order); should_stop() is asked often, and a training it stops returns cancelled=True with the episodes
     played and the learners that had finished. More than one learner: `workers` processes (default: one per
     core) share them (see _train_in_processes); a learner whose process dies or hangs is in result.failed, the
-    others go on. RuntimeError if every learner failed."""
+    others go on. RuntimeError if every learner failed. ray_address: every learner a task on that Ray cluster
+    (robot_ai.fleet; _train_on_ray), with the same numbers as here for the same seed; a learner's episodes are reported
+    when it ends. FleetError when the cluster cannot be reached."""
     t0 = time.time()
     k = training.learners
     workers = worker_count(k) if workers is None else max(1, min(workers, k))
     failed = {}
-    if workers == 1:
+    if ray_address:
+        learners, cancelled = _train_on_ray(training, seed, ray_address, progress, should_stop, failed)
+        if len(failed) == k:
+            whys = sorted(set(failed.values()))
+            raise RuntimeError(f'every learner failed: {"; ".join(whys[:3])}')
+    elif workers == 1:
         learners, cancelled = {}, False
         for j in range(k):
             report = None if progress is None else (lambda e, r, eps, j=j: progress(j, e, r, eps))
@@ -627,3 +635,52 @@ def _train_in_processes(training, seed, workers, progress, should_stop, failed):
         for w in pool:
             w.end()
     return {j: (np.array(t, dtype=float),) + finished.get(j, (None, None)) for j, t in totals.items() if t}, cancelled
+
+
+# ------------------------------------------------------------------------------------------ learners on Ray
+RAY_RETRIES = 2       # runs of a learner's task after the first when its node or worker dies
+
+
+def learn_one(settings: dict, start, batch_seed: int, j: int) -> tuple[list, Agent, float]:
+    """Learner j of a batch, as a learner process trains it (robot_ai.cartpole.learner_worker: BLAS on one thread):
+    ([(episode, total_reward, epsilon), ...], its agent, its greedy average). A Ray task's body."""
+    from threadpoolctl import threadpool_limits
+    settings = dict(settings)
+    training = Training(dynamics=CartPoleDynamics.of(settings.pop('env_id')), start=start, **settings)
+    episodes = []
+    with threadpool_limits(1):
+        _, agent = train_one(training, batch_seed + j, lambda e, r, eps: episodes.append((e, r, eps)))
+        return episodes, agent, greedy_average(agent, training, batch_seed + j)
+
+
+def _train_on_ray(training, seed, address, progress, should_stop, failed):
+    """Every learner a task on the Ray cluster at address; returns (learners, cancelled) as _train_in_processes and
+    fills failed {j: why}. A learner whose node dies runs again elsewhere (RAY_RETRIES); a cancel keeps the learners
+    that had finished."""
+    from robot_ai import fleet
+    ray = fleet.connect(address)
+    task = ray.remote(learn_one).options(num_cpus=1, max_retries=RAY_RETRIES, retry_exceptions=False)
+    settings = training.settings()
+    pending = {task.remote(settings, training.start, seed, j): j for j in range(training.learners)}
+    learners, cancelled = {}, False
+    try:
+        while pending:
+            if should_stop is not None and should_stop():
+                cancelled = True
+                break
+            done, _ = ray.wait(list(pending), num_returns=1, timeout=0.1)
+            for ref in done:
+                j = pending.pop(ref)
+                try:
+                    episodes, agent, greedy = ray.get(ref)
+                except ray.exceptions.RayError as e:
+                    failed[j] = f'its Ray task failed ({type(e).__name__}: {str(e).strip().splitlines()[0][:200]})'
+                    continue
+                if progress is not None:
+                    for e, r, eps in episodes:
+                        progress(j, e, r, eps)
+                learners[j] = (np.array([r for _, r, _ in episodes], dtype=float), agent, greedy)
+    finally:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+    return learners, cancelled

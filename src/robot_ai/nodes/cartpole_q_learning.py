@@ -8,6 +8,9 @@ ROS Parameters
         requests never name paths.
     ~policy (str, ""): a Q-learning policy file (.npz) loaded at start as the node's agent; a bad file ends the
         node with one line.
+    ~ray_address (str, ""): every learner of a training a task on this Ray cluster (HOST:PORT of its head, or auto;
+        docs/fleet.md) instead of the node's own processes, with the same numbers; a learner's episodes are then
+        reported when it ends. Ray missing or no cluster there: the node ends with one line.
 
 ROS Services
     ~train (robot_ai/QLearning): train; when it ends, every learner's greedy agent plays 100 greedy episodes
@@ -66,6 +69,13 @@ class CartPoleQLearningNode:
 
     def __init__(self):
         self.defaults, self.output_dir = agent_settings(q_learning, 'trainings')
+        self.ray_address = str(rospy.get_param('~ray_address', '') or '')
+        if self.ray_address:
+            from robot_ai import fleet
+            try:
+                fleet.connect(self.ray_address)
+            except fleet.FleetError as e:
+                raise ValueError(f'~ray_address: {e}') from None
         self.served: ServedAgent | None = None
         loaded = policy_param(Agent.kind)
         if loaded is not None:
@@ -120,7 +130,7 @@ class CartPoleQLearningNode:
 
         with self.train_lock:
             t0 = time.time()
-            result = q_learning.train(training, req.seed, progress=progress,
+            result = q_learning.train(training, req.seed, progress=progress, ray_address=self.ray_address,
                                       should_stop=lambda: rospy.is_shutdown() or bool(should_stop and should_stop()))
             for j, why in result.failed.items():
                 rospy.logerr(f'training: learner {j} (seed {req.seed + j}) failed: {why}')

@@ -20,8 +20,8 @@ from dataclasses import replace
 
 from robot_ai import ars, artifacts
 from robot_ai import policies
-from robot_ai.cli import (fraction, output_folder, positive_number, refuse, run_command, show_policy, whole_number,
-                          write_or_say)
+from robot_ai.cli import (add_ray, connect_ray, fraction, output_folder, positive_number, refuse, run_command,
+                          show_policy, whole_number, write_or_say)
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import CONTROLS, STARTS, ReachSetup
@@ -66,6 +66,10 @@ def train_parser(sub) -> None:
     p.add_argument('--video', action='store_true', help='also write an mp4 of the arm reaching 3 fresh goals')
     p.add_argument('--output-dir', default=artifacts.default_output_dir(),
                    help='where the policy, the CSV log, the plot and the video go')
+    add_ray(p, 'the rollouts of every iteration, in --chunks envs kept by actors,')
+    p.add_argument('--chunks', type=whole_number(0, 4096), default=0,
+                   help='envs the rollouts are split into (0: one here, one per CPU of the cluster with --ray); from '
+                   'home or random starts any chunks give the same numbers')
     p.set_defaults(run=run_train)
 
 
@@ -77,6 +81,7 @@ def stem_name(setup: ReachSetup) -> str:
 def run_train(a, parser) -> int:
     if a.top_directions > a.directions:
         parser.error(f'--top-directions ({a.top_directions}) must be at most --directions ({a.directions})')
+    connect_ray(parser, a.ray)
     kwargs = dict(model=a.model, xacro_args=a.xacro_args or None, tip=a.tip, control=a.control, start=a.start)
     try:
         setup = ReachSetup(**kwargs)
@@ -110,7 +115,7 @@ def run_train(a, parser) -> int:
     previous = signal.signal(signal.SIGINT, on_sigint)
     try:
         training = learn.train(kwargs, settings, a.seed, progress=progress, should_stop=lambda: stop['asked'],
-                               target_success=a.target_success)
+                               target_success=a.target_success, chunks=a.chunks, ray_address=a.ray)
     finally:
         signal.signal(signal.SIGINT, previous)
     result, held = training.result, training.held_out

@@ -112,12 +112,14 @@ def final_distance(observations: dict) -> np.ndarray:
 
 def train(env_kwargs: dict | None = None, settings: ars.ARSSettings | None = None, seed: int = 0, progress=None,
           should_stop=None, target_success: float | None = None,
-          evaluate_episodes: int = HELD_OUT_EPISODES) -> Training:
+          evaluate_episodes: int = HELD_OUT_EPISODES, chunks: int = 0, ray_address: str = '') -> Training:
     """ARS on the reach task of env_kwargs (ReachEnv's: model, xacro_args, tip, control, start, ...), reproducible from
     seed. progress(ars.IterationStats) after each iteration; should_stop() before each (cancel keeps the best so
     far); target_success: stop once an iteration's evaluation reaches it. settings: default_settings(the arm's).
     Ends with the held-out evaluation of the
-    best policy and of the P-controller (ee control) over evaluate_episodes fresh goals (0: none)."""
+    best policy and of the P-controller (ee control) over evaluate_episodes fresh goals (0: none). chunks, ray_address:
+    the rollouts in that many envs, kept by actors on a Ray cluster (ars.train): from home or random starts the same
+    numbers as one env here."""
     kwargs = {k: v for k, v in (env_kwargs or {}).items() if k != 'reward_type'}
     t0 = time.monotonic()
     setup = ReachSetup(**kwargs)
@@ -136,7 +138,7 @@ def train(env_kwargs: dict | None = None, settings: ars.ARSSettings | None = Non
 
     result = ars.train(lambda k: ReachVectorEnv(k, reward_type='dense', **kwargs), settings, seed,
                        progress=on_iteration, should_stop=stop, shared_statistics=groups, final_metric=final_distance,
-                       prior_states=prior, fixed_statistics=fixed)
+                       prior_states=prior, fixed_statistics=fixed, chunks=chunks, ray_address=ray_address)
     if reached['done']:
         result.cancelled = False
     training = Training(setup, env_kwargs_of(setup, kwargs), result, seed=seed)
