@@ -22,11 +22,11 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 # launch 959, pytest 521, check_fk 520, launch_rviz 194, check_fk_class 189, cartpole_q_learning 113, policy_files
 # 101, cartpole_robot 96, cartpole_search 85, across_machines 85, forward_kinematics_vs_rsp 83, ros_env 78, reach_ros
 # 51, forward_kinematics_node 41, bench_output 26, the rest under 20. The longest start first, so that the run ends
-# soon after its longest test; a .test file not named here runs after these, in name order.
+# soon after its longest test; a .test file not named here runs after these, in name order. ray_cluster: 117 alone.
 LONGEST_FIRST = ['launch.test', 'pytest', 'check_fk.test', 'launch_rviz.test', 'check_fk_class.test',
-                 'cartpole_q_learning.test', 'policy_files.test', 'cartpole_robot.test', 'cartpole_search.test',
-                 'across_machines.test', 'forward_kinematics_vs_rsp.test', 'ros_env.test', 'reach_ros.test',
-                 'forward_kinematics_node.test', 'bench_output.test', 'check_fk_example.test',
+                 'ray_cluster.test', 'cartpole_q_learning.test', 'policy_files.test', 'cartpole_robot.test',
+                 'cartpole_search.test', 'across_machines.test', 'forward_kinematics_vs_rsp.test', 'ros_env.test',
+                 'reach_ros.test', 'forward_kinematics_node.test', 'bench_output.test', 'check_fk_example.test',
                  'forward_kinematics_hz.test', 'roslaunch-check']
 
 
