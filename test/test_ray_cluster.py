@@ -226,6 +226,28 @@ class TestRayCluster(unittest.TestCase):
             self.assertTrue(any(r['verdict'] == 'not graded (check_fk was stopped)' for r in rows), out)
             self.assert_nothing_left(klass)
 
+    def test_5_a_node_grades_the_model_it_is_sent_not_a_file_it_may_not_have(self):
+        """A node of a real cluster need not have the model file (nor its xacro includes) at the grader's path: the
+        task carries the expanded URDF, and the report names the model as the user gave it."""
+        from robot_ai.grading import on_ray, sandbox
+        from robot_ai.grading.class_run import ClassRun
+        from robot_ai.grading.report import read_model
+        from robot_ai.nodes.check_fk import parse_args
+        with tempfile.TemporaryDirectory() as folder:
+            klass = self.write_class(folder)
+            a = parse_args(['--model', '/nowhere/on/the/node/arm.urdf.xacro', '--candidates', klass,
+                            '--configurations', '3', '--timeout', '3'])
+            run = ClassRun.of(a, read_model(KUKA)[1])
+            xml = read_model(KUKA)[0]
+            ray = self.ray()
+            task = ray.remote(on_ray.grade_on_node).options(num_cpus=1)
+            index = run.students.index('alice')
+            alice = os.path.join(klass, 'alice')
+            result, report = ray.get(task.remote(run.judging, index, 'alice', alice, sandbox.pack_folder(alice), 1.0,
+                                                 xml), timeout=300)
+        self.assertEqual(result.verdict, 'PASS', report.decode(errors='replace'))
+        self.assertIn(f'check_fk: {alice}/solution.py on /nowhere/on/the/node/arm.urdf.xacro (', report.decode())
+
     def assert_nothing_left(self, klass: str) -> None:
         """No judge of this class runs (a judge's command names its student's folder; its students die with its
         namespaces), and no control group outlives the process that made it (other tests' classes may be graded

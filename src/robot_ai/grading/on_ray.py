@@ -22,10 +22,12 @@ import socket
 import sys
 import tempfile
 import time
+from dataclasses import replace
 
 from robot_ai import fleet
 from robot_ai.grading import candidates, sandbox
 from robot_ai.grading.class_run import ClassRun, Judges, Judging
+from robot_ai.grading.report import read_model
 
 MAX_RETRIES = 3           # runs of a student's task after the first when its node or worker dies
 IN_FLIGHT_PER_CPU = 2     # tasks submitted ahead per CPU of the cluster
@@ -34,8 +36,10 @@ NOT_GRADED = 'not graded'
 
 
 def grade_on_node(judging: Judging, index: int, student: str, shown_folder: str, packed: sandbox.Packed,
-                  cores: float) -> tuple[candidates.Result | None, bytes]:
-    """A Ray task: grade one student on this node, from its folder as data; (the result, the report's bytes)."""
+                  cores: float, model_xml: str = '') -> tuple[candidates.Result | None, bytes]:
+    """A Ray task: grade one student on this node, from its folder as data and the model's URDF as text (the model
+    file and its xacro includes need not exist on this machine: the URDF this side expanded is graded, and the
+    report names the model as the user gave it); (the result, the report's bytes)."""
     t = time.time()
     shown = sandbox.printable(student)
     problem = sandbox.unavailable() if judging.sandboxed else ''
@@ -46,6 +50,8 @@ def grade_on_node(judging: Judging, index: int, student: str, shown_folder: str,
     os.chmod(work, 0o711)
     judges = Judges(judging, cores, work, die_with_parent=True)
     try:
+        if model_xml:
+            judges.judging = _on_this_machine(judging, model_xml, work)
         original = os.path.join(work, 'submitted')
         sandbox.unpack_folder(packed, original)
         report = os.path.join(work, 'report.txt')
@@ -61,6 +67,20 @@ def grade_on_node(judging: Judging, index: int, student: str, shown_folder: str,
         raise
     finally:
         shutil.rmtree(work, ignore_errors=True)
+
+
+def _on_this_machine(judging: Judging, model_xml: str, work: str) -> Judging:
+    """The judging with the model written here: --model names the file, --xacro-args are spent (the URDF is expanded),
+    --judge-model keeps the name the user gave."""
+    path = os.path.join(work, 'model.urdf')
+    with open(path, 'w') as f:
+        f.write(model_xml)
+    os.chmod(path, 0o644)
+    options = list(judging.options)
+    shown = options[options.index('--model') + 1]
+    options[options.index('--model') + 1] = path
+    options[options.index('--xacro-args') + 1] = ''
+    return replace(judging, options=tuple(options) + ('--judge-model', shown))
 
 
 def grade_class_on_ray(a, tree) -> int:
@@ -86,6 +106,7 @@ def grade_class_on_ray(a, tree) -> int:
     each = f'{a.jobs} per node' if a.jobs else 'one per CPU'
     run.header(a, tree, f'on the Ray cluster at {a.ray} ({len(nodes)} nodes, {total:g} CPUs, {each})',
                f'at most {cores:g} cores', 1)
+    model_xml = ray.put(read_model(a.model, a.xacro_args)[0])      # once for the class: every task reads it
     task = ray.remote(grade_on_node).options(num_cpus=cpus, max_retries=MAX_RETRIES, retry_exceptions=False)
     window = max(2, int(IN_FLIGHT_PER_CPU * total / cpus))
     results, pending, waiting = {}, {}, list(enumerate(run.students))
@@ -111,7 +132,7 @@ def grade_class_on_ray(a, tree) -> int:
                         run.judging.none_right, '', time.time() - t)
                     _record(run, results, index, student, result, b'')
                     continue
-                ref = task.remote(run.judging, index, student, shown_folder, packed, cores)
+                ref = task.remote(run.judging, index, student, shown_folder, packed, cores, model_xml)
                 pending[ref] = (index, student, t)
             done, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
             for ref in done:

@@ -177,6 +177,8 @@ def parse_args(argv):
     p.add_argument('--judge-hide', action='append', default=[], help=argparse.SUPPRESS)
     p.add_argument('--result-fd', type=int, default=-1, help=argparse.SUPPRESS)
     p.add_argument('--judge-shown', default='', help=argparse.SUPPRESS)   # the candidate as the user named it
+    p.add_argument('--judge-model', default='', help=argparse.SUPPRESS)   # the model as the user named it (a Ray
+                                                                         # node grades the URDF it was sent)
     a = p.parse_args(argv)
     if (a.candidate is None) == (a.candidates is None):
         p.error('give one of --candidate (a node) and --candidates (a folder of student folders)')
@@ -273,7 +275,7 @@ def main(argv=None) -> int:
             verdict = (f'FAIL: {sandbox.printable(os.path.basename(source))} is neither a Python file (.py, or a #! '
                        f'line naming python) nor executable: the node cannot start')
         if verdict is not None:
-            print(f'check_fk: {sandbox.printable(a.judge_shown or a.candidate)} on {a.model}')
+            print(f'check_fk: {sandbox.printable(a.judge_shown or a.candidate)} on {a.judge_model or a.model}')
             return finish(a, tree, [verdict], 0.0)
     # Ctrl-C, SIGTERM (what `timeout` sends) and SIGHUP (the terminal closed) end the grade and clean up; a second
     # signal while it cleans up is ignored, so that the clean-up always finishes. As a child subreaper, check_fk
@@ -331,7 +333,8 @@ def main(argv=None) -> int:
         output = Output(proc.stdout, log_path((a.judge_shown or a.candidate).strip('/').replace(os.sep, '_')))
         pub = rospy.Publisher(ns + '/joint_states', JointState, queue_size=10)
         t0 = time.time()
-        print(f'check_fk: {sandbox.printable(a.judge_shown or a.candidate)} on {a.model} ({len(tree.links)} links, '
+        print(f'check_fk: {sandbox.printable(a.judge_shown or a.candidate)} on {a.judge_model or a.model} '
+              f'({len(tree.links)} links, '
               f'{len(tree.active_joints)} driven joints), {a.configurations} configurations', flush=True)
         lines, _ = grade(tree, a, candidate, proc, output, pub, JointState, clock)
         return finish(a, tree, lines[:-1] + [f'(graded in {time.time() - t0:.1f} s)', lines[-1]], time.time() - t0)
