@@ -26,6 +26,8 @@ import time
 
 import numpy as np
 
+from robot_ai.child_process import alive
+
 FIGSIZE_INCHES, DPI = (10.0, 5.6), 100   # 1000 x 560 pixels: reads well in a README
 TEMP_PREFIX = '.robot_ai_tmp_'          # + <pid>_...: files being written; see remove_leftovers
 EXTENSIONS = ('.png', '.mp4', '.npz', '.csv')   # one run's files: plot, video, policy, log
@@ -190,7 +192,7 @@ def remove_leftovers(output_dir: str) -> list[str]:
             pid = int(name[len(TEMP_PREFIX):].split('_')[0])
         except ValueError:
             continue
-        if _running(pid):
+        if alive(pid):
             continue
         try:
             os.unlink(os.path.join(output_dir, name))
@@ -209,13 +211,3 @@ def readable(path: str) -> None:
     except (OSError, StopIteration, ValueError):
         pass
     os.chmod(path, 0o666 & ~umask)
-
-
-def _running(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True

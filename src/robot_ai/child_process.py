@@ -53,6 +53,17 @@ def die_with_parent(signum: int = signal.SIGTERM) -> None:
         os._exit(1)
 
 
+def alive(pid: int) -> bool:
+    """Whether a process of that pid exists (one of another user's counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def prctl(option: int, value: int) -> bool:
     """Linux's prctl(option, value); whether it succeeded."""
     return ctypes.CDLL(None, use_errno=True).prctl(option, value, 0, 0, 0) == 0

@@ -23,6 +23,8 @@ import os
 import time
 from dataclasses import dataclass, field
 
+from robot_ai.child_process import alive
+
 ROOT = '/sys/fs/cgroup'
 PARENT = 'robot_ai_grading'
 V1_CONTROLLERS = ('cpu', 'cpuacct', 'memory', 'pids')
@@ -203,7 +205,7 @@ def sweep(prefix: str = 'check_fk_') -> list[str]:
             continue
         for name in names:
             pid = name[len(prefix):].split('_')[0] if name.startswith(prefix) else ''
-            if pid.isdigit() and not _alive(int(pid)) and os.path.isdir(os.path.join(parent, name)):
+            if pid.isdigit() and not alive(int(pid)) and os.path.isdir(os.path.join(parent, name)):
                 stale.setdefault(name, []).append(os.path.join(parent, name))
     for name, folders in stale.items():
         group = Group(name, folders=folders)
@@ -212,13 +214,3 @@ def sweep(prefix: str = 'check_fk_') -> list[str]:
         group.kill()
         group.remove()
     return sorted(stale)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True

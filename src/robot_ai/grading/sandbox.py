@@ -31,6 +31,8 @@ import sys
 import unicodedata
 from dataclasses import dataclass
 
+from robot_ai.policies.files import read_fd
+
 TOOLS = ('bwrap', 'unshare', 'setpriv', 'prlimit')
 TOOL_DIRS = ('/usr/bin', '/bin', '/usr/sbin', '/sbin', '/usr/local/bin')
 UID_BASE = 3_000_000_000            # far above any account's uid; uid_for spreads a run's candidates from here
@@ -199,7 +201,7 @@ def pack_folder(source: str, max_bytes: int = MAX_COPY_BYTES, max_files: int = M
                 try:
                     if not stat.S_ISREG(os.fstat(fd).st_mode):    # swapped for something else since the walk
                         continue
-                    data = _read_at_most(fd, max_bytes - total + 1)
+                    data = read_fd(fd, max_bytes - total + 1)
                 finally:
                     os.close(fd)
                 total += len(data)
@@ -209,17 +211,6 @@ def pack_folder(source: str, max_bytes: int = MAX_COPY_BYTES, max_files: int = M
                 entries.append((rel, 'file', 0o755 if st.st_mode & 0o111 else 0o644, data))
         dirs[:] = [d for d in dirs if not os.path.islink(os.path.join(root, d))]
     return Packed(tuple(entries))
-
-
-def _read_at_most(fd: int, size: int) -> bytes:
-    chunks, left = [], size
-    while left > 0:
-        chunk = os.read(fd, min(left, 1 << 20))
-        if not chunk:
-            break
-        chunks.append(chunk)
-        left -= len(chunk)
-    return b''.join(chunks)
 
 
 def unpack_folder(packed: Packed, target: str) -> None:
