@@ -1,0 +1,435 @@
+"""An arm's body and its world, for collision checks of many configurations at once in numpy. No rospy.
+
+The body comes from the URDF's ``<collision>`` elements (box, cylinder, sphere, and meshes read by trimesh where their
+file resolves: ``package://`` through ROS_PACKAGE_PATH, ``file://``, or a path beside the URDF), each link's geometry
+covered by a few spheres fitted to it (as cuRobo approximates a robot): points on the geometry's surface are grouped
+around k centres and each sphere reaches its group's farthest point, so that the spheres cover the surface and a
+contact of the geometry is always a contact of the spheres. What the spheres add beyond the geometry is each link's
+`margin`, measured at fit time.
+
+The link pairs that are checked are those MoveIt's Setup Assistant would keep: not adjacent (joined by a joint, or
+one rigid body through fixed joints), not in contact at the arm's home, and not always or never in contact over
+`samples` random configurations within the limits.
+
+The world: obstacles in the arm's base frame, each ``{box: [sx, sy, sz], position: [x, y, z], rpy: [r, p, y]}`` or
+``{sphere: r, position: [x, y, z]}`` (a table is a box), given as such a list, or a YAML file or text of one.
+
+    body = CollisionModel(tree, urdf_text, arm, obstacles=[{'box': [1, 1, 0.05], 'position': [0, 0, -0.03]}])
+    hits = body.in_collision(q)            # (N,) bool for (N, arm.n) configurations
+    body.contacts(q[0])                    # ['lwr_arm_2_link - lwr_arm_5_link', 'lwr_arm_6_link - obstacle 0 (box)']
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from robot_ai.kinematics import KinematicTree
+from robot_ai.reach.arm import Arm, ReachError
+
+SURFACE_POINTS = 600        # points of a shape's surface the spheres are fitted to
+MAX_SPHERES = 8             # spheres per shape at most
+PAIR_SAMPLES = 2000         # random configurations that decide which link pairs can ever touch
+ALWAYS = 0.95               # a pair in contact in this share of them is always in contact: not checked
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """A box (size: its 3 edges) or a sphere (size: its radius, 1 value) at pose (4x4) in the arm's base frame; spec:
+    the obstacle as it was given, numbers as floats (what a policy file records of the world it learned in)."""
+    kind: str
+    size: tuple[float, ...]
+    pose: np.ndarray = field(compare=False)
+    name: str = ''
+    spec: dict = field(compare=False, default_factory=dict)
+
+
+def _rpy_matrix(rpy) -> np.ndarray:
+    r, p, y = rpy
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def _numbers(value, count: int, what: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in (value if isinstance(value, (list, tuple)) else [value]))
+    except (TypeError, ValueError):
+        values = ()
+    if len(values) != count or not all(math.isfinite(v) for v in values):
+        raise ReachError(f'{what} must be {count} finite number{"s" if count > 1 else ""}, got {value!r}')
+    return values
+
+
+def parse_obstacles(value) -> tuple[Obstacle, ...]:
+    """Obstacles from a list of dicts, a YAML file's path, or YAML text of such a list (None or empty: none);
+    ReachError of one line for anything else."""
+    if value is None or (isinstance(value, (str, list, tuple)) and len(value) == 0):
+        return ()
+    if isinstance(value, str):
+        import yaml
+        text = value
+        if '\n' not in value and (value.endswith(('.yaml', '.yml')) or os.path.isfile(value)):
+            try:
+                with open(value) as f:
+                    text = f.read(1 << 20)
+            except OSError as e:
+                raise ReachError(f'obstacles: cannot read {value}: {e.strerror}') from None
+        try:
+            value = yaml.safe_load(text)
+        except yaml.YAMLError as e:
+            raise ReachError(f'obstacles: not YAML: {str(e).splitlines()[0]}') from None
+        if isinstance(value, dict) and 'obstacles' in value:
+            value = value['obstacles']
+    if not isinstance(value, (list, tuple)):
+        raise ReachError(f'obstacles must be a list of {{box: [sx, sy, sz], position: [x, y, z]}} or {{sphere: r, '
+                         f'position: [x, y, z]}}, got {type(value).__name__}')
+    out = []
+    for i, spec in enumerate(value):
+        if not isinstance(spec, dict) or ('box' in spec) == ('sphere' in spec):
+            raise ReachError(f'obstacle {i}: give one of box: [sx, sy, sz] and sphere: r, with position: [x, y, z]')
+        unknown = sorted(set(spec) - {'box', 'sphere', 'position', 'rpy', 'name'})
+        if unknown:
+            raise ReachError(f'obstacle {i}: unknown keys {unknown} (box, sphere, position, rpy, name)')
+        pose = np.identity(4)
+        position = _numbers(spec.get('position', [0, 0, 0]), 3, f'obstacle {i}: position')
+        pose[:3, 3] = position
+        given = {'position': list(position)}
+        if 'box' in spec:
+            size = _numbers(spec['box'], 3, f'obstacle {i}: box')
+            rpy = _numbers(spec.get('rpy', [0, 0, 0]), 3, f'obstacle {i}: rpy')
+            pose[:3, :3] = _rpy_matrix(rpy)
+            kind = 'box'
+            given.update(box=list(size), rpy=list(rpy))
+        else:
+            if 'rpy' in spec:
+                raise ReachError(f'obstacle {i}: a sphere has no rpy')
+            size = _numbers(spec['sphere'], 1, f'obstacle {i}: sphere')
+            kind = 'sphere'
+            given.update(sphere=size[0])
+        if min(size) <= 0:
+            raise ReachError(f'obstacle {i}: its size must be positive, got {list(size)}')
+        name = str(spec.get('name', f'obstacle {i} ({kind})'))
+        out.append(Obstacle(kind, size, pose, name, dict(given, name=name)))
+    return tuple(out)
+
+
+# ------------------------------------------------------------------------------------------------ the body
+def resolve_mesh(filename: str, urdf_dir: str = '') -> str:
+    """A mesh file's path on this machine ('' when it is not here): package:// through ROS_PACKAGE_PATH, file://,
+    or a path relative to the URDF's folder."""
+    if filename.startswith('package://'):
+        package, _, rest = filename[len('package://'):].partition('/')
+        for root in os.environ.get('ROS_PACKAGE_PATH', '').split(os.pathsep):
+            for candidate in (os.path.join(root, package, rest), os.path.join(root, rest)
+                              if os.path.basename(root.rstrip('/')) == package else ''):
+                if candidate and os.path.isfile(candidate):
+                    return candidate
+        return ''
+    path = filename[len('file://'):] if filename.startswith('file://') else filename
+    if not os.path.isabs(path) and urdf_dir:
+        path = os.path.join(urdf_dir, path)
+    return path if os.path.isfile(path) else ''
+
+
+def _origin(element) -> np.ndarray:
+    pose = np.identity(4)
+    origin = element.find('origin')
+    if origin is not None:
+        pose[:3, 3] = [float(v) for v in (origin.get('xyz') or '0 0 0').split()]
+        pose[:3, :3] = _rpy_matrix([float(v) for v in (origin.get('rpy') or '0 0 0').split()])
+    return pose
+
+
+def link_shapes(urdf: str, urdf_dir: str = '') -> tuple[dict, list[str]]:
+    """({link: [trimesh.Trimesh in the link's frame, ...]}, warnings: the meshes that are not on this machine)."""
+    import xml.etree.ElementTree as ET
+
+    import trimesh
+    shapes, missing = {}, []
+    for link in ET.fromstring(urdf).iter('link'):
+        for collision in link.findall('collision'):
+            geometry = collision.find('geometry')
+            if geometry is None or len(geometry) == 0:
+                continue
+            g = geometry[0]
+            pose = _origin(collision)
+            try:
+                if g.tag == 'box':
+                    mesh = trimesh.creation.box(extents=[float(v) for v in g.get('size').split()])
+                elif g.tag == 'cylinder':
+                    mesh = trimesh.creation.cylinder(radius=float(g.get('radius')), height=float(g.get('length')),
+                                                     sections=24)
+                elif g.tag == 'sphere':
+                    mesh = trimesh.creation.icosphere(subdivisions=2, radius=float(g.get('radius')))
+                elif g.tag == 'mesh':
+                    path = resolve_mesh(g.get('filename', ''), urdf_dir)
+                    if not path:
+                        missing.append(f'{link.get("name")}: {g.get("filename")}')
+                        continue
+                    mesh = trimesh.load(path, force='mesh')
+                    scale = [float(v) for v in (g.get('scale') or '1 1 1').split()]
+                    mesh.apply_scale(scale)
+                else:
+                    continue
+            except (TypeError, ValueError, AttributeError, OSError):
+                missing.append(f'{link.get("name")}: a {g.tag} that cannot be read')
+                continue
+            mesh.apply_transform(pose)
+            mesh.metadata['primitive'] = (g.tag, pose) if g.tag == 'sphere' else None
+            if g.tag == 'sphere':
+                mesh.metadata['radius'] = float(g.get('radius'))
+            shapes.setdefault(link.get('name'), []).append(mesh)
+    return shapes, missing
+
+
+def fit_spheres(mesh, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Spheres (centres (k, 3), radii (k,)) that cover the shape's surface: a sphere primitive is itself; otherwise
+    the shape is cut across its longest principal axis into slabs (two per width; a plate also across its second
+    axis), each sphere centred on the shape's middle line (or plane) within its slab and reaching the slab's farthest
+    surface point, as a chain of spheres along a link."""
+    if mesh.metadata.get('primitive') is not None:
+        return mesh.metadata['primitive'][1][:3, 3][None].copy(), np.array([mesh.metadata['radius']])
+    import trimesh
+    points, _ = trimesh.sample.sample_surface(mesh, SURFACE_POINTS, seed=int(rng.integers(2 ** 31)))
+    points = np.concatenate([points, mesh.vertices])
+    middle = (points.min(axis=0) + points.max(axis=0)) / 2.0
+    _, _, axes = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
+    local = (points - middle) @ axes.T                       # coordinates along the principal axes
+    low, high = local.min(axis=0), local.max(axis=0)
+    extents = high - low
+    order = np.argsort(-extents)
+    cuts = [1, 1, 1]
+    cuts[order[0]] = math.ceil(2 * extents[order[0]] / max(extents[order[1]], 1e-9))
+    if extents[order[2]] < 0.5 * extents[order[1]]:        # a plate
+        cuts[order[1]] = math.ceil(2 * extents[order[1]] / max(extents[order[2]], 1e-9))
+    while cuts[0] * cuts[1] * cuts[2] > MAX_SPHERES:
+        big = int(np.argmax(cuts))
+        cuts[big] -= 1
+    # the cut planes' sections of the surface belong to the slabs on both sides: a slab's farthest points are the
+    # shape's vertices in it and the corners of its cuts (exactly so for a convex shape)
+    extra = []
+    for axis in range(3):
+        step = extents[axis] / cuts[axis]
+        for m in range(1, cuts[axis]):
+            section = mesh.section(plane_origin=middle + axes[axis] * (low[axis] + m * step), plane_normal=axes[axis])
+            if section is not None and len(section.vertices):
+                extra += [section.vertices + axes[axis] * 1e-9, section.vertices - axes[axis] * 1e-9]
+    if extra:
+        points = np.concatenate([points] + extra)
+        local = (points - middle) @ axes.T
+    cells = np.zeros(len(points), dtype=int)
+    for axis in range(3):
+        step = extents[axis] / cuts[axis] if extents[axis] > 0 else 1.0
+        index = np.clip(((local[:, axis] - low[axis]) / step).astype(int), 0, cuts[axis] - 1)
+        cells = cells * cuts[axis] + index
+    centres, radii = [], []
+    for cell in np.unique(cells):
+        members = local[cells == cell]
+        centre = np.zeros(3)
+        for axis in range(3):             # the middle of the slab along cut axes, the shape's middle across the others
+            if cuts[axis] > 1:
+                centre[axis] = (members[:, axis].min() + members[:, axis].max()) / 2.0
+            else:
+                centre[axis] = (low[axis] + high[axis]) / 2.0
+        centres.append(centre)
+        radii.append(np.linalg.norm(members - centre, axis=1).max())
+    centre_of = np.array(centres) @ axes + middle
+    return centre_of, np.array(radii)
+
+
+class CollisionModel:
+    """The arm's body as spheres per link, the pairs checked, and the world's obstacles (see the module)."""
+
+    def __init__(self, tree: KinematicTree, urdf: str, arm: Arm, obstacles=(), urdf_dir: str = '',
+                 samples: int = PAIR_SAMPLES, seed: int = 0):
+        self.tree, self.arm = tree, arm
+        self.obstacles = parse_obstacles(obstacles) if not (isinstance(obstacles, tuple) and all(
+            isinstance(o, Obstacle) for o in obstacles)) else obstacles
+        shapes, self.missing = link_shapes(urdf, urdf_dir)
+        rng = np.random.default_rng(seed)
+        reachable = set(tree.link_poses())
+        self.links = sorted(link for link in shapes if link in reachable)
+        self.meshes = {}
+        centres, radii, owner = [], [], []
+        import trimesh
+        for i, link in enumerate(self.links):
+            self.meshes[link] = trimesh.util.concatenate(shapes[link])
+            for mesh in shapes[link]:
+                c, r = fit_spheres(mesh, rng)
+                centres.append(c)
+                radii.append(r)
+                owner += [i] * len(r)
+        self.centres = np.concatenate(centres) if centres else np.zeros((0, 3))
+        self.radii = np.concatenate(radii) if radii else np.zeros(0)
+        self.owner = np.array(owner, dtype=int)
+        moving = self._moving_links()
+        self.moving = np.array([link in moving for link in self.links], dtype=bool)
+        self.link_pairs, self.excluded = self._choose_pairs(samples, rng)
+        a, b = [], []
+        for la, lb in self.link_pairs:
+            ia, ib = np.flatnonzero(self.owner == la), np.flatnonzero(self.owner == lb)
+            a += list(np.repeat(ia, len(ib)))
+            b += list(np.tile(ib, len(ia)))
+        self.pair_a, self.pair_b = np.array(a, dtype=int), np.array(b, dtype=int)
+        self.moving_spheres = np.flatnonzero(self.moving[self.owner]) if len(self.owner) else np.zeros(0, int)
+        self.margins = {link: self._margin(i, rng) for i, link in enumerate(self.links)}
+
+    def _margin(self, i: int, rng: np.random.Generator, per_sphere: int = 100) -> float:
+        """How far link i's spheres reach beyond its geometry: the largest distance from a point of their union's
+        surface outside the geometry's convex hull to the geometry (a contact of the spheres is a contact of the
+        geometry enlarged by this much)."""
+        import trimesh
+        idx = np.flatnonzero(self.owner == i)
+        mesh = self.meshes[self.links[i]]
+        hull = mesh.convex_hull
+        directions = rng.normal(size=(len(idx), per_sphere, 3))
+        directions /= np.linalg.norm(directions, axis=2, keepdims=True)
+        points = (self.centres[idx][:, None] + self.radii[idx][:, None, None] * directions).reshape(-1, 3)
+        inside_other = np.any(np.linalg.norm(points[:, None] - self.centres[idx][None], axis=2)
+                              < self.radii[idx][None] - 1e-9, axis=1)
+        points = points[~inside_other]
+        signed = (np.einsum('fj,pfj->pf', hull.face_normals, points[:, None] - hull.triangles[:, 0][None])
+                  if len(points) else np.zeros((0, 1)))
+        outside = points[signed.max(axis=1) > 0] if len(points) else points
+        if not len(outside):
+            return 0.0
+        _, distance, _ = trimesh.proximity.closest_point_naive(mesh, outside)
+        return float(distance.max())
+
+    # --------------------------------------------------------------------------------------- structure
+    def _moving_links(self) -> set[str]:
+        """The links whose pose follows a joint of the arm (its chain's links and what hangs below them)."""
+        below = {}
+        for j in self.tree.joints.values():
+            below.setdefault(j.parent, []).append(j.child)
+        out, stack = set(), [self.tree.joints[name].child for name in self.arm.joints]
+        while stack:
+            link = stack.pop()
+            if link not in out:
+                out.add(link)
+                stack += below.get(link, [])
+        return out
+
+    def _rigid_groups(self) -> dict[str, str]:
+        """{link: the link at the top of its rigid body}: links joined by fixed joints (or joints of no arm and no
+        mimic of one, which stay where they are) move as one."""
+        parent = {j.child: j for j in self.tree.joints.values()}
+        moving = set(self.arm.joints) | {j.name for j in self.tree.joints.values()
+                                         if j.mimic is not None and j.mimic[0] in self.arm.joints}
+
+        def top(link):
+            while link in parent and (parent[link].type == 'fixed' or parent[link].name not in moving):
+                link = parent[link].parent
+            return link
+        return {link: top(link) for link in self.links}
+
+    def _choose_pairs(self, samples: int, rng: np.random.Generator):
+        """(link index pairs checked, {reason: [link name pairs]} of those excluded)."""
+        parent = {j.child: j.parent for j in self.tree.joints.values()}
+        groups = self._rigid_groups()
+        excluded = {'adjacent': [], 'default': [], 'always': [], 'never': []}
+        candidates = []
+        for i, la in enumerate(self.links):
+            for j in range(i + 1, len(self.links)):
+                lb = self.links[j]
+                if not (self.moving[i] or self.moving[j]):
+                    continue
+                if parent.get(la) == lb or parent.get(lb) == la or groups[la] == groups[lb]:
+                    excluded['adjacent'].append((la, lb))
+                    continue
+                candidates.append((i, j))
+        if not candidates:
+            return [], excluded
+        home = self.arm.home[None]
+        at_home = self._pair_contacts(home, candidates)[0]
+        q = rng.uniform(self.arm.lower, self.arm.upper, size=(samples, self.arm.n))
+        counts = np.zeros(len(candidates))
+        for start in range(0, samples, 250):
+            counts += self._pair_contacts(q[start:start + 250], candidates).sum(axis=0)
+        kept = []
+        for k, (i, j) in enumerate(candidates):
+            names = (self.links[i], self.links[j])
+            if at_home[k]:
+                excluded['default'].append(names)
+            elif counts[k] >= ALWAYS * samples:
+                excluded['always'].append(names)
+            elif counts[k] == 0:
+                excluded['never'].append(names)
+            else:
+                kept.append((i, j))
+        return kept, excluded
+
+    def _pair_contacts(self, q: np.ndarray, pairs: list) -> np.ndarray:
+        """(N, len(pairs)) bool: whether the spheres of link pair k touch in configuration n."""
+        world = self.sphere_centres(q)
+        out = np.zeros((len(q), len(pairs)), dtype=bool)
+        for k, (i, j) in enumerate(pairs):
+            a, b = np.flatnonzero(self.owner == i), np.flatnonzero(self.owner == j)
+            d = np.linalg.norm(world[:, a][:, :, None] - world[:, b][:, None], axis=3)
+            out[:, k] = np.any(d < self.radii[a][:, None] + self.radii[b][None], axis=(1, 2))
+        return out
+
+    # ------------------------------------------------------------------------------------------ checks
+    def link_poses(self, q) -> dict[str, np.ndarray]:
+        """{link: (N, 4, 4)} of the body's links in the arm's base frame."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        poses = self.tree.link_poses_batch(q, names=self.arm.joints)
+        base = np.linalg.inv(poses[self.arm.base])
+        return {link: np.matmul(base, poses[link]) for link in self.links}
+
+    def sphere_centres(self, q) -> np.ndarray:
+        """(N, K, 3) the spheres' centres in the arm's base frame."""
+        poses = self.link_poses(q)
+        n = len(np.atleast_2d(q))
+        out = np.empty((n, len(self.radii), 3))
+        for i, link in enumerate(self.links):
+            idx = np.flatnonzero(self.owner == i)
+            p = poses[link]
+            out[:, idx] = np.einsum('nij,kj->nki', p[:, :3, :3], self.centres[idx]) + p[:, None, :3, 3]
+        return out
+
+    def _obstacle_hits(self, world: np.ndarray) -> np.ndarray:
+        """(N, K_moving, len(obstacles)) bool: the moving spheres that touch each obstacle."""
+        spheres = world[:, self.moving_spheres]
+        radii = self.radii[self.moving_spheres]
+        out = np.zeros(spheres.shape[:2] + (len(self.obstacles),), dtype=bool)
+        for m, o in enumerate(self.obstacles):
+            local = np.einsum('ji,nkj->nki', o.pose[:3, :3], spheres - o.pose[:3, 3])
+            if o.kind == 'box':
+                outside = np.maximum(np.abs(local) - np.array(o.size) / 2.0, 0.0)
+                out[:, :, m] = np.linalg.norm(outside, axis=2) < radii
+            else:
+                out[:, :, m] = np.linalg.norm(local, axis=2) < radii + o.size[0]
+        return out
+
+    def in_collision(self, q) -> np.ndarray:
+        """(N,) bool: the arm touches itself (a checked pair) or an obstacle, for (N, arm.n) configurations."""
+        world = self.sphere_centres(q)
+        hit = np.zeros(len(world), dtype=bool)
+        if len(self.pair_a):
+            d = np.linalg.norm(world[:, self.pair_a] - world[:, self.pair_b], axis=2)
+            hit |= np.any(d < self.radii[self.pair_a] + self.radii[self.pair_b], axis=1)
+        if self.obstacles and len(self.moving_spheres):
+            hit |= self._obstacle_hits(world).any(axis=(1, 2))
+        return hit
+
+    def contacts(self, q) -> list[str]:
+        """The pairs in contact in one configuration, by name ('link_a - link_b', 'link - <obstacle>')."""
+        world = self.sphere_centres(np.asarray(q, dtype=float)[None])
+        out = []
+        for i, j in self.link_pairs:
+            a, b = np.flatnonzero(self.owner == i), np.flatnonzero(self.owner == j)
+            d = np.linalg.norm(world[0, a][:, None] - world[0, b][None], axis=2)
+            if np.any(d < self.radii[a][:, None] + self.radii[b][None]):
+                out.append(f'{self.links[i]} - {self.links[j]}')
+        if self.obstacles and len(self.moving_spheres):
+            hits = self._obstacle_hits(world)[0]
+            for k, m in zip(*np.nonzero(hits)):
+                name = f'{self.links[self.owner[self.moving_spheres[k]]]} - {self.obstacles[m].name}'
+                if name not in out:
+                    out.append(name)
+        return out

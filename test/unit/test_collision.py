@@ -1,0 +1,142 @@
+"""robot_ai.reach.collision: the arm's body as spheres fitted to its URDF <collision> geometry, the link pairs
+checked, obstacles; every sphere check against an exact mesh check (python-fcl through trimesh) on 10,000 random
+configurations of the reference arms that carry their geometry. No rospy."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+import trimesh
+from trimesh.collision import CollisionManager
+
+from robot_ai.reach.arm import Arm, ReachError
+from robot_ai.reach.collision import CollisionModel, fit_spheres, parse_obstacles
+from robot_ai.reach.model import load_model
+
+ROBOTS = os.path.join(os.path.dirname(__file__), '..', '..', '..', 'shared', 'robots')
+WORLD = [{'box': [2.0, 2.0, 0.05], 'position': [0, 0, -0.03], 'name': 'table'},
+         {'box': [0.2, 0.3, 0.4], 'position': [0.45, 0.1, 0.3], 'rpy': [0, 0, 0.5], 'name': 'box 1'},
+         {'box': [0.1, 0.1, 0.6], 'position': [-0.3, -0.4, 0.5], 'name': 'box 2'}]
+
+
+def test_obstacles_from_a_list_yaml_text_or_a_file(tmp_path):
+    text = 'obstacles:\n  - {box: [1, 1, 0.05], position: [0, 0, -0.03]}\n  - {sphere: 0.1, position: [0.4, 0, 0.5]}\n'
+    path = tmp_path / 'world.yaml'
+    path.write_text(text)
+    for given in (text, str(path), parse_obstacles(text) and [dict(box=[1, 1, 0.05], position=[0, 0, -0.03]),
+                                                               dict(sphere=0.1, position=[0.4, 0, 0.5])]):
+        table, ball = parse_obstacles(given)
+        assert (table.kind, table.size, ball.kind, ball.size) == ('box', (1.0, 1.0, 0.05), 'sphere', (0.1,))
+        np.testing.assert_array_equal(ball.pose[:3, 3], [0.4, 0, 0.5])
+        assert table.spec == {'position': [0.0, 0.0, -0.03], 'box': [1.0, 1.0, 0.05], 'rpy': [0.0, 0.0, 0.0],
+                              'name': 'obstacle 0 (box)'}
+    assert parse_obstacles(None) == () and parse_obstacles([]) == ()
+
+
+@pytest.mark.parametrize('bad, says', [
+    ([{'box': [1, 1]}], 'box must be 3 finite numbers'), ([{'box': [1, 1, 1], 'sphere': 1}], 'give one of'),
+    ([{'sphere': -1}], 'must be positive'), ([{'sphere': 0.1, 'rpy': [0, 0, 0]}], 'a sphere has no rpy'),
+    ([{'sphere': 0.1, 'colour': 'red'}], 'unknown keys'), ({'sphere': 0.1}, 'must be a list'),
+    ([{'box': [1, 1, float('nan')]}], 'finite'), ('/no/such/world.yaml', 'cannot read'), ('- [unclosed', 'not YAML')])
+def test_a_bad_world_is_one_line(bad, says):
+    with pytest.raises(ReachError, match=says) as e:
+        parse_obstacles(bad)
+    assert '\n' not in str(e.value)
+
+
+@pytest.mark.parametrize('shape', [trimesh.creation.box(extents=[0.1, 0.1, 0.4]),
+                                   trimesh.creation.cylinder(radius=0.07, height=0.208, sections=24),
+                                   trimesh.creation.box(extents=[0.5, 0.3, 0.02]),
+                                   trimesh.creation.capsule(height=0.3, radius=0.05)])
+def test_the_spheres_cover_the_shape(shape):
+    centres, radii = fit_spheres(shape, np.random.default_rng(0))
+    assert 1 <= len(radii) <= 8
+    points, _ = trimesh.sample.sample_surface(shape, 5000, seed=1)
+    covered = np.any(np.linalg.norm(points[:, None] - centres[None], axis=2) <= radii[None] + 1e-6, axis=1)
+    assert covered.mean() > 0.995, covered.mean()     # the fit's points are a sample too: the rest within a hair
+    gap = np.min(np.linalg.norm(points[:, None] - centres[None], axis=2) - radii[None], axis=1).max()
+    assert gap < 0.01 * np.ptp(shape.vertices, axis=0).max()
+
+
+class Exact:
+    """The meshes themselves, by python-fcl: one collision manager for the whole body and the world (transforms set
+    per configuration), and one per link for distances."""
+
+    def __init__(self, body: CollisionModel):
+        self.body = body
+        self.world = CollisionManager()
+        self.single = {}
+        for link in body.links:
+            self.world.add_object(link, body.meshes[link])
+            self.single[link] = CollisionManager()
+            self.single[link].add_object(link, body.meshes[link])
+        self.shapes = {}
+        for o in body.obstacles:
+            shape = trimesh.creation.box(extents=o.size) if o.kind == 'box' else trimesh.creation.icosphere(
+                subdivisions=3, radius=o.size[0])
+            self.world.add_object(o.name, shape, transform=o.pose)
+            self.shapes[o.name] = (shape, o.pose)
+        moving = {link for link, m in zip(body.links, body.moving) if m}
+        self.pairs = {tuple(sorted((body.links[i], body.links[j]))) for i, j in body.link_pairs}
+        self.pairs |= {tuple(sorted((link, o.name))) for link in moving for o in body.obstacles}
+
+    def contacts(self, poses: dict, n: int) -> set:
+        """The checked pairs whose meshes touch in configuration n."""
+        for link in self.body.links:
+            self.world.set_transform(link, poses[link][n])
+        _, names = self.world.in_collision_internal(return_names=True)
+        return {tuple(sorted(pair)) for pair in names} & self.pairs
+
+    def distance(self, poses: dict, n: int, a: str, b: str) -> float:
+        self.single[a].set_transform(a, poses[a][n])
+        shape, pose = self.shapes[b] if b in self.shapes else (self.body.meshes[b], poses[b][n])
+        return self.single[a].min_distance_single(shape, transform=pose)
+
+
+@pytest.mark.parametrize('robot, tip', [('kuka_lwr_arm.urdf', None), ('pr2.urdf', 'r_gripper_tool_frame')])
+def test_every_sphere_check_agrees_with_the_exact_meshes_on_10000_configurations(robot, tip):
+    """No contact of the meshes is missed by the spheres, and every contact the spheres alone see is one of meshes
+    closer than the two links' fitted margins (what the spheres add beyond the geometry)."""
+    model = load_model(os.path.join(ROBOTS, robot))
+    arm = Arm(model.tree, tip)
+    body = CollisionModel(model.tree, model.urdf, arm, obstacles=WORLD)
+    q = np.random.default_rng(7).uniform(arm.lower, arm.upper, size=(10000, arm.n))
+    spheres = body.in_collision(q)
+    exact = Exact(body)
+    poses = body.link_poses(q)
+    margin = dict(body.margins, **{o.name: 0.0 for o in body.obstacles})
+    missed, too_far = [], []
+    for n in range(len(q)):
+        touching = exact.contacts(poses, n)
+        if touching and not spheres[n]:
+            missed.append((n, sorted(touching)))
+        if spheres[n] and not touching:
+            for a, b in (tuple(c.split(' - ')) for c in body.contacts(q[n])):
+                distance = exact.distance(poses, n, a, b)
+                if distance > margin[a] + margin[b] + 1e-6:
+                    too_far.append((n, a, b, distance, margin[a] + margin[b]))
+    assert missed == [], missed[:5]
+    assert too_far == [], too_far[:5]
+    assert spheres.any() and not spheres.all()     # the world is neither empty nor full: the check means something
+
+
+def test_the_pairs_excluded_as_moveit_does():
+    model = load_model(os.path.join(ROBOTS, 'kuka_lwr_arm.urdf'))
+    arm = Arm(model.tree)
+    body = CollisionModel(model.tree, model.urdf, arm)
+    adjacent = set(body.excluded['adjacent'])
+    assert ('lwr_arm_1_link', 'lwr_arm_2_link') in adjacent or ('lwr_arm_2_link', 'lwr_arm_1_link') in adjacent
+    assert not body.in_collision(arm.home[None])[0]       # home is never in contact: its contacts are excluded
+    assert body.link_pairs, 'a 7-joint arm can fold onto itself'
+    assert body.excluded['never'], 'links far apart are never checked'
+    for i, j in body.link_pairs:
+        assert body.moving[i] or body.moving[j]
+
+
+def test_an_arm_without_geometry_has_no_body_and_says_which_meshes_are_missing():
+    ur5 = load_model(os.path.join(ROBOTS, 'ur5.urdf'))
+    body = CollisionModel(ur5.tree, ur5.urdf, Arm(ur5.tree), obstacles=WORLD)
+    assert any('package://ur_description/meshes/ur5/collision/' in m for m in body.missing)
+    q = np.random.default_rng(0).uniform(-3, 3, size=(100, 6))
+    assert not body.in_collision(q).any()
