@@ -140,3 +140,80 @@ def test_an_arm_without_geometry_has_no_body_and_says_which_meshes_are_missing()
     assert any('package://ur_description/meshes/ur5/collision/' in m for m in body.missing)
     q = np.random.default_rng(0).uniform(-3, 3, size=(100, 6))
     assert not body.in_collision(q).any()
+
+
+# ------------------------------------------------------------------------------------------------ in the env
+KUKA = os.path.join(ROBOTS, 'kuka_lwr_arm.urdf')
+
+
+def test_reach_with_a_world_draws_clear_goals_and_starts_and_refuses_a_motion_into_a_box():
+    """Goals and random starts are drawn clear of contacts; a step whose motion would touch is not made (the arm
+    holds, info['collision']), so the arm is never in contact; without a body nothing changes."""
+    from robot_ai.reach.env import ReachEnv
+    env = ReachEnv(model=KUKA, obstacles=WORLD, start='random')
+    body = env.setup.body
+    for seed in range(30):
+        obs, info = env.reset(seed=seed)
+        assert not body.in_collision(env.joint_positions[None])[0]
+    rngs = [np.random.default_rng(seed) for seed in range(300)]
+    goals, starts = env.setup.first_states(rngs)
+    assert not body.in_collision(goals.T).any() and not body.in_collision(starts.T).any()
+    unchecked = ReachEnv(model=KUKA, start='random').setup.first_states([np.random.default_rng(s) for s in range(300)])
+    assert body.in_collision(unchecked[0].T).any(), 'the world takes some goals away: the check means something'
+    env = ReachEnv(model=KUKA, obstacles=WORLD)
+    env.reset(seed=0)
+    refused = []
+    for _ in range(60):                         # down and out toward box 1 and the table
+        before = env.joint_positions
+        _, _, _, _, info = env.step(np.array([0.3, 0.0, -1.0], np.float32))
+        refused.append(info['collision'])
+        assert not body.in_collision(env.joint_positions[None])[0]
+        if info['collision']:
+            np.testing.assert_array_equal(env.joint_positions, before)
+    assert any(refused) and not all(refused)
+    plain = ReachEnv(model=KUKA)
+    plain.reset(seed=0)
+    assert plain.setup.body is None and 'collision' not in plain.step(np.zeros(3, np.float32))[4]
+
+
+def test_the_vector_env_with_a_world_equals_the_single_envs():
+    from robot_ai.reach.env import ReachEnv, ReachVectorEnv
+    vector = ReachVectorEnv(3, model=KUKA, obstacles=WORLD, start='random')
+    singles = [ReachEnv(model=KUKA, obstacles=WORLD, start='random') for _ in range(3)]
+    obs, _ = vector.reset(seed=5)
+    for i, env in enumerate(singles):
+        np.testing.assert_array_equal(obs['observation'][i], env.reset(seed=5 + i)[0]['observation'])
+    rng = np.random.default_rng(1)
+    for _ in range(49):
+        actions = rng.uniform(-1, 1, (3, 3)).astype(np.float32)
+        obs, _, _, _, infos = vector.step(actions)
+        for i, env in enumerate(singles):
+            single, _, _, _, info = env.step(actions[i])
+            np.testing.assert_array_equal(obs['observation'][i], single['observation'])
+            assert infos['collision'][i] == info['collision']
+
+
+def test_a_world_is_checked_by_gymnasium_and_kept_by_a_policy_file(tmp_path):
+    from dataclasses import replace
+
+    from gymnasium.utils.env_checker import check_env
+
+    from robot_ai.reach import learn, policy_files
+    from robot_ai.reach.env import ReachEnv, ReachSetup
+    check_env(ReachEnv(model=KUKA, obstacles=WORLD), skip_render_check=True)
+    setup = ReachSetup(model=KUKA, obstacles=WORLD)
+    settings = replace(learn.default_settings(setup), iterations=2)
+    training = learn.train(dict(model=KUKA, obstacles=WORLD), settings, seed=0, evaluate_episodes=0)
+    path = policy_files.save(training, str(tmp_path / 'reach.npz'))
+    _, loaded, _ = policy_files.load(path)
+    assert [o.spec for o in loaded.obstacles] == [o.spec for o in setup.obstacles]
+    assert loaded.body is not None and [o.name for o in loaded.obstacles] == ['table', 'box 1', 'box 2']
+
+
+def test_a_home_inside_an_obstacle_or_a_full_world_is_one_line():
+    from robot_ai.reach.env import ReachSetup
+    with pytest.raises(ReachError, match='home is in collision: .* - pillar') as e:
+        ReachSetup(model=KUKA, obstacles=[{'box': [0.3, 0.3, 3.0], 'position': [0, 0, 1], 'name': 'pillar'}])
+    assert '\n' not in str(e.value)
+    with pytest.raises(ReachError, match='collision must be true or false'):
+        ReachSetup(model=KUKA, collision='yes')

@@ -49,6 +49,7 @@ def train_parser(sub) -> None:
                    help='ee: tip displacements (damped least squares); joints: joint displacements')
     p.add_argument('--start', default='home', choices=STARTS, help='where each episode starts: home (mid-range), '
                    'random configurations, or chained (where the last episode left the arm)')
+    add_world(p)
     p.add_argument('--seed', type=int, default=0, help='random seed; the same seed gives the same policy')
     p.add_argument('--iterations', type=whole_number(1, 100000), default=None,
                    help=f'ARS iterations; default {d.iterations} x (ee_step / 0.05 m) ** 0.3, at least {d.iterations} '
@@ -73,6 +74,35 @@ def train_parser(sub) -> None:
     p.set_defaults(run=run_train)
 
 
+def add_world(p: argparse.ArgumentParser, default: str = '') -> None:
+    p.add_argument('--obstacles', default=None, metavar='FILE',
+                   help='a YAML file of obstacles in the arm\'s base frame ({box: [sx, sy, sz], position: [x, y, z], '
+                   'rpy: [r, p, y]} or {sphere: r, position: [x, y, z]} each); the arm\'s body is checked against '
+                   'them and itself' + default)
+    p.add_argument('--collision', action='store_true', default=None,
+                   help='check the arm\'s body (its URDF <collision> geometry) against itself, without obstacles too')
+
+
+def describe_world(setup: ReachSetup) -> str:
+    body = setup.body
+    names = ', '.join(o.name for o in setup.obstacles) or 'no obstacles'
+    text = (f'{names}; the arm\'s body: {len(body.radii)} spheres on {len(body.links)} links, {len(body.link_pairs)} '
+            f'link pairs checked')
+    if body.missing:
+        text += f' ({len(body.missing)} collision meshes not on this machine, their links unchecked)'
+    return text
+
+
+def world(a) -> dict:
+    """--obstacles and --collision as env kwargs (none given: none, so that a policy file's own stand)."""
+    out = {}
+    if a.obstacles is not None:
+        out['obstacles'] = a.obstacles
+    if a.collision:
+        out['collision'] = True
+    return out
+
+
 def stem_name(setup: ReachSetup) -> str:
     """The robot's name as a file name's part."""
     return 'reach-' + (re.sub(r'[^A-Za-z0-9_.-]+', '_', setup.model.tree.name or 'robot')[:60] or 'robot')
@@ -82,7 +112,8 @@ def run_train(a, parser) -> int:
     if a.top_directions > a.directions:
         parser.error(f'--top-directions ({a.top_directions}) must be at most --directions ({a.directions})')
     connect_ray(parser, a.ray)
-    kwargs = dict(model=a.model, xacro_args=a.xacro_args or None, tip=a.tip, control=a.control, start=a.start)
+    kwargs = dict(model=a.model, xacro_args=a.xacro_args or None, tip=a.tip, control=a.control, start=a.start,
+                  **world(a))
     try:
         setup = ReachSetup(**kwargs)
     except ReachError as e:
@@ -95,6 +126,8 @@ def run_train(a, parser) -> int:
     if a.iterations:
         settings = replace(settings, iterations=a.iterations)
     print(f'robot             {setup.arm.describe()}')
+    if setup.body is not None:
+        print(f'world             {describe_world(setup)}')
     where = dict(home='home', random='random starts', chained='where the last goal left the arm')[a.start]
     print(f'task              reach within {setup.task.distance_threshold:g} m in 50 steps from {where}, control '
           f'{a.control} (ee_step {setup.ee_step:.3f} m)')
@@ -173,12 +206,14 @@ def evaluate_parser(sub) -> None:
                    'the arm, as clicks in rviz come); repeat for several; default: all three')
     p.add_argument('--video', action='store_true', help='also write an mp4 of the arm reaching 3 of the goals')
     p.add_argument('--output-dir', default=artifacts.default_output_dir(), help='where the video goes')
+    add_world(p, ' (default: the world the policy learned in)')
     p.set_defaults(run=run_evaluate)
 
 
 def run_evaluate(a, parser) -> int:
     try:
-        policy, setup, note = policy_files.load(a.policy, model=a.model or None, xacro_args=a.xacro_args or None)
+        policy, setup, note = policy_files.load(a.policy, model=a.model or None, xacro_args=a.xacro_args or None,
+                                                **world(a))
     except (policies.PolicyError, ReachError) as e:
         refuse(parser, str(e))
     if note:
@@ -187,6 +222,8 @@ def run_evaluate(a, parser) -> int:
     starts = list(dict.fromkeys(a.start or STARTS))
     print(policy.describe())
     print(f'robot             {setup.arm.describe()}')
+    if setup.body is not None:
+        print(f'world             {describe_world(setup)}')
     print(f'goals             {a.episodes} fresh goals within {setup.task.distance_threshold:g} m in 50 steps (seed '
           f'{a.seed}); the policy learned from {setup.start}')
     for start in starts:

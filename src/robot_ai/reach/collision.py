@@ -89,6 +89,12 @@ def parse_obstacles(value) -> tuple[Obstacle, ...]:
                          f'position: [x, y, z]}}, got {type(value).__name__}')
     out = []
     for i, spec in enumerate(value):
+        if isinstance(spec, str):         # one obstacle as JSON or YAML text (how a policy file keeps it)
+            import yaml
+            try:
+                spec = yaml.safe_load(spec)
+            except yaml.YAMLError:
+                pass
         if not isinstance(spec, dict) or ('box' in spec) == ('sphere' in spec):
             raise ReachError(f'obstacle {i}: give one of box: [sx, sy, sz] and sphere: r, with position: [x, y, z]')
         unknown = sorted(set(spec) - {'box', 'sphere', 'position', 'rpy', 'name'})
@@ -378,18 +384,32 @@ class CollisionModel:
         """{link: (N, 4, 4)} of the body's links in the arm's base frame."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         poses = self.tree.link_poses_batch(q, names=self.arm.joints)
+        if self.arm.base == self.tree.root:
+            return {link: poses[link] for link in self.links}
         base = np.linalg.inv(poses[self.arm.base])
         return {link: np.matmul(base, poses[link]) for link in self.links}
 
     def sphere_centres(self, q) -> np.ndarray:
-        """(N, K, 3) the spheres' centres in the arm's base frame."""
+        """(N, K, 3) the spheres' centres in the arm's base frame (a link that does not move with the arm: its
+        spheres where they are at home, computed once)."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        if not hasattr(self, '_still'):
+            self._still = self._centres_of(self.link_poses(self.arm.home[None]), [
+                i for i in range(len(self.links)) if not self.moving[i]], 1)
         poses = self.link_poses(q)
-        n = len(np.atleast_2d(q))
-        out = np.empty((n, len(self.radii), 3))
-        for i, link in enumerate(self.links):
+        out = np.empty((len(q), len(self.radii), 3))
+        out[:] = self._still
+        moving = self._centres_of(poses, [i for i in range(len(self.links)) if self.moving[i]], len(q))
+        mask = self.moving[self.owner]
+        out[:, mask] = moving[:, mask]
+        return out
+
+    def _centres_of(self, poses: dict, links: list[int], n: int) -> np.ndarray:
+        out = np.zeros((n, len(self.radii), 3))
+        for i in links:
             idx = np.flatnonzero(self.owner == i)
-            p = poses[link]
-            out[:, idx] = np.einsum('nij,kj->nki', p[:, :3, :3], self.centres[idx]) + p[:, None, :3, 3]
+            p = poses[self.links[i]]
+            out[:, idx] = np.matmul(p[:, :3, :3], self.centres[idx].T).transpose(0, 2, 1) + p[:, None, :3, 3]
         return out
 
     def _obstacle_hits(self, world: np.ndarray) -> np.ndarray:
@@ -398,7 +418,7 @@ class CollisionModel:
         radii = self.radii[self.moving_spheres]
         out = np.zeros(spheres.shape[:2] + (len(self.obstacles),), dtype=bool)
         for m, o in enumerate(self.obstacles):
-            local = np.einsum('ji,nkj->nki', o.pose[:3, :3], spheres - o.pose[:3, 3])
+            local = (spheres - o.pose[:3, 3]) @ o.pose[:3, :3]
             if o.kind == 'box':
                 outside = np.maximum(np.abs(local) - np.array(o.size) / 2.0, 0.0)
                 out[:, :, m] = np.linalg.norm(outside, axis=2) < radii

@@ -29,7 +29,9 @@ bit for bit (autoreset next-step, reset(seed=s) seeds env i with s + i).
 """
 from __future__ import annotations
 
+import json
 import math
+import os
 from typing import Any
 
 import gymnasium
@@ -41,6 +43,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from robot_ai.reach.arm import Arm, ReachError
+from robot_ai.reach.collision import CollisionModel, parse_obstacles
 from robot_ai.reach.model import Model, load_model
 from robot_ai.reach.task import DISTANCE_THRESHOLD, ReachTask, goal_distance, goal_distance_one
 
@@ -52,6 +55,7 @@ EE_STEP_FRACTION = 1 / 20    # of the chain's length: 50 steps cross the workspa
 DAMPING_FRACTION = 0.5       # damped least squares' damping, in ee_steps
 LIMIT_AVOIDANCE = 4.0        # ee control: the null-space step away from a joint limit, at the limit, in ee_step's turn
 RENDER_FPS = 10
+MAX_DRAWS = 1000             # draws of a goal or a start clear of collisions before the world is called too full
 
 
 class ReachSetup:
@@ -61,7 +65,7 @@ class ReachSetup:
     def __init__(self, model: str | None = None, xacro_args=None, tip: str | None = None, control: str = 'ee',
                  start: str = 'home', reward_type: str = 'sparse', distance_threshold: float = DISTANCE_THRESHOLD,
                  ee_step: float | None = None, damping: float | None = None, home=None, urdf: str | None = None,
-                 limit_avoidance: float = LIMIT_AVOIDANCE):
+                 limit_avoidance: float = LIMIT_AVOIDANCE, obstacles=None, collision: bool | None = None):
         if control not in CONTROLS:
             raise ReachError(f'control must be one of {", ".join(CONTROLS)}, got {control!r}')
         if start not in STARTS:
@@ -79,6 +83,19 @@ class ReachSetup:
         # at 1, a joint at its limit steps back as far as a joint turns in a full ee_step (ee_step / the chain)
         self.limit_gain = self.limit_avoidance * self.ee_step / self.arm.length
         self.home = self._home(home)
+        self.obstacles = parse_obstacles(obstacles)
+        if collision is None:
+            collision = bool(self.obstacles)
+        if not isinstance(collision, (bool, np.bool_)):
+            raise ReachError(f'collision must be true or false, got {collision!r}')
+        self.body: CollisionModel | None = None
+        if collision:
+            self.body = CollisionModel(self.model.tree, self.model.urdf, self.arm, self.obstacles,
+                                       urdf_dir=os.path.dirname(self.model.path) if self.model.path else '')
+            touching = self.body.contacts(self.home)
+            if touching:
+                raise ReachError(f'home is in collision: {", ".join(touching[:4])} (move the obstacles, or give a '
+                                 f'home that is clear of them)')
         bound = self.arm.radius + 1e-6
         goal_space = spaces.Box(-bound, bound, (3,), np.float64)
         low = np.concatenate((self.arm.lower, np.full(3, -bound)))
@@ -152,9 +169,12 @@ class ReachSetup:
 
     def settings(self) -> dict:
         """The env's kwargs as plain values (a policy file keeps them)."""
-        return dict(tip=self.arm.tip, control=self.control, start=self.start, reward_type=self.task.reward_type,
-                    distance_threshold=self.task.distance_threshold, ee_step=self.ee_step, damping=self.damping,
-                    home=[float(v) for v in self.home], limit_avoidance=self.limit_avoidance)
+        out = dict(tip=self.arm.tip, control=self.control, start=self.start, reward_type=self.task.reward_type,
+                   distance_threshold=self.task.distance_threshold, ee_step=self.ee_step, damping=self.damping,
+                   home=[float(v) for v in self.home], limit_avoidance=self.limit_avoidance)
+        if self.body is not None:         # the world a policy learned in (files without these: none)
+            out.update(collision=True, obstacles=[json.dumps(o.spec) for o in self.obstacles])
+        return out
 
     # -------------------------------------------------------------------------------- batched steps
     def check_actions(self, actions: np.ndarray) -> np.ndarray:
@@ -181,16 +201,45 @@ class ReachSetup:
     def first_states(self, rngs: list, where: list | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(goal configurations, start configurations), each (n, k), drawn from each env's np_random in turn.
         start 'chained': each env's start is where its arm stands (where[i], (n,)), home where that is None."""
-        goals, starts = [], []
+        goals = self._clear([lambda rng=rng: self.task.goal_configuration(self.arm, rng) for rng in rngs])
+        starts = []
         for i, rng in enumerate(rngs):
-            goals.append(self.task.goal_configuration(self.arm, rng))
             if self.start == 'random':
-                starts.append(rng.uniform(self.arm.lower, self.arm.upper))
+                starts.append(lambda rng=rng: rng.uniform(self.arm.lower, self.arm.upper))
             elif self.start == 'chained' and where is not None and where[i] is not None:
-                starts.append(where[i])
+                starts.append(lambda q=where[i]: q)
             else:
-                starts.append(self.home)
+                starts.append(lambda: self.home)
+        starts = self._clear(starts) if self.start == 'random' else [draw() for draw in starts]
         return np.ascontiguousarray(np.array(goals).T), np.ascontiguousarray(np.array(starts).T)
+
+    def _clear(self, draws: list) -> list:
+        """One configuration from each draw (a function of its env's generator), drawn again while the arm would be
+        in collision there (with a body): every env's draws come in the order a single env makes them."""
+        out = [draw() for draw in draws]
+        if self.body is None:
+            return out
+        waiting = list(range(len(out)))
+        for _ in range(MAX_DRAWS):
+            hits = self.body.in_collision(np.array([out[i] for i in waiting]))
+            waiting = [i for i, hit in zip(waiting, hits) if hit]
+            if not waiting:
+                return out
+            for i in waiting:
+                out[i] = draws[i]()
+        raise ReachError(f'no configuration clear of collisions in {MAX_DRAWS} draws: the obstacles fill the arm\'s '
+                         f'workspace')
+
+    def guard(self, before_t: np.ndarray, after_t: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """(joint positions (n, N), collision (N,) or None without a body): a motion that would put the arm in
+        contact with itself or an obstacle is not made, and that arm holds where it was."""
+        if self.body is None:
+            return after_t, None
+        hit = self.body.in_collision(after_t.T)
+        if hit.any():
+            after_t = after_t.copy()
+            after_t[:, hit] = before_t[:, hit]
+        return after_t, hit
 
     def place(self, q_t: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(tip (3, N), Jacobian (3, n, N) for ee control, else None) of joint positions q_t (n, N)."""
@@ -237,18 +286,24 @@ class ReachEnv(gymnasium.Env):
     'chained'), reward_type ('sparse' or 'dense'), distance_threshold (0.05 m), ee_step (default: a twentieth of the
     chain), damping (of the least squares; default ee_step), home (joint positions, a list in the arm's order or a
     dict; default mid-range), urdf (a URDF text instead of a model file), render_mode ('rgb_array'), limit_avoidance
-    (0 to 10, default 4)."""
+    (0 to 10, default 4), obstacles (boxes and spheres in the arm's base frame: a list of {box: [sx, sy, sz],
+    position: [x, y, z], rpy: [r, p, y]} or {sphere: r, position: [x, y, z]}, or a YAML file or text of one;
+    robot_ai.reach.collision), collision (the arm's body from its URDF <collision> geometry checked against itself
+    and the obstacles; default: on when obstacles are given). With a body, goals and random starts are drawn clear
+    of collisions, and a step whose motion would touch is not made: the arm holds, info['collision'] is True, the
+    episode goes on."""
 
     metadata = {'render_modes': ['rgb_array'], 'render_fps': RENDER_FPS}
 
     def __init__(self, model: str | None = None, xacro_args=None, tip: str | None = None, control: str = 'ee',
                  start: str = 'home', reward_type: str = 'sparse', distance_threshold: float = DISTANCE_THRESHOLD,
                  ee_step: float | None = None, damping: float | None = None, home=None, urdf: str | None = None,
-                 render_mode: str | None = None, limit_avoidance: float = LIMIT_AVOIDANCE):
+                 render_mode: str | None = None, limit_avoidance: float = LIMIT_AVOIDANCE, obstacles=None,
+                 collision: bool | None = None):
         if render_mode not in (None, *self.metadata['render_modes']):
             raise ReachError(f'render_mode must be one of {self.metadata["render_modes"]} or None, got {render_mode!r}')
         self.setup = ReachSetup(model, xacro_args, tip, control, start, reward_type, distance_threshold, ee_step,
-                                damping, home, urdf, limit_avoidance)
+                                damping, home, urdf, limit_avoidance, obstacles, collision)
         self.arm = self.setup.arm
         self.task = self.setup.task
         self.observation_space = self.setup.observation_space
@@ -280,11 +335,17 @@ class ReachEnv(gymnasium.Env):
         if self._q is None:
             raise ResetNeeded('Cannot call env.step() before calling env.reset()')
         a = self.setup.check_action_one(action)
-        self._q = self.setup.move_one(self._q, self._jac, a)
+        q = self.setup.move_one(self._q, self._jac, a)
+        info = {}
+        if self.setup.body is not None:
+            info['collision'] = bool(self.setup.body.in_collision(np.array([q]))[0])
+            q = self._q if info['collision'] else q        # the arm holds (ReachSetup.guard)
+        self._q = q
         self._tip, self._jac = self.setup.place_one(self._q)
         distance = goal_distance_one(self._tip, self._goal)
+        info['is_success'] = distance < self.task.distance_threshold
         return (self.setup.observation_one(self._q, self._tip, self._goal), self.task.reward_one(distance), False,
-                False, {'is_success': distance < self.task.distance_threshold})
+                False, info)
 
     def _info(self) -> dict:
         return {'is_success': goal_distance_one(self._tip, self._goal) < self.task.distance_threshold}
@@ -410,16 +471,23 @@ class ReachVectorEnv(VectorEnv):
         stepping = ~self._autoreset
         a = self.setup.check_actions(actions[stepping])
         rows = np.flatnonzero(stepping)
+        collision = np.zeros(self.num_envs, dtype=np.bool_)
         if len(rows) == self.num_envs:
-            self._q = self.setup.move(self._q, self._jac, np.ascontiguousarray(a.T))
+            q, hit = self.setup.guard(self._q, self.setup.move(self._q, self._jac, np.ascontiguousarray(a.T)))
+            self._q = q
             self._tip, self._jac = self.setup.place(self._q)
+            if hit is not None:
+                collision[:] = hit
         elif len(rows):
             jac = self._jac[:, :, rows] if self._jac is not None else None
-            q = self.setup.move(self._q[:, rows], jac, np.ascontiguousarray(a.T))
+            q, hit = self.setup.guard(self._q[:, rows], self.setup.move(self._q[:, rows], jac,
+                                                                          np.ascontiguousarray(a.T)))
             tip, jac = self.setup.place(q)
             self._q[:, rows], self._tip[:, rows] = q, tip
             if jac is not None:
                 self._jac[:, :, rows] = jac
+            if hit is not None:
+                collision[rows] = hit
         resetting = np.flatnonzero(self._autoreset)
         if len(resetting):
             self._reset_envs(resetting, [None] * self.num_envs)
@@ -431,6 +499,8 @@ class ReachVectorEnv(VectorEnv):
         self._autoreset = truncations.copy()
         infos = {'is_success': distance < self.task.distance_threshold,
                  '_is_success': np.ones(self.num_envs, dtype=np.bool_)}
+        if self.setup.body is not None:         # as SyncVectorEnv gathers the envs' info['collision']
+            infos = {'collision': collision, '_collision': stepping.copy(), **infos}
         return ReachSetup.observations(self._q, self._tip, self._goal), rewards, terminations, truncations, infos
 
     def render(self):

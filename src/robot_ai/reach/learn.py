@@ -34,7 +34,8 @@ PRIOR_STATES = 2000             # random configurations and goals that seed the 
 HELD_OUT_EPISODES = 1000
 HELD_OUT_SEED = 2 ** 31         # held-out goals: seeds no training iteration draws (those are below 2 ** 31)
 CHAIN_ENVS = 100               # chained evaluation: this many arms, each through its episodes one after another
-MISSES = {'beyond': 'beyond the arm\'s reach', 'limits': 'stalled at joint limits', 'other': 'stalled elsewhere'}
+MISSES = {'beyond': 'beyond the arm\'s reach', 'collision': 'blocked by a collision',
+          'limits': 'stalled at joint limits', 'other': 'stalled elsewhere'}
 SETTINGS = ars.ARSSettings(iterations=80, directions=32, top_directions=16, step_size=0.1, noise=0.1, episodes=8,
                            eval_episodes=256, decay=0.9, bias=True, normalize=True)
 
@@ -43,7 +44,8 @@ SETTINGS = ars.ARSSettings(iterations=80, directions=32, top_directions=16, step
 class Evaluation:
     """A policy over fresh goals: the success rate (tip within the threshold at the last step), the final
     distances (episodes,), the seed of the first episode, where episodes started ('home', 'random' or 'chained'),
-    and the goals missed by reason (beyond reach, at joint limits, neither: MISSES' keys)."""
+    and the goals missed by reason (beyond reach, the last motion refused by a collision, at joint limits, none of
+    these: MISSES' keys)."""
     success_rate: float
     distances: np.ndarray
     seed: int
@@ -162,7 +164,7 @@ def evaluate(policy, setup: ReachSetup, episodes: int = HELD_OUT_EPISODES, seed:
         setup.start = start
     chained = start == 'chained'
     width = min(episodes, CHAIN_ENVS if chained else batch)
-    distances, successes, goals, configurations = [], [], [], []
+    distances, successes, goals, configurations, blocked = [], [], [], [], []
     for first in range(0, episodes, width if not chained else episodes):
         k = min(width, episodes - first)
         env = ReachVectorEnv(k, setup=setup)
@@ -175,14 +177,17 @@ def evaluate(policy, setup: ReachSetup, episodes: int = HELD_OUT_EPISODES, seed:
                 obs, _, _, _, infos = env.step(policy.act_batch(ars.flatten_batch(space, obs)))
             distances.append(final_distance(obs))
             successes.append(infos['is_success'])
+            blocked.append(infos.get('collision', np.zeros(k, dtype=bool)))     # its last motion was refused
             goals.append(obs['desired_goal'])
             configurations.append(env._q.T.copy())
         env.close()
     distances, successes = np.concatenate(distances)[:episodes], np.concatenate(successes)[:episodes]
     goals, configurations = np.concatenate(goals)[:episodes], np.concatenate(configurations)[:episodes]
+    blocked = np.concatenate(blocked)[:episodes]
     misses = dict.fromkeys(MISSES, 0)
     for i in np.flatnonzero(~successes):
-        misses[why_unreached(setup.arm, goals[i], configurations[i], float(distances[i]))[0]] += 1
+        kind = why_unreached(setup.arm, goals[i], configurations[i], float(distances[i]))[0]
+        misses['collision' if blocked[i] and kind != 'beyond' else kind] += 1
     return Evaluation(float(successes.mean()), distances, seed, start, misses)
 
 

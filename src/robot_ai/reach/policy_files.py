@@ -24,7 +24,7 @@ from robot_ai.reach.env import ReachSetup
 ENV_ID = 'robot_ai/Reach-v0'
 REACH_ENVS = (ENV_ID, 'robot_ai/RosReach-v0')
 ENV_SETTINGS = ('model', 'xacro_args', 'tip', 'control', 'start', 'distance_threshold', 'ee_step', 'damping', 'home',
-                'limit_avoidance')
+                'limit_avoidance', 'obstacles', 'collision')
 
 
 def save(training, path: str) -> str:
