@@ -4,6 +4,8 @@
 - ReachVectorEnv steps per second at N = 1, 64 and 4096 arms (the package's UR5 and the Panda of ../shared/robots),
   tip control ('ee': Jacobian and damped least squares every step) and joint control, random actions;
 - one ReachEnv made by gymnasium.make (TimeLimit, order and passive-checker wrappers), as an agent steps it;
+- the same with collisions: the KUKA LWR's body (its URDF collision geometry as spheres) checked against itself and a
+  table and two boxes every step;
 - PandaReach-v3, one env by gymnasium.make, where panda-gym is installed (it is not a dependency: install it in a
   venv of its own, `pip install panda-gym`, and run this script with that venv's python and PYTHONPATH=src).
 
@@ -24,6 +26,12 @@ sys.path.insert(0, os.path.join(HERE, '..', 'src'))
 from robot_ai.reach import ReachVectorEnv  # noqa: E402  (the import registers robot_ai/Reach-v0)
 
 PANDA = os.path.join(HERE, '..', '..', 'shared', 'robots', 'panda.urdf')
+KUKA = os.path.join(HERE, '..', '..', 'shared', 'robots', 'kuka_lwr_arm.urdf')
+# a table and two boxes in the arm's base frame: the KUKA LWR's URDF carries its collision geometry (boxes, cylinders,
+# spheres), so its body is checked against itself and them every step
+WORLD = [{'box': [2.0, 2.0, 0.05], 'position': [0, 0, -0.03], 'name': 'table'},
+         {'box': [0.2, 0.3, 0.4], 'position': [0.45, 0.1, 0.3], 'rpy': [0, 0, 0.5], 'name': 'box 1'},
+         {'box': [0.1, 0.1, 0.6], 'position': [-0.3, -0.4, 0.5], 'name': 'box 2'}]
 
 
 def vector_rate(n: int, seconds: float, **kwargs) -> float:
@@ -82,6 +90,13 @@ def main() -> int:
             for n in (1, 64, 4096):
                 rate = vector_rate(n, a.seconds, model=model, control=control)
                 print(f'  ReachVectorEnv {name:14s} {control:6s} N = {n:4d}: {rate:12,.0f} steps/s{versus(rate)}')
+    name = 'KUKA + world'
+    rate = single_rate(gymnasium.make('robot_ai/Reach-v0', model=os.path.abspath(KUKA), obstacles=WORLD), a.seconds)
+    print(f'  Reach-v0 {name:14s} gymnasium.make, one env: {rate:12,.0f} steps/s{versus(rate)}  (its body and a '
+          f'table and two boxes checked every step)')
+    for n in (1, 64, 4096):
+        rate = vector_rate(n, a.seconds, model=os.path.abspath(KUKA), obstacles=WORLD)
+        print(f'  ReachVectorEnv {name:14s} ee     N = {n:4d}: {rate:12,.0f} steps/s{versus(rate)}')
     return 0
 
 

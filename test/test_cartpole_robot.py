@@ -158,8 +158,14 @@ class TestCartPoleRobot(unittest.TestCase):
         time.sleep(3.0)
         sub.unregister()
         checked = 0
+        gate = 1.0 / 200.0       # the launch's publish_frequency at real time: forward_kinematics, as
+        previous = None          # robot_state_publisher, skips a state stamped within it of the last one published
         for msg in msgs[10:-10]:
             x, _, theta, _ = state_of(msg)
+            close = previous is not None and (msg.header.stamp - previous).to_sec() < 2 * gate
+            previous = msg.header.stamp
+            if close:            # a late timer's catch-up tick under load: its tf may be its neighbour's
+                continue
             try:
                 pole = buf.lookup_transform('rail', 'pole', msg.header.stamp, rospy.Duration(1.0))
                 cart = buf.lookup_transform('rail', 'cart', msg.header.stamp, rospy.Duration(1.0))

@@ -14,7 +14,7 @@ from robot_ai.reach.arm import Arm, ReachError
 from robot_ai.reach.collision import CollisionModel, fit_spheres, parse_obstacles
 from robot_ai.reach.model import load_model
 
-ROBOTS = os.path.join(os.path.dirname(__file__), '..', '..', '..', 'shared', 'robots')
+ROBOTS = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', '..', 'shared', 'robots')
 WORLD = [{'box': [2.0, 2.0, 0.05], 'position': [0, 0, -0.03], 'name': 'table'},
          {'box': [0.2, 0.3, 0.4], 'position': [0.45, 0.1, 0.3], 'rpy': [0, 0, 0.5], 'name': 'box 1'},
          {'box': [0.1, 0.1, 0.6], 'position': [-0.3, -0.4, 0.5], 'name': 'box 2'}]

@@ -145,8 +145,9 @@ class Group:
                 except ProcessLookupError:
                     pass
 
-    def remove(self, wait: float = 5.0) -> None:
-        """Remove the group's folders once its processes are gone (killed: kill())."""
+    def remove(self, wait: float = 20.0) -> None:
+        """Remove the group's folders once its processes are gone (killed: kill()); on a loaded machine sixty killed
+        busy loops take seconds to go, and a folder left behind would stay until the next class run's sweep."""
         deadline = time.monotonic() + wait
         for folder in reversed(self.folders):
             while os.path.isdir(folder):

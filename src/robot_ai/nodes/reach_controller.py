@@ -23,6 +23,11 @@ ROS Parameters
     ~command_joints (list of str, [] = the robot's active joints): the joints of the command, in its order (a real
         controller's joints); those the arm does not move hold the positions joint_states reports.
     ~stalled_after (float, 2.0): seconds without a millimetre of progress before a goal is called not reached.
+    ~obstacles (str or list, ""): obstacles in the arm's base frame, a YAML file (or a list parameter) of
+        {box: [sx, sy, sz], position: [x, y, z], rpy: [r, p, y]} or {sphere: r, position: [x, y, z]}; empty: the
+        world the policy file learned in, if any. With a world, the arm's body (its URDF collision geometry) is
+        checked on every command: a command whose motion would touch the arm itself or an obstacle is not sent, the
+        arm holds and the node says which links would touch.
 
 ROS Subscribers
     joint_states (sensor_msgs/JointState): the arm's joints.
@@ -33,6 +38,7 @@ ROS Publishers
     joint_group_position_controller/command (std_msgs/Float64MultiArray): positions of ~command_joints.
     ~goal_marker (visualization_msgs/Marker, latched): the goal, a sphere of the threshold's size, in the base frame.
     ~distance (std_msgs/Float64): the tip's distance to the goal, every step.
+    ~obstacle_markers (visualization_msgs/MarkerArray, latched): the obstacles, in the base frame.
 
 ROS Services
     ~home (std_srvs/Trigger): the arm to its home (the middle of each joint's range, the policy's), goal dropped.
@@ -55,7 +61,7 @@ from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger, TriggerResponse
-from visualization_msgs.msg import Marker
+from visualization_msgs.msg import Marker, MarkerArray
 
 from robot_ai import ars
 from robot_ai import policies
@@ -74,6 +80,14 @@ AT_HOME = 0.01            # rad (or m): every joint this near home is home (a re
 MAX_GOAL = 1000.0         # m from the base: a goal farther out is a mistake (a 1e308 goal), not a place to reach
 
 
+def _quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of a rotation matrix."""
+    from tf import transformations as tft
+    m = np.identity(4)
+    m[:3, :3] = rotation
+    return tuple(float(v) for v in tft.quaternion_from_matrix(m))
+
+
 def _rotate(q, v) -> list[float]:
     """v rotated by the unit quaternion q (x, y, z, w)."""
     x, y, z, w = q
@@ -87,7 +101,9 @@ class ReachController:
         self.rate = number_param('~rate', 20.0, 'a positive number of steps per second', lambda v: 0 < v <= 1000)
         self.stalled_after = number_param('~stalled_after', 2.0, 'a positive number of seconds',
                                           lambda v: 0 < v <= 3600)
-        self.policy, self.setup, info, success = self._policy(xml, str_param('~policy', ''), str_param('~tip', ''))
+        world = rospy.get_param('~obstacles', '') or None
+        self.policy, self.setup, info, success = self._policy(xml, str_param('~policy', ''), str_param('~tip', ''),
+                                                              world)
         self._announce(info, success)
         arm = self.setup.arm
         self.base, self.tip = arm.base, arm.tip
@@ -116,6 +132,8 @@ class ReachController:
         self.command_pub = rospy.Publisher(COMMAND_TOPIC, Float64MultiArray, queue_size=1, tcp_nodelay=True)
         self.marker_pub = rospy.Publisher('~goal_marker', Marker, queue_size=1, latch=True)
         self.distance_pub = rospy.Publisher('~distance', Float64, queue_size=1)
+        self.obstacles_pub = rospy.Publisher('~obstacle_markers', MarkerArray, queue_size=1, latch=True)
+        self._draw_obstacles()
         self.subs = [rospy.Subscriber('joint_states', JointState, self._on_joints, queue_size=1, tcp_nodelay=True),
                      rospy.Subscriber('/clicked_point', PointStamped, self._on_goal, queue_size=1),
                      rospy.Subscriber('~goal', PointStamped, self._on_goal, queue_size=1)]
@@ -133,21 +151,21 @@ class ReachController:
         rospy.loginfo(f'reach_controller: driving with {info}')
 
     @staticmethod
-    def _policy(xml: str, path: str, tip: str):
+    def _policy(xml: str, path: str, tip: str, world=None):
         """(an object with act_batch(flat observations), the reach setup it acts in, a line on it, its success rate)
-        of ~policy, or of an ARS run on the robot description when it is empty."""
+        of ~policy, or of an ARS run on the robot description when it is empty; world: ~obstacles."""
         if path:
             try:
-                policy, setup, note = policy_files.load(path, urdf=xml, tip=tip or None)
+                policy, setup, note = policy_files.load(path, urdf=xml, tip=tip or None, obstacles=world)
             except (policies.PolicyError, ReachError) as e:
                 raise ValueError(f'~policy: {e}') from None
             if note:
                 rospy.logwarn(note)
             return policy.actor, setup, policy.describe(), policy.metadata.get('success_rate')
         try:
-            setup = ReachSetup(urdf=xml, tip=tip or None)
+            setup = ReachSetup(urdf=xml, tip=tip or None, obstacles=world)
         except ReachError as e:
-            raise ValueError(f'~tip: {e}') from None
+            raise ValueError(f'~tip or ~obstacles: {e}') from None
         for warning in setup.arm.warnings:
             rospy.logwarn(f'reach_controller: {warning}')
         rospy.loginfo(f'reach_controller: no ~policy: ARS learns to reach with {setup.arm.describe()} (seconds; '
@@ -156,8 +174,9 @@ class ReachController:
         # a Ctrl-C during the training ends it at the next iteration (it took ARS's seconds, and under load minutes,
         # before roslaunch's escalation to SIGTERM 15 s later)
         stop = rospy.core.is_shutdown_requested
-        training = learn.train(dict(urdf=xml, tip=setup.arm.tip), seed=0, should_stop=stop,
-                               evaluate_episodes=1000)
+        kwargs = dict(urdf=xml, tip=setup.arm.tip) if world is None else dict(urdf=xml, tip=setup.arm.tip,
+                                                                                obstacles=world)
+        training = learn.train(kwargs, seed=0, should_stop=stop, evaluate_episodes=1000)
         if stop():
             raise rospy.ROSInterruptException('reach_controller: shut down during its training')
         rate = training.held_out.success_rate
@@ -240,6 +259,22 @@ class ReachController:
             positions[k] = value
         publish(self.command_pub, Float64MultiArray(data=positions))
 
+    def _draw_obstacles(self) -> None:
+        markers = MarkerArray()
+        for k, o in enumerate(self.setup.obstacles):
+            m = Marker()
+            m.header.frame_id = self.base
+            m.ns, m.id, m.action = 'obstacles', k, Marker.ADD
+            m.type = Marker.CUBE if o.kind == 'box' else Marker.SPHERE
+            size = o.size if o.kind == 'box' else (2 * o.size[0],) * 3
+            m.scale.x, m.scale.y, m.scale.z = size
+            m.pose.position.x, m.pose.position.y, m.pose.position.z = o.pose[:3, 3]
+            x, y, z, w = _quaternion(o.pose[:3, :3])
+            m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z, m.pose.orientation.w = x, y, z, w
+            m.color.r, m.color.g, m.color.b, m.color.a = 0.55, 0.45, 0.35, 0.8
+            markers.markers.append(m)
+        publish(self.obstacles_pub, markers)
+
     def _tip(self) -> list[float] | None:
         try:
             t = self.tf_buffer.lookup_transform(self.base, self.tip, rospy.Time(0)).transform.translation
@@ -280,6 +315,11 @@ class ReachController:
             rospy.logerr_throttle(10.0, f'the policy gave no action for this state, so no command was sent: {e}')
             return
         target = self.setup.move_one(q, self.setup.place_one(q)[1], a)
+        body = self.setup.body
+        if body is not None and body.in_collision(np.array([target]))[0]:
+            touching = ', '.join(body.contacts(target)) or 'a contact'
+            rospy.logwarn_throttle(2.0, f'holding: the next motion would touch ({touching}), so it was not sent')
+            target = q                    # the arm holds where it is
         with self.lock:                  # a ~home or a new goal that came meanwhile wins: no stale command after it
             if goal is not self.goal:
                 return

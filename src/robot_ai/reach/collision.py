@@ -427,15 +427,54 @@ class CollisionModel:
         return out
 
     def in_collision(self, q) -> np.ndarray:
-        """(N,) bool: the arm touches itself (a checked pair) or an obstacle, for (N, arm.n) configurations."""
-        world = self.sphere_centres(q)
-        hit = np.zeros(len(world), dtype=bool)
+        """(N,) bool: the arm touches itself (a checked pair) or an obstacle, for (N, arm.n) configurations. The
+        numbers run coordinate by coordinate over (spheres, N) arrays: the batch is the fast axis."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        x, y, z = self._centres_by_coordinate(q)
+        hit = np.zeros(len(q), dtype=bool)
         if len(self.pair_a):
-            d = np.linalg.norm(world[:, self.pair_a] - world[:, self.pair_b], axis=2)
-            hit |= np.any(d < self.radii[self.pair_a] + self.radii[self.pair_b], axis=1)
+            a, b = self.pair_a, self.pair_b
+            reach = (self.radii[a] + self.radii[b])[:, None] ** 2
+            d2 = (x[a] - x[b]) ** 2
+            d2 += (y[a] - y[b]) ** 2
+            d2 += (z[a] - z[b]) ** 2
+            hit |= (d2 < reach).any(axis=0)
         if self.obstacles and len(self.moving_spheres):
-            hit |= self._obstacle_hits(world).any(axis=(1, 2))
+            m = self.moving_spheres
+            r2 = (self.radii[m] ** 2)[:, None]
+            xs, ys, zs = x[m], y[m], z[m]
+            for o in self.obstacles:
+                rot, (tx, ty, tz) = o.pose[:3, :3], o.pose[:3, 3]
+                dx, dy, dz = xs - tx, ys - ty, zs - tz
+                if o.kind == 'box':
+                    d2 = np.zeros_like(dx)
+                    for axis in range(3):          # the sphere's centre in the box's frame, clamped outside it
+                        local = rot[0, axis] * dx + rot[1, axis] * dy + rot[2, axis] * dz
+                        d2 += np.maximum(np.abs(local) - o.size[axis] / 2.0, 0.0) ** 2
+                    hit |= (d2 < r2).any(axis=0)
+                else:
+                    hit |= (dx * dx + dy * dy + dz * dz < (self.radii[m][:, None] + o.size[0]) ** 2).any(axis=0)
         return hit
+
+    def _centres_by_coordinate(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The spheres' centres as three (K, N) arrays, x, y and z in the arm's base frame."""
+        n = len(q)
+        if not hasattr(self, '_still_by_coordinate'):
+            still = self.sphere_centres(self.arm.home[None])[0]
+            self._still_by_coordinate = still.T.copy()           # (3, K); the moving ones overwritten below
+        out = np.empty((3, len(self.radii), n))
+        out[:] = self._still_by_coordinate[:, :, None]
+        poses = self.link_poses(q)
+        for i, link in enumerate(self.links):
+            if not self.moving[i]:
+                continue
+            idx = np.flatnonzero(self.owner == i)
+            p = poses[link]
+            c = self.centres[idx]                                  # (k, 3) in the link's frame
+            for row in range(3):
+                out[row, idx] = (c[:, 0:1] * p[:, row, 0] + c[:, 1:2] * p[:, row, 1] + c[:, 2:3] * p[:, row, 2]
+                                 + p[:, row, 3])
+        return out[0], out[1], out[2]
 
     def contacts(self, q) -> list[str]:
         """The pairs in contact in one configuration, by name ('link_a - link_b', 'link - <obstacle>')."""
