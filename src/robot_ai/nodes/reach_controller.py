@@ -80,6 +80,10 @@ AT_HOME = 0.01            # rad (or m): every joint this near home is home (a re
 MAX_GOAL = 1000.0         # m from the base: a goal farther out is a mistake (a 1e308 goal), not a place to reach
 
 
+TRAIL_STEP = 0.02          # rad between the configurations kept of the way the arm came
+MAX_TRAIL = 5000           # configurations kept (the oldest go first)
+
+
 def _quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
     """(x, y, z, w) of a rotation matrix."""
     from tf import transformations as tft
@@ -127,6 +131,8 @@ class ReachController:
         self.homing = False                       # stalled at joint limits: going home to try again from there
         self.retried = False                      # the goal's one retry from home was made
         self.homing_since = 0.0
+        self.blocked = ''                         # the contacts that refused the last motion ('' when it was sent)
+        self.trail: list[list[float]] = []        # with a body: the configurations the arm came by, clear of contacts
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(10))
         self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
         self.command_pub = rospy.Publisher(COMMAND_TOPIC, Float64MultiArray, queue_size=1, tcp_nodelay=True)
@@ -214,8 +220,14 @@ class ReachController:
             rospy.logwarn(f'goal ({shown}) in {self.base} ignored: each coordinate must be a finite number of metres, '
                           f'at most {MAX_GOAL:g} from the base')
             return
+        inside = next((o.name for o in self.setup.obstacles if o.contains(goal)), None)
+        if inside is not None:
+            rospy.logwarn(f'goal ({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f}) in {self.base} ignored: it is inside '
+                          f'{inside}')
+            return
         with self.lock:
             self.goal, self.goal_since, self.best, self.said = goal, time.monotonic(), float('inf'), False
+            self.blocked = ''
             self.best_q, self.holding, self.homing, self.retried = None, False, False, False
             self.improved_at = self.goal_since
         self._draw(goal)
@@ -316,10 +328,15 @@ class ReachController:
             return
         target = self.setup.move_one(q, self.setup.place_one(q)[1], a)
         body = self.setup.body
+        blocked = ''
         if body is not None and body.in_collision(np.array([target]))[0]:
-            touching = ', '.join(body.contacts(target)) or 'a contact'
-            rospy.logwarn_throttle(2.0, f'holding: the next motion would touch ({touching}), so it was not sent')
+            blocked = ', '.join(body.contacts(target)) or 'a contact'
+            rospy.logwarn_throttle(2.0, f'holding: the next motion would touch ({blocked}), so it was not sent')
             target = q                    # the arm holds where it is
+        elif body is not None and (not self.trail or max(abs(a - b) for a, b in zip(q, self.trail[-1])) > TRAIL_STEP):
+            self.trail.append(q)          # where the arm is: clear of contacts, the way back home
+            del self.trail[:-MAX_TRAIL]
+        self.blocked = blocked
         with self.lock:                  # a ~home or a new goal that came meanwhile wins: no stale command after it
             if goal is not self.goal:
                 return
@@ -348,7 +365,9 @@ class ReachController:
             if not (reached or stalled):
                 return None
             kind, why = why_unreached(self.setup.arm, goal, q, distance) if not reached else ('', '')
-            if kind == 'limits' and not self.retried:       # home, and once more from there
+            if not reached and self.blocked and kind != 'beyond':
+                kind, why = 'collision', f'blocked {distance:.3f} m away by a collision ({self.blocked})'
+            if kind in ('limits', 'collision') and not self.retried:       # home, and once more from there
                 self.homing, self.retried, self.homing_since = True, True, now
                 rospy.loginfo(f'{why}: going home to try again from there')
                 return self.setup.home.tolist()
@@ -364,7 +383,9 @@ class ReachController:
 
     def _home_step(self, goal: list[float], joints: dict, q: list[float]) -> None:
         """On the way home for a retry: home commanded until every joint is there (or ~stalled_after has passed
-        twice without getting there), then the policy drives again from home, its stall clock started afresh."""
+        twice without getting there), then the policy drives again from home, its stall clock started afresh. With
+        a body, the arm goes back the way it came (the configurations it passed, each clear of contacts), then
+        home, and a step home that would touch is not sent."""
         home = self.setup.home.tolist()
         there = max(abs(a - b) for a, b in zip(q, home)) < AT_HOME
         with self.lock:
@@ -372,8 +393,17 @@ class ReachController:
                 return
             if there or time.monotonic() - self.homing_since > 2 * self.stalled_after + 30.0:
                 self.homing, self.improved_at, self.progress_mark = False, time.monotonic(), float('inf')
+                if there:
+                    self.trail = [home]
                 return
-            self._command(joints, home)
+            while self.trail and max(abs(a - b) for a, b in zip(q, self.trail[-1])) < 2 * TRAIL_STEP:
+                self.trail.pop()          # passed: the next one back
+            target = self.trail[-1] if self.trail else home
+            body = self.setup.body
+            if body is not None and not self.trail and body.in_collision(np.array([home]))[0]:
+                rospy.logwarn_throttle(2.0, f'holding: home is in contact ({", ".join(body.contacts(home))})')
+                return
+            self._command(joints, target)
 
 
 @quiet_on_shutdown

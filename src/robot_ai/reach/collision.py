@@ -45,6 +45,13 @@ class Obstacle:
     name: str = ''
     spec: dict = field(compare=False, default_factory=dict)
 
+    def contains(self, point) -> bool:
+        """Whether a point (x, y, z in the arm's base frame) lies inside the obstacle."""
+        local = (np.asarray(point, dtype=float) - self.pose[:3, 3]) @ self.pose[:3, :3]
+        if self.kind == 'box':
+            return bool(np.all(np.abs(local) <= np.array(self.size) / 2.0))
+        return bool(np.linalg.norm(local) <= self.size[0])
+
 
 def _rpy_matrix(rpy) -> np.ndarray:
     r, p, y = rpy
