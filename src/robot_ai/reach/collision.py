@@ -471,17 +471,81 @@ class CollisionModel:
             self._still_by_coordinate = still.T.copy()           # (3, K); the moving ones overwritten below
         out = np.empty((3, len(self.radii), n))
         out[:] = self._still_by_coordinate[:, :, None]
-        poses = self.link_poses(q)
+        poses = self._moving_poses(q)
         for i, link in enumerate(self.links):
             if not self.moving[i]:
                 continue
             idx = np.flatnonzero(self.owner == i)
-            p = poses[link]
+            rot, pos = poses[link]
             c = self.centres[idx]                                  # (k, 3) in the link's frame
             for row in range(3):
-                out[row, idx] = (c[:, 0:1] * p[:, row, 0] + c[:, 1:2] * p[:, row, 1] + c[:, 2:3] * p[:, row, 2]
-                                 + p[:, row, 3])
+                out[row, idx] = (c[:, 0:1] * rot[row, 0] + c[:, 1:2] * rot[row, 1] + c[:, 2:3] * rot[row, 2]
+                                 + pos[row])
         return out[0], out[1], out[2]
+
+    def _moving_poses(self, q: np.ndarray) -> dict:
+        """{moving body link: (rotation (3, 3, N), position (3, N))} in the arm's base frame: the joints' transforms
+        composed coordinate by coordinate (the batch the fast axis: twice as fast as numpy's matmul of (N, 4, 4))."""
+        if not hasattr(self, '_plan'):
+            below = {}
+            for j in self.tree.joints.values():
+                below.setdefault(j.parent, []).append(j)
+            wanted = {link for link, m in zip(self.links, self.moving) if m}
+            parent = {j.child: j for j in self.tree.joints.values()}
+            needed = set()
+            for link in wanted:                 # the joints from the arm's base down to each moving body link
+                while link in parent and link != self.arm.base:
+                    needed.add(parent[link].name)
+                    link = parent[link].parent
+            self._plan = [self.tree.joints[name] for name in self.tree.joint_order if name in needed]
+            self._wanted = wanted
+        n = len(q)
+        values = self.tree.resolve_positions({name: q[:, i] for i, name in enumerate(self.arm.joints)})
+        if not hasattr(self, '_at_home'):                   # links that do not move: where they always are
+            self._at_home = self.tree.link_poses_batch(self.arm.home[None], names=self.arm.joints)
+            base = np.linalg.inv(self._at_home[self.arm.base][0])
+            self._at_home = {link: base @ p[0] for link, p in self._at_home.items()}
+        poses = {}
+
+        def pose_of(link):
+            if link not in poses:
+                p = self._at_home[link]
+                poses[link] = (np.repeat(p[:3, :3, None], n, axis=2), np.repeat(p[:3, 3, None], n, axis=1))
+            return poses[link]
+        poses[self.arm.base] = (np.repeat(np.identity(3)[:, :, None], n, axis=2), np.zeros((3, n)))
+        for j in self._plan:
+            rot, pos = pose_of(j.parent)
+            fixed = j.matrix
+            # the origin: R' = R Ro, p' = p + R to
+            r_origin = np.einsum('ijn,jk->ikn', rot, fixed[:3, :3])
+            p_origin = pos + np.einsum('ijn,j->in', rot, fixed[:3, 3])
+            theta = values.get(j.name) if j.type in ('revolute', 'continuous', 'prismatic') else None
+            if theta is None:
+                poses[j.child] = (r_origin, p_origin)
+                continue
+            theta = np.broadcast_to(np.asarray(theta, dtype=float), (n,))
+            k = j.axis
+            if j.type == 'prismatic':
+                poses[j.child] = (r_origin, p_origin + np.einsum('ijn,j->in', r_origin, k) * theta)
+                continue
+            c, s_, v = np.cos(theta), np.sin(theta), 1.0 - np.cos(theta)
+            motion = np.empty((3, 3, n))         # Rodrigues: c I + s [k]x + (1 - c) k k^T
+            motion[0, 0] = c + k[0] * k[0] * v
+            motion[0, 1] = k[0] * k[1] * v - k[2] * s_
+            motion[0, 2] = k[0] * k[2] * v + k[1] * s_
+            motion[1, 0] = k[1] * k[0] * v + k[2] * s_
+            motion[1, 1] = c + k[1] * k[1] * v
+            motion[1, 2] = k[1] * k[2] * v - k[0] * s_
+            motion[2, 0] = k[2] * k[0] * v - k[1] * s_
+            motion[2, 1] = k[2] * k[1] * v + k[0] * s_
+            motion[2, 2] = c + k[2] * k[2] * v
+            rot_child = np.empty((3, 3, n))
+            for a in range(3):
+                for b in range(3):
+                    rot_child[a, b] = (r_origin[a, 0] * motion[0, b] + r_origin[a, 1] * motion[1, b]
+                                       + r_origin[a, 2] * motion[2, b])
+            poses[j.child] = (rot_child, p_origin)
+        return {link: poses[link] for link in self._wanted if link in poses}
 
     def contacts(self, q) -> list[str]:
         """The pairs in contact in one configuration, by name ('link_a - link_b', 'link - <obstacle>')."""
