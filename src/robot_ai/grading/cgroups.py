@@ -191,10 +191,11 @@ class BudgetClock:
         return self.used() > self.budget
 
 
-def sweep(prefix: str = 'check_fk_') -> list[str]:
+def sweep(prefix: str = 'check_fk_', maker: int | None = None) -> list[str]:
     """Kill and remove the groups named `<prefix><pid>_<n>` whose maker (process pid) has ended without removing them:
     a class run's grader, or a Ray worker, killed with SIGKILL (a Ray node's worker dies with its task's cancel or its
-    raylet). Their names."""
+    raylet); with maker, that process's own groups (a class run's last look: none of its groups outlives it, whatever
+    a folder's removal met under load). Their names."""
     if version() == 0:
         return []
     parents = [os.path.join(ROOT, PARENT)] + [os.path.join(ROOT, c, PARENT) for c in V1_CONTROLLERS + ('unified',)]
@@ -206,7 +207,9 @@ def sweep(prefix: str = 'check_fk_') -> list[str]:
             continue
         for name in names:
             pid = name[len(prefix):].split('_')[0] if name.startswith(prefix) else ''
-            if pid.isdigit() and not alive(int(pid)) and os.path.isdir(os.path.join(parent, name)):
+            if not pid.isdigit() or not os.path.isdir(os.path.join(parent, name)):
+                continue
+            if (int(pid) == maker) if maker is not None else not alive(int(pid)):
                 stale.setdefault(name, []).append(os.path.join(parent, name))
     for name, folders in stale.items():
         group = Group(name, folders=folders)

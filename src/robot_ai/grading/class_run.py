@@ -173,7 +173,8 @@ class Judges:
         self.running, self.groups, self.lock, self.stopping = {}, {}, threading.Lock(), []
 
     def stop(self) -> None:
-        """No judge starts from now on; those running are killed with their groups (their students: not graded)."""
+        """No judge starts from now on; those running are killed with their groups (their students: not graded), and
+        no group of this process's is left behind."""
         with self.lock:
             self.stopping.append(True)
             left = list(self.running.values())
@@ -181,6 +182,8 @@ class Judges:
             signal_group(proc.pid, signal.SIGKILL)
         for group in list(self.groups.values()):
             group.kill()
+        if self.share:
+            cgroups.sweep(maker=os.getpid())
 
     def one(self, index: int, student: str, original: str, shown_folder: str, report_path: str,
             hide: list[str]) -> candidates.Result | None:

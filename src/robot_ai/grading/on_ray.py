@@ -62,10 +62,8 @@ def grade_on_node(judging: Judging, index: int, student: str, shown_folder: str,
         except OSError:
             data = b''
         return result, data
-    except BaseException:        # a cancel (KeyboardInterrupt) or an error: no judge outlives the task
+    finally:                     # done, cancelled (a KeyboardInterrupt) or failed: no judge or group outlives the task
         judges.stop()
-        raise
-    finally:
         shutil.rmtree(work, ignore_errors=True)
 
 

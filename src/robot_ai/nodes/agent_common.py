@@ -334,6 +334,12 @@ def answer_load(path: str, kind: str, install: Callable[[Policy], str], env_id: 
     return LoadPolicyResponse(success=True, message=install(policy))
 
 
+def stopping() -> bool:
+    """Whether the node's shutdown has been asked for (from the moment a Ctrl-C comes, before rospy closes its
+    services): a service's work ends at once and its caller is answered while it still can be."""
+    return rospy.core.is_shutdown_requested() or rospy.is_shutdown()
+
+
 def answer(work: Callable, response_class, what: str):
     """A service's response: work() returns (the response's fields, result), fields None if the node's shutdown
     stopped the work; a RequestError or any other

@@ -49,7 +49,7 @@ from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.q_learning import Agent
 from robot_ai.msg import QLearningAction, QLearningFeedback, QLearningProgress, QLearningResult
 from robot_ai.nodes.agent_common import (CancelledRun, PlotProcess, agent_settings, answer, answer_goal, answer_load,
-                                         load_of_kind, policy_param, write_files)
+                                         load_of_kind, policy_param, stopping, write_files)
 from robot_ai.nodes.params import run_node
 from robot_ai.srv import (Act, ActResponse, EvaluateAgent, EvaluateAgentResponse, LoadPolicy, QLearning,
                           QLearningResponse)
@@ -131,7 +131,7 @@ class CartPoleQLearningNode:
         with self.train_lock:
             t0 = time.time()
             result = q_learning.train(training, req.seed, progress=progress, ray_address=self.ray_address,
-                                      should_stop=lambda: rospy.is_shutdown() or bool(should_stop and should_stop()))
+                                      should_stop=lambda: stopping() or bool(should_stop and should_stop()))
             for j, why in result.failed.items():
                 rospy.logerr(f'training: learner {j} (seed {req.seed + j}) failed: {why}')
             if result.cancelled:

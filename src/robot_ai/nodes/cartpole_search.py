@@ -42,7 +42,7 @@ from robot_ai.cartpole.dynamics import CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.msg import RandomSearchAction, RandomSearchFeedback, RandomSearchResult, SearchProgress
 from robot_ai.nodes.agent_common import (CancelledRun, PlotProcess, agent_settings, answer, answer_goal, answer_load,
-                                         policy_param, write_files)
+                                         policy_param, stopping, write_files)
 from robot_ai.nodes.params import run_node
 from robot_ai.srv import (Act, ActResponse, EvaluatePolicy, EvaluatePolicyResponse, LoadPolicy, RandomSearch,
                           RandomSearchResponse)
@@ -96,7 +96,7 @@ class CartPoleSearchNode:
             t0 = time.time()
             result = linear_search.random_search(search.dynamics, iterations, search.episodes, search.max_steps,
                                                  req.seed, search.final_episodes, progress=progress,
-                                                 should_stop=lambda: rospy.is_shutdown() or bool(
+                                                 should_stop=lambda: stopping() or bool(
                                                      should_stop and should_stop()))
             if result.cancelled:
                 return None, self._cancelled(result, req, env_id, time.time() - t0)
