@@ -126,7 +126,17 @@ class Group:
         return 0.0
 
     def kill(self) -> None:
-        """SIGKILL every process of the group (where the kernel can: cgroup.kill), else those its cgroup.procs name."""
+        """SIGKILL every process of the group (where the kernel can: cgroup.kill), else those its cgroup.procs name.
+        The CPU cap is lifted first: a killed process still needs the CPU to exit, and sixty busy loops held to one
+        core's quota took longer than the group's removal waited (its folder was left behind under load)."""
+        for folder in self.folders:
+            for name, unlimited in (('cpu.cfs_quota_us', -1), ('cpu.max', 'max')):
+                path = os.path.join(folder, name)
+                if os.path.exists(path):
+                    try:
+                        _write(path, unlimited)
+                    except OSError:
+                        pass
         if self.kill_file and os.path.exists(self.kill_file):
             try:
                 _write(self.kill_file, 1)
