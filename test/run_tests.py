@@ -15,6 +15,7 @@ import os
 import pathlib
 import subprocess
 import sys
+import threading
 import time
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -22,12 +23,16 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 # launch 959, pytest 521, check_fk 520, launch_rviz 194, check_fk_class 189, cartpole_q_learning 113, policy_files
 # 101, cartpole_robot 96, cartpole_search 85, across_machines 85, forward_kinematics_vs_rsp 83, ros_env 78, reach_ros
 # 51, forward_kinematics_node 41, bench_output 26, the rest under 20. The longest start first, so that the run ends
-# soon after its longest test; a .test file not named here runs after these, in name order. ray_cluster: 117 alone.
+# soon after its longest test; a .test file not named here runs after these, in name order. ray_cluster (117 s
+# alone) comes last: two class runs at once on this machine (its Ray nodes' and check_fk_class's hostile class) left
+# a control group's cpu folder behind in 3 of 5 loaded runs (not understood yet), so CLASS_RUNS never overlap.
 LONGEST_FIRST = ['launch.test', 'pytest', 'check_fk.test', 'launch_rviz.test', 'check_fk_class.test',
-                 'ray_cluster.test', 'cartpole_q_learning.test', 'policy_files.test', 'cartpole_robot.test',
+                 'cartpole_q_learning.test', 'policy_files.test', 'cartpole_robot.test',
                  'cartpole_search.test', 'across_machines.test', 'forward_kinematics_vs_rsp.test', 'ros_env.test',
                  'reach_ros.test', 'forward_kinematics_node.test', 'bench_output.test', 'check_fk_example.test',
-                 'forward_kinematics_hz.test', 'roslaunch-check']
+                 'forward_kinematics_hz.test', 'roslaunch-check', 'ray_cluster.test']
+CLASS_RUNS = {'check_fk_class.test', 'ray_cluster.test'}
+_class_run = threading.Lock()
 
 
 def targets() -> list[tuple[str, str]]:
@@ -41,6 +46,13 @@ def targets() -> list[tuple[str, str]]:
 
 
 def run(name: str, target: str, build: pathlib.Path, logs: pathlib.Path, t0: float) -> tuple[str, int, float]:
+    if name in CLASS_RUNS:
+        with _class_run:
+            return _run(name, target, build, logs, t0)
+    return _run(name, target, build, logs, t0)
+
+
+def _run(name: str, target: str, build: pathlib.Path, logs: pathlib.Path, t0: float) -> tuple[str, int, float]:
     started = time.monotonic()
     with open(logs / f'{name}.log', 'wb') as log:
         # the target's own rule only: through the top-level Makefile every test target first cleans the results
