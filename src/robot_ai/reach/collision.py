@@ -281,14 +281,10 @@ class CollisionModel:
         self.owner = np.array(owner, dtype=int)
         moving = self._moving_links()
         self.moving = np.array([link in moving for link in self.links], dtype=bool)
-        self.link_pairs, self.excluded = self._choose_pairs(samples, rng)
-        a, b = [], []
-        for la, lb in self.link_pairs:
-            ia, ib = np.flatnonzero(self.owner == la), np.flatnonzero(self.owner == lb)
-            a += list(np.repeat(ia, len(ib)))
-            b += list(np.tile(ib, len(ia)))
-        self.pair_a, self.pair_b = np.array(a, dtype=int), np.array(b, dtype=int)
         self.moving_spheres = np.flatnonzero(self.moving[self.owner]) if len(self.owner) else np.zeros(0, int)
+        self._prepare_poses()
+        self.link_pairs, self.excluded = self._choose_pairs(samples, rng)
+        self.pair_a, self.pair_b = self._sphere_pairs(self.link_pairs)
         self.margins = {link: self._margin(i, rng) for i, link in enumerate(self.links)}
 
     def _margin(self, i: int, rng: np.random.Generator, per_sphere: int = 100) -> float:
@@ -376,14 +372,22 @@ class CollisionModel:
                 kept.append((i, j))
         return kept, excluded
 
+    def _sphere_pairs(self, link_pairs: list) -> tuple[np.ndarray, np.ndarray]:
+        """(a, b): the sphere index pairs of link index pairs, every sphere of one link against every one of the
+        other."""
+        a, b = [], []
+        for i, j in link_pairs:
+            ia, ib = np.flatnonzero(self.owner == i), np.flatnonzero(self.owner == j)
+            a += list(np.repeat(ia, len(ib)))
+            b += list(np.tile(ib, len(ia)))
+        return np.array(a, dtype=int), np.array(b, dtype=int)
+
     def _pair_contacts(self, q: np.ndarray, pairs: list) -> np.ndarray:
         """(N, len(pairs)) bool: whether the spheres of link pair k touch in configuration n."""
-        world = self.sphere_centres(q)
-        out = np.zeros((len(q), len(pairs)), dtype=bool)
-        for k, (i, j) in enumerate(pairs):
-            a, b = np.flatnonzero(self.owner == i), np.flatnonzero(self.owner == j)
-            d = np.linalg.norm(world[:, a][:, :, None] - world[:, b][:, None], axis=3)
-            out[:, k] = np.any(d < self.radii[a][:, None] + self.radii[b][None], axis=(1, 2))
+        x, y, z = self._centres_by_coordinate(np.atleast_2d(q))
+        out = np.zeros((x.shape[1], len(pairs)), dtype=bool)
+        for k, pair in enumerate(pairs):
+            out[:, k] = self._touching(x, y, z, *self._sphere_pairs([pair])).any(axis=0)
         return out
 
     # ------------------------------------------------------------------------------------------ checks
@@ -397,41 +401,9 @@ class CollisionModel:
         return {link: np.matmul(base, poses[link]) for link in self.links}
 
     def sphere_centres(self, q) -> np.ndarray:
-        """(N, K, 3) the spheres' centres in the arm's base frame (a link that does not move with the arm: its
-        spheres where they are at home, computed once)."""
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        if not hasattr(self, '_still'):
-            self._still = self._centres_of(self.link_poses(self.arm.home[None]), [
-                i for i in range(len(self.links)) if not self.moving[i]], 1)
-        poses = self.link_poses(q)
-        out = np.empty((len(q), len(self.radii), 3))
-        out[:] = self._still
-        moving = self._centres_of(poses, [i for i in range(len(self.links)) if self.moving[i]], len(q))
-        mask = self.moving[self.owner]
-        out[:, mask] = moving[:, mask]
-        return out
-
-    def _centres_of(self, poses: dict, links: list[int], n: int) -> np.ndarray:
-        out = np.zeros((n, len(self.radii), 3))
-        for i in links:
-            idx = np.flatnonzero(self.owner == i)
-            p = poses[self.links[i]]
-            out[:, idx] = np.matmul(p[:, :3, :3], self.centres[idx].T).transpose(0, 2, 1) + p[:, None, :3, 3]
-        return out
-
-    def _obstacle_hits(self, world: np.ndarray) -> np.ndarray:
-        """(N, K_moving, len(obstacles)) bool: the moving spheres that touch each obstacle."""
-        spheres = world[:, self.moving_spheres]
-        radii = self.radii[self.moving_spheres]
-        out = np.zeros(spheres.shape[:2] + (len(self.obstacles),), dtype=bool)
-        for m, o in enumerate(self.obstacles):
-            local = (spheres - o.pose[:3, 3]) @ o.pose[:3, :3]
-            if o.kind == 'box':
-                outside = np.maximum(np.abs(local) - np.array(o.size) / 2.0, 0.0)
-                out[:, :, m] = np.linalg.norm(outside, axis=2) < radii
-            else:
-                out[:, :, m] = np.linalg.norm(local, axis=2) < radii + o.size[0]
-        return out
+        """(N, K, 3) the spheres' centres in the arm's base frame."""
+        return np.stack(self._centres_by_coordinate(np.atleast_2d(np.asarray(q, dtype=float))), axis=2) \
+            .transpose(1, 0, 2)
 
     def in_collision(self, q) -> np.ndarray:
         """(N,) bool: the arm touches itself (a checked pair) or an obstacle, for (N, arm.n) configurations. The
@@ -440,37 +412,41 @@ class CollisionModel:
         x, y, z = self._centres_by_coordinate(q)
         hit = np.zeros(len(q), dtype=bool)
         if len(self.pair_a):
-            a, b = self.pair_a, self.pair_b
-            reach = (self.radii[a] + self.radii[b])[:, None] ** 2
-            d2 = (x[a] - x[b]) ** 2
-            d2 += (y[a] - y[b]) ** 2
-            d2 += (z[a] - z[b]) ** 2
-            hit |= (d2 < reach).any(axis=0)
+            hit |= self._touching(x, y, z, self.pair_a, self.pair_b).any(axis=0)
         if self.obstacles and len(self.moving_spheres):
-            m = self.moving_spheres
-            r2 = (self.radii[m] ** 2)[:, None]
-            xs, ys, zs = x[m], y[m], z[m]
-            for o in self.obstacles:
-                rot, (tx, ty, tz) = o.pose[:3, :3], o.pose[:3, 3]
-                dx, dy, dz = xs - tx, ys - ty, zs - tz
-                if o.kind == 'box':
-                    d2 = np.zeros_like(dx)
-                    for axis in range(3):          # the sphere's centre in the box's frame, clamped outside it
-                        local = rot[0, axis] * dx + rot[1, axis] * dy + rot[2, axis] * dz
-                        d2 += np.maximum(np.abs(local) - o.size[axis] / 2.0, 0.0) ** 2
-                    hit |= (d2 < r2).any(axis=0)
-                else:
-                    hit |= (dx * dx + dy * dy + dz * dz < (self.radii[m][:, None] + o.size[0]) ** 2).any(axis=0)
+            hit |= self._touching_obstacles(x, y, z).any(axis=(0, 1))
         return hit
+
+    def _touching(self, x, y, z, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """(len(a), N) bool: sphere a[p] touches sphere b[p], for centres given as (K, N) x, y and z."""
+        d2 = (x[a] - x[b]) ** 2
+        d2 += (y[a] - y[b]) ** 2
+        d2 += (z[a] - z[b]) ** 2
+        return d2 < ((self.radii[a] + self.radii[b])[:, None] ** 2)
+
+    def _touching_obstacles(self, x, y, z) -> np.ndarray:
+        """(len(obstacles), K_moving, N) bool: the moving spheres that touch each obstacle."""
+        m = self.moving_spheres
+        radii = self.radii[m][:, None]
+        xs, ys, zs = x[m], y[m], z[m]
+        out = np.empty((len(self.obstacles), len(m), xs.shape[1]), dtype=bool)
+        for k, o in enumerate(self.obstacles):
+            rot, (tx, ty, tz) = o.pose[:3, :3], o.pose[:3, 3]
+            dx, dy, dz = xs - tx, ys - ty, zs - tz
+            if o.kind == 'box':
+                d2 = np.zeros_like(dx)
+                for axis in range(3):          # the sphere's centre in the box's frame, clamped outside it
+                    local = rot[0, axis] * dx + rot[1, axis] * dy + rot[2, axis] * dz
+                    d2 += np.maximum(np.abs(local) - o.size[axis] / 2.0, 0.0) ** 2
+                out[k] = d2 < radii ** 2
+            else:
+                out[k] = dx * dx + dy * dy + dz * dz < (radii + o.size[0]) ** 2
+        return out
 
     def _centres_by_coordinate(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The spheres' centres as three (K, N) arrays, x, y and z in the arm's base frame."""
-        n = len(q)
-        if not hasattr(self, '_still_by_coordinate'):
-            still = self.sphere_centres(self.arm.home[None])[0]
-            self._still_by_coordinate = still.T.copy()           # (3, K); the moving ones overwritten below
-        out = np.empty((3, len(self.radii), n))
-        out[:] = self._still_by_coordinate[:, :, None]
+        out = np.empty((3, len(self.radii), len(q)))
+        out[:] = self._still[:, :, None]
         poses = self._moving_poses(q)
         for i, link in enumerate(self.links):
             if not self.moving[i]:
@@ -483,28 +459,34 @@ class CollisionModel:
                                  + pos[row])
         return out[0], out[1], out[2]
 
+    def _prepare_poses(self) -> None:
+        """What every check reuses: the joints from the arm's base down to the moving links (in the tree's order),
+        every link's pose at home (those that do not move stay there) and the spheres of the links that do not
+        move, (3, K) (the moving ones' columns are overwritten by each check)."""
+        below_arm = {link for link, m in zip(self.links, self.moving) if m}
+        parent = {j.child: j for j in self.tree.joints.values()}
+        needed = set()
+        for link in below_arm:
+            while link in parent and link != self.arm.base:
+                needed.add(parent[link].name)
+                link = parent[link].parent
+        self._plan = [self.tree.joints[name] for name in self.tree.joint_order if name in needed]
+        self._wanted = below_arm
+        at_home = self.tree.link_poses_batch(self.arm.home[None], names=self.arm.joints)
+        base = np.linalg.inv(at_home[self.arm.base][0])
+        self._at_home = {link: base @ p[0] for link, p in at_home.items()}
+        self._still = np.zeros((3, len(self.radii)))
+        for i, link in enumerate(self.links):
+            idx = np.flatnonzero(self.owner == i)
+            if not self.moving[i] and len(idx):
+                pose = self._at_home[link]
+                self._still[:, idx] = pose[:3, :3] @ self.centres[idx].T + pose[:3, 3:4]
+
     def _moving_poses(self, q: np.ndarray) -> dict:
         """{moving body link: (rotation (3, 3, N), position (3, N))} in the arm's base frame: the joints' transforms
         composed coordinate by coordinate (the batch the fast axis: twice as fast as numpy's matmul of (N, 4, 4))."""
-        if not hasattr(self, '_plan'):
-            below = {}
-            for j in self.tree.joints.values():
-                below.setdefault(j.parent, []).append(j)
-            wanted = {link for link, m in zip(self.links, self.moving) if m}
-            parent = {j.child: j for j in self.tree.joints.values()}
-            needed = set()
-            for link in wanted:                 # the joints from the arm's base down to each moving body link
-                while link in parent and link != self.arm.base:
-                    needed.add(parent[link].name)
-                    link = parent[link].parent
-            self._plan = [self.tree.joints[name] for name in self.tree.joint_order if name in needed]
-            self._wanted = wanted
         n = len(q)
         values = self.tree.resolve_positions({name: q[:, i] for i, name in enumerate(self.arm.joints)})
-        if not hasattr(self, '_at_home'):                   # links that do not move: where they always are
-            self._at_home = self.tree.link_poses_batch(self.arm.home[None], names=self.arm.joints)
-            base = np.linalg.inv(self._at_home[self.arm.base][0])
-            self._at_home = {link: base @ p[0] for link, p in self._at_home.items()}
         poses = {}
 
         def pose_of(link):
@@ -549,15 +531,11 @@ class CollisionModel:
 
     def contacts(self, q) -> list[str]:
         """The pairs in contact in one configuration, by name ('link_a - link_b', 'link - <obstacle>')."""
-        world = self.sphere_centres(np.asarray(q, dtype=float)[None])
-        out = []
-        for i, j in self.link_pairs:
-            a, b = np.flatnonzero(self.owner == i), np.flatnonzero(self.owner == j)
-            d = np.linalg.norm(world[0, a][:, None] - world[0, b][None], axis=2)
-            if np.any(d < self.radii[a][:, None] + self.radii[b][None]):
-                out.append(f'{self.links[i]} - {self.links[j]}')
+        x, y, z = self._centres_by_coordinate(np.asarray(q, dtype=float)[None])
+        out = [f'{self.links[i]} - {self.links[j]}' for i, j in self.link_pairs
+               if self._touching(x, y, z, *self._sphere_pairs([(i, j)])).any()]
         if self.obstacles and len(self.moving_spheres):
-            hits = self._obstacle_hits(world)[0]
+            hits = self._touching_obstacles(x, y, z)[:, :, 0].T          # (K_moving, obstacles)
             for k, m in zip(*np.nonzero(hits)):
                 name = f'{self.links[self.owner[self.moving_spheres[k]]]} - {self.obstacles[m].name}'
                 if name not in out:
