@@ -27,7 +27,6 @@ from dataclasses import replace
 from robot_ai import fleet
 from robot_ai.grading import candidates, sandbox
 from robot_ai.grading.class_run import ClassRun, Judges, Judging
-from robot_ai.grading.report import read_model
 
 MAX_RETRIES = 3           # runs of a student's task after the first when its node or worker dies
 IN_FLIGHT_PER_CPU = 2     # tasks submitted ahead per CPU of the cluster
@@ -81,9 +80,9 @@ def _on_this_machine(judging: Judging, model_xml: str, work: str) -> Judging:
     return replace(judging, options=tuple(options) + ('--judge-model', shown))
 
 
-def grade_class_on_ray(a, tree) -> int:
-    """--candidates DIR --ray ADDRESS: the class graded on the Ray cluster at a.ray; the same lines, reports and CSV
-    as robot_ai.grading.class_run.grade_class's."""
+def grade_class_on_ray(a, tree, xml: str) -> int:
+    """--candidates DIR --ray ADDRESS: the class graded on the Ray cluster at a.ray (tree and xml: the model as
+    check_fk read it); the same lines, reports and CSV as robot_ai.grading.class_run.grade_class's."""
     run = ClassRun.of(a, tree)
     if run is None:
         return 2
@@ -104,7 +103,7 @@ def grade_class_on_ray(a, tree) -> int:
     each = f'{a.jobs} per node' if a.jobs else 'one per CPU'
     run.header(a, tree, f'on the Ray cluster at {a.ray} ({len(nodes)} nodes, {total:g} CPUs, {each})',
                f'at most {cores:g} cores', 1)
-    model_xml = ray.put(read_model(a.model, a.xacro_args)[0])      # once for the class: every task reads it
+    model_xml = ray.put(xml)              # once for the class: every task reads it
     task = ray.remote(grade_on_node).options(num_cpus=cpus, max_retries=MAX_RETRIES, retry_exceptions=False)
     window = max(2, int(IN_FLIGHT_PER_CPU * total / cpus))
     results, pending, waiting = {}, {}, list(enumerate(run.students))

@@ -293,7 +293,7 @@ def main(argv=None) -> int:
         try:
             if a.ray:
                 from robot_ai.grading.on_ray import grade_class_on_ray
-                return grade_class_on_ray(a, tree)
+                return grade_class_on_ray(a, tree, xml)
             return grade_class(a, tree, argv)
         finally:
             stopping.append('clean-up')

@@ -329,10 +329,11 @@ class ReachController:
         target = self.setup.move_one(q, self.setup.place_one(q)[1], a)
         body = self.setup.body
         blocked = ''
-        if body is not None and body.in_collision(np.array([target]))[0]:
+        held, hit = self.setup.guard_one(q, target)       # a motion that would touch: the arm holds where it is
+        if hit:
             blocked = ', '.join(body.contacts(target)) or 'a contact'
             rospy.logwarn_throttle(2.0, f'holding: the next motion would touch ({blocked}), so it was not sent')
-            target = q                    # the arm holds where it is
+            target = held
         elif body is not None and (not self.trail or max(abs(a - b) for a, b in zip(q, self.trail[-1])) > TRAIL_STEP):
             self.trail.append(q)          # where the arm is: clear of contacts, the way back home
             del self.trail[:-MAX_TRAIL]

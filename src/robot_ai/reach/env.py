@@ -230,6 +230,14 @@ class ReachSetup:
         raise ReachError(f'no configuration clear of collisions in {MAX_DRAWS} draws: the obstacles fill the arm\'s '
                          f'workspace')
 
+    def guard_one(self, before: list, after: list) -> tuple[list, bool | None]:
+        """guard's rule for one arm in plain floats: (the joint positions it takes, collision or None without a
+        body)."""
+        if self.body is None:
+            return after, None
+        hit = bool(self.body.in_collision(np.array([after]))[0])
+        return (before if hit else after), hit
+
     def guard(self, before_t: np.ndarray, after_t: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """(joint positions (n, N), collision (N,) or None without a body): a motion that would put the arm in
         contact with itself or an obstacle is not made, and that arm holds where it was."""
@@ -335,12 +343,8 @@ class ReachEnv(gymnasium.Env):
         if self._q is None:
             raise ResetNeeded('Cannot call env.step() before calling env.reset()')
         a = self.setup.check_action_one(action)
-        q = self.setup.move_one(self._q, self._jac, a)
-        info = {}
-        if self.setup.body is not None:
-            info['collision'] = bool(self.setup.body.in_collision(np.array([q]))[0])
-            q = self._q if info['collision'] else q        # the arm holds (ReachSetup.guard)
-        self._q = q
+        self._q, hit = self.setup.guard_one(self._q, self.setup.move_one(self._q, self._jac, a))
+        info = {} if hit is None else {'collision': hit}
         self._tip, self._jac = self.setup.place_one(self._q)
         distance = goal_distance_one(self._tip, self._goal)
         info['is_success'] = distance < self.task.distance_threshold
