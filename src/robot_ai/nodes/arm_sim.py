@@ -1,4 +1,4 @@
-"""arm_sim: any robot_description as a kinematic arm that takes ros_control's JointGroupPositionController command.
+"""arm_sim: any robot_description as a kinematic arm that takes ros_control's position or trajectory commands.
 
 Each joint of ~joints moves toward its commanded position at most at its URDF velocity limit (DEFAULT_VELOCITY
 where the URDF gives none), ~rate times per second of ROS time times ~real_time_factor, and joint_states is
@@ -6,7 +6,12 @@ published after every tick; forward_kinematics turns them into /tf as on a real 
 (robot_ai.envs: RosReach-v0) drives it: one step per command, the command clipped to the limits and reached at once,
 joint_states published then (latched). A command is ros_control's: std_msgs/Float64MultiArray, one position per
 joint of ~joints, in that order, so that reach_controller drives a real arm's JointGroupPositionController the same
-way. NaN, infinite values or a wrong length: the command is ignored with a throttled warning, the arm holds.
+way. It takes joint_trajectory_controller's command too (trajectory_msgs/JointTrajectory, the topic a real arm's
+driver exposes: ur_robot_driver, franka_ros) and follows it as that controller does (robot_ai.reach.trajectory: from
+the trajectory's start, through its points, cubic where they give velocities; joints it does not name hold), each
+joint still at most at its URDF velocity limit; trajectories run on ROS time. Each joint_states message is stamped
+with the time it describes. NaN, infinite values or a wrong length: the command is ignored with a throttled warning,
+the arm holds.
 
 An env takes the sim's ~lease: while it holds it, commands and ~set_state from any other node are ignored or refused
 (robot_ai.nodes.lease).
@@ -21,9 +26,10 @@ ROS Parameters
 
 ROS Subscribers
     joint_group_position_controller/command (std_msgs/Float64MultiArray): target positions, in ~joints order.
+    joint_trajectory_controller/command (trajectory_msgs/JointTrajectory): a trajectory of named joints.
 
 ROS Publishers
-    joint_states (sensor_msgs/JointState): names ~joints, positions, velocities (of the last tick).
+    joint_states (sensor_msgs/JointState): names ~joints, positions, velocities, stamped with the time they describe.
 
 ROS Services
     ~set_state (robot_ai/SetJointPositions): the arm at these positions at once (the command too), published then;
@@ -39,16 +45,20 @@ import numpy as np
 import rospy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
+from trajectory_msgs.msg import JointTrajectory
 
 from robot_ai.lease import Lease, caller_of
 from robot_ai.nodes.params import bool_param, init_node, number_param, numpy_service, publish, quiet_on_shutdown
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach.arm import joint_limits, joint_velocity
+from robot_ai.reach.trajectory import Follower, TrajectoryError
 from robot_ai.srv import Lease as LeaseService
 from robot_ai.srv import SetJointPositions, SetJointPositionsResponse
 from robot_ai.tf_wire import JointStateEncoder, WireError, decode_float64_array, raw_message_class
 
 COMMAND_TOPIC = 'joint_group_position_controller/command'
+TRAJECTORY_TOPIC = 'joint_trajectory_controller/command'
+MAX_POINTS = 100_000          # points in one trajectory at most
 RawJointState = raw_message_class(JointState)         # written and read at wire level, as forward_kinematics does
 RawCommand = raw_message_class(Float64MultiArray)
 
@@ -67,6 +77,10 @@ class ArmSim:
         self.positions = self._home_param(tree)
         self.command = self.positions.copy()
         self.speeds = np.zeros(len(self.joints))
+        self.follower: Follower | None = None     # a trajectory being followed
+        self.ticked = None                        # ROS time of the last tick
+        self.epoch = rospy.Time.now()             # trajectories' times count from here (a float of seconds since
+                                                  # 1970 keeps only 0.2 us, which shows in a velocity's difference)
         self.lock = threading.Lock()
         self.lease = Lease(rospy.get_name())
         rospy.set_param('~joints', list(self.joints))
@@ -78,12 +92,14 @@ class ArmSim:
                                              tcp_nodelay=True, latch=self.lockstep)
         self.command_sub = rospy.Subscriber(COMMAND_TOPIC, RawCommand, self._on_command, queue_size=10,
                                             tcp_nodelay=True)
+        self.trajectory_sub = rospy.Subscriber(TRAJECTORY_TOPIC, JointTrajectory, self._on_trajectory, queue_size=10,
+                                               tcp_nodelay=True)
         self.services = [rospy.Service('~set_state', numpy_service(SetJointPositions), self._on_set_state),
                          rospy.Service('~lease', LeaseService, self.lease.handle)]
         mode = ('lockstep: one step per command, reached at once' if self.lockstep else
                 f'{self.rate * self.real_time_factor:g} ticks per second of ROS time, at the URDF velocity limits')
         rospy.loginfo(f'arm_sim ready: {len(self.joints)} joints ({", ".join(self.joints)}), {mode}; commands on '
-                      f'{rospy.resolve_name(COMMAND_TOPIC)}')
+                      f'{rospy.resolve_name(COMMAND_TOPIC)} and {rospy.resolve_name(TRAJECTORY_TOPIC)}')
 
     # --------------------------------------------------------------------------------------------- parameters
     @staticmethod
@@ -123,18 +139,34 @@ class ArmSim:
         return home
 
     # ------------------------------------------------------------------------------------------------ stepping
-    def _publish(self) -> None:
-        stamp = rospy.Time.now()
+    def _publish(self, stamp: rospy.Time | None = None) -> None:
+        stamp = rospy.Time.now() if stamp is None else stamp
         self.published += 1
         publish(self.state_pub, RawJointState(self.encoder.encode(self.published, stamp.secs, stamp.nsecs,
                                                                   self.positions, self.speeds)))
 
     def _tick(self, dt: float) -> None:
-        """One tick of dt simulated seconds: each joint toward its command at most its velocity limit."""
+        """One tick of dt simulated seconds: each joint toward its command at most its velocity limit; along the
+        trajectory it follows, at the tick's ROS time."""
+        now = rospy.Time.now()
+        t, last = (now - self.epoch).to_sec(), self.ticked
+        self.ticked = t
+        if self.follower is not None:
+            p, v = self.follower.state_at(t)
+            p = np.minimum(np.maximum(p, self.lower), self.upper)
+            elapsed = t - last if last is not None and t > last else dt
+            step = np.clip(p - self.positions, -self.velocity * elapsed, self.velocity * elapsed)
+            exact = np.array_equal(step, p - self.positions)
+            self.positions = self.positions + step
+            self.speeds = v if exact else step / elapsed
+            if t >= self.follower.end:
+                self.command, self.follower = self.follower.final, None
+            self._publish(now)
+            return
         step = np.clip(self.command - self.positions, -self.velocity * dt, self.velocity * dt)
         self.positions = self.positions + step
         self.speeds = step / dt
-        self._publish()
+        self._publish(now)
 
     def run(self) -> None:
         with self.lock:
@@ -181,11 +213,60 @@ class ArmSim:
             return
         command = np.minimum(np.maximum(command, self.lower), self.upper)
         with self.lock:
-            self.command = command
+            self.command, self.follower = command, None
             if self.lockstep:
                 self.speeds = np.zeros(len(self.joints))
                 self.positions = command
                 self._publish()
+
+    def _on_trajectory(self, msg: JointTrajectory) -> None:
+        caller = caller_of(msg)
+        if not self.lease.allows(caller):
+            rospy.logwarn_throttle(5.0, f'trajectory from {caller} ignored: {self.lease.refusal(caller)}')
+            return
+        try:
+            columns, times, positions, velocities = self._trajectory(msg)
+            with self.lock:
+                follower = self.follower if self.follower is not None else Follower(self.positions)
+                now = (rospy.Time.now() - self.epoch).to_sec()
+                start = (msg.header.stamp - self.epoch).to_sec() if not msg.header.stamp.is_zero() else now
+                full = np.tile(follower.state_at(max(now, start))[0], (len(times), 1))
+                full[:, columns] = positions
+                full_v = None
+                if velocities is not None:
+                    full_v = np.zeros_like(full)
+                    full_v[:, columns] = velocities
+                full = np.minimum(np.maximum(full, self.lower), self.upper)
+                if self.lockstep:
+                    self.positions, self.command = full[-1].copy(), full[-1].copy()
+                    self.speeds = np.zeros(len(self.joints))
+                    self._publish()
+                    return
+                follower.take(now, start, times, full, full_v)
+                self.follower = follower
+        except TrajectoryError as e:
+            rospy.logwarn_throttle(5.0, f'trajectory ignored: {e}')
+
+    def _trajectory(self, msg: JointTrajectory):
+        """(the columns of the sim's joints it names, times, positions, velocities or None) of a trajectory, or
+        TrajectoryError."""
+        names = list(msg.joint_names)
+        unknown = [n for n in names if n not in self.joints]
+        if unknown or len(set(names)) != len(names) or not names:
+            raise TrajectoryError(f'joint_names must name joints of the sim once each ({", ".join(self.joints)}), '
+                                  f'got {names}')
+        points = msg.points
+        if not 0 < len(points) <= MAX_POINTS:
+            raise TrajectoryError(f'{len(points)} points: from 1 to {MAX_POINTS} are followed')
+        if any(len(p.positions) != len(names) for p in points):
+            raise TrajectoryError(f'every point needs one position per joint named ({len(names)})')
+        given = [len(p.velocities) for p in points]
+        if any(g not in (0, len(names)) for g in given) or len(set(given)) > 1:
+            raise TrajectoryError('velocities must be given for every joint at every point, or at none')
+        times = np.array([p.time_from_start.to_sec() for p in points])
+        positions = np.array([p.positions for p in points], dtype=float)
+        velocities = np.array([p.velocities for p in points], dtype=float) if given[0] else None
+        return [self.joints.index(n) for n in names], times, positions, velocities
 
     def _on_set_state(self, req) -> SetJointPositionsResponse:
         caller = caller_of(req)
@@ -199,7 +280,7 @@ class ArmSim:
         if outside:
             return SetJointPositionsResponse(success=False, message='outside the joint limits: ' + '; '.join(outside))
         with self.lock:
-            self.positions, self.command = positions.copy(), positions.copy()
+            self.positions, self.command, self.follower = positions.copy(), positions.copy(), None
             self.speeds = np.zeros(len(self.joints))
             self._publish()
         return SetJointPositionsResponse(success=True, message=f'the arm at {positions.tolist()}')

@@ -1,16 +1,29 @@
-"""reach_controller: a reach policy drives an arm of the ROS graph toward points clicked in rviz.
+"""reach_controller: a reach policy drives an arm of the ROS graph toward points clicked in rviz, safely.
 
 Every 1/~rate seconds of ROS time it reads the arm's joints (joint_states) and its tip from /tf (the frames
-forward_kinematics or robot_state_publisher publishes), acts as the reach env would from where the arm stands (the
-same observation, the policy's action, the same damped least squares) and publishes ros_control's
-JointGroupPositionController command; arm_sim takes it, and so does a real arm's controller (remap the command
-topic to it, and give ~command_joints its joints). Goals come from rviz's Publish Point tool (/clicked_point) or
-~goal, in any frame tf knows; the goal is drawn as a marker and its distance published. It says `reached <goal> in
-<s> s (<d> m)` once the tip is within the policy's threshold. When the distance stops shrinking with joints at their
-limits (a goal the arm must come at another way), it takes the arm home and tries once more from there; then it says
-`not reached: closest <d> m ...` and why (beyond the arm's reach, with the distance; stalled with the joints at their
-limits, named; or neither), takes the arm back to the closest configuration it found and holds it until the next
-goal. ~home takes the arm home and drops the goal.
+forward_kinematics or robot_state_publisher publishes) and acts as the reach env would from where the arm stands (the
+same observation, the policy's action, the same damped least squares). Between the policy and the output sits a
+safety layer no policy can pass (robot_ai.reach.safety): the joint position, velocity and acceleration limits (the
+URDF's, narrowed by a MoveIt joint_limits.yaml, scaled by ~velocity_scale), and the arm's body (its URDF collision
+geometry) against itself and the obstacles with a margin, checked over each command's whole motion and the stop
+after it; a command that would pass a limit or touch is not sent, the arm stops on the path already checked, holds,
+and the node says why. joint_states older than ~state_timeout, a NaN or infinite number anywhere (state, goal, the
+policy's answer), ~enable false and ~stop: the arm stops within its limits and holds, and goes on when the cause is
+gone (after ~stop: at ~enable true). Whatever fails in a step, the loop goes on; at Ctrl-C the arm stops.
+
+The output is ~command: `position` (ros_control's JointGroupPositionController: std_msgs/Float64MultiArray on
+<~controller>/command, the position the plan commands one step on) or `trajectory` (joint_trajectory_controller, the
+controller real arms' drivers expose, ur_robot_driver's and franka_ros': trajectory_msgs/JointTrajectory on
+<~controller>/command, each step's motion and the stop after it, with positions, velocities and times that respect
+the limits; a command that comes late, or never, leaves the arm stopping on a checked path). arm_sim takes both.
+
+Goals come from rviz's Publish Point tool (/clicked_point) or ~goal, in any frame tf knows; the goal is drawn as a
+marker and its distance published. It says `reached <goal> in <s> s (<d> m)` once the tip is within the policy's
+threshold. When the distance stops shrinking with joints at their limits (a goal the arm must come at another way),
+it takes the arm home and tries once more from there; then it says `not reached: closest <d> m ...` and why (beyond
+the arm's reach, with the distance; stalled with the joints at their limits, named; blocked by a collision; or
+neither), takes the arm back to the closest configuration it found and holds it until the next goal. ~home takes the
+arm home and drops the goal.
 
 ROS Parameters
     robot_description (str): the robot, searched up the namespaces and waited for.
@@ -23,25 +36,42 @@ ROS Parameters
     ~command_joints (list of str, [] = the robot's active joints): the joints of the command, in its order (a real
         controller's joints); those the arm does not move hold the positions joint_states reports.
     ~stalled_after (float, 2.0): seconds without a millimetre of progress before a goal is called not reached.
+    ~command (str, "position"): position | trajectory, the output (above).
+    ~controller (str, "" = joint_group_position_controller or joint_trajectory_controller, as ~command): the
+        controller whose <controller>/command topic takes the commands (scaled_pos_joint_traj_controller on a UR,
+        position_joint_trajectory_controller on a Panda).
+    ~joint_limits (str, ""): a MoveIt joint_limits.yaml (joint_limits: {joint: {has_velocity_limits, max_velocity,
+        has_acceleration_limits, max_acceleration, ...}}); it narrows the URDF's limits, never widens them. Joints with
+        no acceleration limit: full speed in 0.25 s.
+    ~velocity_scale (float, 0.25): the velocity limits' share used, in (0, 1].
+    ~acceleration_scale (float, = ~velocity_scale): the acceleration limits' share used, in (0, 1].
+    ~collision (bool, true): the arm's body (its URDF collision geometry) checked against itself and the obstacles on
+        every command; where no geometry can be read, the limits only (said at start).
+    ~collision_margin (float, 0.02): metres kept between the body and itself or an obstacle (where the arm stands
+        within it already, only motions that would touch are refused, so that it can move out).
+    ~state_timeout (float, 0.2): joint_states older than this (seconds of ROS time): the arm stops and holds.
+    ~enabled (bool, true): whether commands go out at start (false: after ~enable true).
     ~obstacles (str or list, ""): obstacles in the arm's base frame, a YAML file (or a list parameter) of
         {box: [sx, sy, sz], position: [x, y, z], rpy: [r, p, y]} or {sphere: r, position: [x, y, z]}; empty: the
-        world the policy file learned in, if any. With a world, the arm's body (its URDF collision geometry) is
-        checked on every command: a command whose motion would touch the arm itself or an obstacle is not sent, the
-        arm holds and the node says which links would touch.
+        world the policy file learned in, if any; rviz draws them (~obstacle_markers).
 
 ROS Subscribers
     joint_states (sensor_msgs/JointState): the arm's joints.
     /clicked_point (geometry_msgs/PointStamped): a goal, from rviz's Publish Point tool.
     ~goal (geometry_msgs/PointStamped): a goal.
+    ~stop (std_msgs/Empty): the arm stops at once, within its limits, and holds until ~enable true.
 
 ROS Publishers
-    joint_group_position_controller/command (std_msgs/Float64MultiArray): positions of ~command_joints.
+    <~controller>/command (std_msgs/Float64MultiArray or trajectory_msgs/JointTrajectory, as ~command): the
+        commands, for ~command_joints.
     ~goal_marker (visualization_msgs/Marker, latched): the goal, a sphere of the threshold's size, in the base frame.
     ~distance (std_msgs/Float64): the tip's distance to the goal, every step.
     ~obstacle_markers (visualization_msgs/MarkerArray, latched): the obstacles, in the base frame.
 
 ROS Services
     ~home (std_srvs/Trigger): the arm to its home (the middle of each joint's range, the policy's), goal dropped.
+    ~enable (std_srvs/SetBool): false: the arm stops within its limits and holds, no command goes out once it is
+        at rest; true: it goes on.
     ~load_policy (robot_ai/LoadPolicy): drive with another reach policy file or ONNX model of this robot, tip and
         control; a bad file, or one of another robot or tip, changes nothing.
 
@@ -59,22 +89,26 @@ import rospy
 import tf2_ros
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64, Float64MultiArray
-from std_srvs.srv import Trigger, TriggerResponse
+from std_msgs.msg import Empty, Float64, Float64MultiArray
+from std_srvs.srv import SetBool, SetBoolResponse, Trigger, TriggerResponse
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 from visualization_msgs.msg import Marker, MarkerArray
 
 from robot_ai import ars
 from robot_ai import policies
-from robot_ai.nodes.params import init_node, number_param, publish, quiet_on_shutdown, str_param
+from robot_ai.nodes.params import bool_param, init_node, number_param, publish, quiet_on_shutdown, str_param
 from robot_ai.srv import LoadPolicy, LoadPolicyResponse
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
+from robot_ai.reach.collision import CollisionModel
 from robot_ai.reach.env import ReachSetup
+from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, Limits, Plan, SafetyLayer
 from robot_ai.reach.task import goal_distance_one, why_unreached
 from robot_ai.text import percent
 
-COMMAND_TOPIC = 'joint_group_position_controller/command'
+COMMANDS = {'position': 'joint_group_position_controller',       # ~command -> the default ~controller
+            'trajectory': 'joint_trajectory_controller'}
 PROGRESS = 0.001          # m: less than this over ~stalled_after seconds is no progress
 AT_HOME = 0.01            # rad (or m): every joint this near home is home (a retry starts there)
 MAX_GOAL = 1000.0         # m from the base: a goal farther out is a mistake (a 1e308 goal), not a place to reach
@@ -105,6 +139,12 @@ class ReachController:
         self.rate = number_param('~rate', 20.0, 'a positive number of steps per second', lambda v: 0 < v <= 1000)
         self.stalled_after = number_param('~stalled_after', 2.0, 'a positive number of seconds',
                                           lambda v: 0 < v <= 3600)
+        self.state_timeout = number_param('~state_timeout', 0.2, 'a positive number of seconds',
+                                          lambda v: 0 < v <= 3600)
+        self.command_kind = str_param('~command', 'position')
+        if self.command_kind not in COMMANDS:
+            raise ValueError(f'~command must be one of {", ".join(COMMANDS)}, got {self.command_kind!r}')
+        controller = str_param('~controller', '') or COMMANDS[self.command_kind]
         world = rospy.get_param('~obstacles', '') or None
         self.policy, self.setup, info, success = self._policy(xml, str_param('~policy', ''), str_param('~tip', ''),
                                                               world)
@@ -118,8 +158,19 @@ class ReachController:
         if missing:
             raise ValueError(f'~command_joints lacks {", ".join(missing)}, which the arm moves to reach')
         self.slot = [self.command_joints.index(n) for n in arm.joints]
+        self.layer = self._safety_layer(tree, xml)
+        self.epoch = rospy.Time.now()             # the safety layer's times count from here (a float of seconds since
+                                                  # 1970 keeps only 0.2 us: it shows in an acceleration)
         self.lock = threading.Lock()
+        self.output_lock = threading.Lock()
         self.joints: dict[str, float] = {}
+        self.speeds: dict[str, float] = {}
+        self.received: dict[str, float] = {}     # ROS time each joint's state last came
+        self.enabled = bool_param('~enabled', True)
+        self.going_home = False                   # ~home: the arm on its way home, no goal
+        self.version = 0                          # one more at every goal and ~home: a step of an older one changes
+                                                  # no state of the new one
+        self.said_hold = ''                       # the last reason to hold that was said (said again when it changes)
         self.goal: list[float] | None = None
         self.goal_since = 0.0
         self.best = float('inf')
@@ -135,19 +186,56 @@ class ReachController:
         self.trail: list[list[float]] = []        # with a body: the configurations the arm came by, clear of contacts
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(10))
         self.tf_listener = tf2_ros.TransformListener(self.tf_buffer)
-        self.command_pub = rospy.Publisher(COMMAND_TOPIC, Float64MultiArray, queue_size=1, tcp_nodelay=True)
+        topic = f'{controller}/command'
+        if self.command_kind == 'trajectory':
+            self.command_pub = rospy.Publisher(topic, JointTrajectory, queue_size=1, tcp_nodelay=True)
+        else:
+            self.command_pub = rospy.Publisher(topic, Float64MultiArray, queue_size=1, tcp_nodelay=True)
         self.marker_pub = rospy.Publisher('~goal_marker', Marker, queue_size=1, latch=True)
         self.distance_pub = rospy.Publisher('~distance', Float64, queue_size=1)
         self.obstacles_pub = rospy.Publisher('~obstacle_markers', MarkerArray, queue_size=1, latch=True)
         self._draw_obstacles()
         self.subs = [rospy.Subscriber('joint_states', JointState, self._on_joints, queue_size=1, tcp_nodelay=True),
                      rospy.Subscriber('/clicked_point', PointStamped, self._on_goal, queue_size=1),
-                     rospy.Subscriber('~goal', PointStamped, self._on_goal, queue_size=1)]
+                     rospy.Subscriber('~goal', PointStamped, self._on_goal, queue_size=1),
+                     rospy.Subscriber('~stop', Empty, self._on_stop, queue_size=1, tcp_nodelay=True)]
         self.services = [rospy.Service('~home', Trigger, self._on_home),
-                         rospy.Service('~load_policy', LoadPolicy, self._on_load_policy)]
+                         rospy.Service('~load_policy', LoadPolicy, self._on_load_policy),
+                         rospy.Service('~enable', SetBool, self._on_enable)]
+        rospy.on_shutdown(self._on_shutdown)
         self.timer = rospy.Timer(rospy.Duration(1.0 / self.rate), self._step)
-        rospy.loginfo(f'reach_controller ready: {arm.describe()}; {self.rate:g} steps/s; click a point in rviz '
-                      f'(Publish Point) or publish {rospy.resolve_name("~goal")}')
+        rospy.loginfo(f'reach_controller ready: {arm.describe()}; {self.rate:g} steps/s; {self.command_kind} commands '
+                      f'on {rospy.resolve_name(topic)}, {self.layer.limits.describe()}'
+                      f'{"" if self.enabled else "; disabled until ~enable"}; click a point in rviz (Publish Point) '
+                      f'or publish {rospy.resolve_name("~goal")}')
+
+    def _safety_layer(self, tree, xml: str) -> SafetyLayer:
+        """~joint_limits, ~velocity_scale, ~acceleration_scale, ~collision and ~collision_margin as a SafetyLayer."""
+        scale = number_param('~velocity_scale', DEFAULT_VELOCITY_SCALE, 'a number in (0, 1]', lambda v: 0 < v <= 1)
+        acceleration = number_param('~acceleration_scale', scale, 'a number in (0, 1]', lambda v: 0 < v <= 1)
+        margin = number_param('~collision_margin', DEFAULT_MARGIN, 'a number of metres from 0 to 1',
+                              lambda v: 0 <= v <= 1)
+        try:
+            limits = Limits.of(self.setup.arm, rospy.get_param('~joint_limits', '') or None, scale, acceleration)
+        except ReachError as e:
+            raise ValueError(f'~joint_limits: {e}') from None
+        for note in limits.notes:
+            rospy.loginfo(f'reach_controller: {note}')
+        body = self.setup.body
+        if body is None and bool_param('~collision', True):
+            try:
+                body = CollisionModel(tree, xml, self.setup.arm, self.setup.obstacles)
+            except ReachError as e:
+                rospy.logwarn(f'reach_controller: no collision check of the arm\'s body: {e}')
+        if body is not None and not len(body.radii):
+            rospy.logwarn(f'reach_controller: {tree.name} has no collision geometry this machine can read '
+                          f'({len(body.missing)} meshes not found): the commands are checked against the limits '
+                          f'only')
+            body = None
+        elif body is not None and body.missing:
+            rospy.logwarn(f'reach_controller: collision meshes not found, those links unchecked: '
+                          f'{", ".join(m.split(":")[0] for m in body.missing[:8])}')
+        return SafetyLayer(limits, 1.0 / self.rate, body, margin)
 
     # ------------------------------------------------------------------------------------------------ the policy
     @staticmethod
@@ -193,10 +281,14 @@ class ReachController:
     # ------------------------------------------------------------------------------------------------ callbacks
     def _on_joints(self, msg: JointState) -> None:
         if len(msg.name) != len(msg.position):
-            rospy.logwarn_throttle(5.0, 'joint_states with as many names as positions skipped')
+            rospy.logwarn_throttle(5.0, 'joint_states without as many names as positions skipped')
             return
+        now = self._now()
         with self.lock:
             self.joints.update(zip(msg.name, msg.position))
+            self.received.update(dict.fromkeys(msg.name, now))
+            if len(msg.velocity) == len(msg.name):
+                self.speeds.update(zip(msg.name, msg.velocity))
 
     def _in_base(self, point: PointStamped) -> list[float] | None:
         frame = point.header.frame_id.lstrip('/') or self.base
@@ -230,6 +322,8 @@ class ReachController:
             self.blocked = ''
             self.best_q, self.holding, self.homing, self.retried = None, False, False, False
             self.improved_at = self.goal_since
+            self.going_home = False
+            self.version += 1
         self._draw(goal)
         rospy.loginfo(f'goal ({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f}) m in {self.base}')
 
@@ -259,16 +353,74 @@ class ReachController:
 
     def _on_home(self, req) -> TriggerResponse:
         with self.lock:
-            self.goal = None
-            self._command(dict(self.joints), self.setup.home.tolist())
+            self.goal, self.going_home = None, True
+            self.version += 1
         self._draw(None)
         return TriggerResponse(success=True, message=f'going home: {np.round(self.setup.home, 3).tolist()}')
 
-    # ------------------------------------------------------------------------------------------------ the loop
-    def _command(self, joints: dict, arm_positions: list[float]) -> None:
+    def _on_enable(self, req) -> SetBoolResponse:
+        with self.lock:
+            was, self.enabled = self.enabled, bool(req.data)
+            self.improved_at = time.monotonic()          # the stall clock starts again
+        if req.data:
+            rospy.loginfo('enabled: commands go out again' if not was else 'enabled already')
+            return SetBoolResponse(success=True, message='enabled' + (' already' if was else ''))
+        rospy.logwarn('disabled (~enable false): the arm stops within its limits and holds')
+        return SetBoolResponse(success=True, message='disabled: the arm stops and holds')
+
+    def _on_stop(self, msg) -> None:
+        with self.lock:
+            was, self.enabled = self.enabled, False
+        if was:
+            rospy.logwarn('stop (~stop): the arm stops within its limits and holds until ~enable true')
+
+    def _on_shutdown(self) -> None:
+        """Ctrl-C: the arm stops where its plan's stop ends and holds there (a trajectory stops by itself)."""
+        with self.lock:
+            last = self.layer.last
+            joints = dict(self.joints)
+        if last is None or last.end <= self._now():
+            return
+        try:
+            now = self._now()
+            self._plan_and_send(now, None, last.state_at(now)[0], None, joints, why_not='shut down', final=True)
+        except Exception:             # the node is going: nothing more to do
+            pass
+
+    # ------------------------------------------------------------------------------------------------ the output
+    def _now(self) -> float:
+        """Seconds of ROS time since the node started."""
+        return (rospy.Time.now() - self.epoch).to_sec()
+
+    def _plan_and_send(self, now: float, target, measured, velocity, joints: dict, why_not: str = '',
+                       final: bool = False) -> Plan:
+        """The safety layer's plan, sent: every plan made is sent (the next one starts where it leaves the arm),
+        one at a time (the control step, a hold, the shutdown)."""
+        with self.output_lock:
+            plan = self.layer.plan(now, target, measured, velocity, why_not=why_not)
+            self._send(plan, joints, final)
+            return plan
+
+    def _send(self, plan: Plan, joints: dict, final: bool = False) -> None:
+        """The plan as the controller's command: a trajectory of its points (the other ~command_joints held), or the
+        position it commands one step on (final: where it comes to rest)."""
+        if self.command_kind == 'trajectory':
+            times, positions, velocities = plan.points(self.layer.period)
+            msg = JointTrajectory(joint_names=list(self.command_joints))
+            msg.header.stamp = self.epoch + rospy.Duration.from_sec(plan.start)
+            fixed = [joints.get(n, 0.0) for n in self.command_joints]
+            for t, p, v in zip(times, positions, velocities):
+                point = JointTrajectoryPoint(positions=list(fixed), velocities=[0.0] * len(fixed),
+                                             time_from_start=rospy.Duration.from_sec(float(t)))
+                for k, slot in enumerate(self.slot):
+                    point.positions[slot], point.velocities[slot] = float(p[k]), float(v[k])
+                msg.points.append(point)
+            publish(self.command_pub, msg)
+            return
+        at = plan.rest() if final else plan.state_at(plan.start)[0]
         positions = [joints.get(n, 0.0) for n in self.command_joints]
-        for k, value in zip(self.slot, arm_positions):
-            positions[k] = value
+        for k, value in zip(self.slot, at):
+            positions[k] = float(value)
         publish(self.command_pub, Float64MultiArray(data=positions))
 
     def _draw_obstacles(self) -> None:
@@ -297,66 +449,118 @@ class ReachController:
         return [t.x, t.y, t.z]
 
     def _step(self, event) -> None:
-        with self.lock:
-            goal, joints, policy = self.goal, dict(self.joints), self.policy
-            holding, homing = self.holding, self.homing
-        if goal is None:
+        """One control step; whatever goes wrong in it, the arm stops and the loop goes on."""
+        try:
+            self._control()
+        except Exception as e:          # noqa: BLE001 (the loop must survive anything)
+            rospy.logerr_throttle(5.0, f'the control step failed ({type(e).__name__}: {e}): the arm stops and '
+                                       f'holds')
+            try:
+                self._hold(self._now(), 'the control step failed', dict(self.joints))
+            except Exception:          # noqa: BLE001
+                pass
+
+    def _hold(self, now: float, why: str, joints: dict) -> None:
+        """The arm stops (the last plan's stop goes on) and holds, said once per reason; nothing is sent once it is
+        at rest (so that another controller may take it over)."""
+        last = self.layer.last
+        if why != self.said_hold:
+            self.said_hold = why
+            rospy.logwarn(f'holding: {why}')
+        else:
+            rospy.logwarn_throttle(5.0, f'holding: {why}')
+        self.improved_at = time.monotonic()          # no stall while held from outside
+        if last is None or last.end + self.layer.period < now:
             return
+        self._plan_and_send(now, None, last.state_at(now)[0], None, joints, why_not=why)
+
+    def _control(self) -> None:
+        now = self._now()
+        with self.lock:
+            goal, joints, speeds, policy = self.goal, dict(self.joints), dict(self.speeds), self.policy
+            holding, homing, enabled, going_home = self.holding, self.homing, self.enabled, self.going_home
+            received, version = dict(self.received), self.version
         arm = self.setup.arm
+        if goal is None and not going_home and (self.layer.last is None or self.layer.last.end < now):
+            return
         if not all(n in joints for n in arm.joints):
             missing = ', '.join(n for n in arm.joints if n not in joints)
             rospy.logwarn_throttle(5.0, f'joint_states does not report {missing} yet')
             return
-        tip = self._tip()
-        if tip is None:
-            return
-        q = [min(max(float(joints[n]), lo), hi) for n, lo, hi in zip(arm.joints, arm._lower, arm._upper)]
-        distance = goal_distance_one(tip, goal)
-        publish(self.distance_pub, Float64(distance))
-        if holding:
-            return
-        if homing:
-            self._home_step(goal, joints, q)
-            return
+        measured = [float(joints[n]) for n in arm.joints]
+        age = now - min(received[n] for n in arm.joints)
+        if not all(math.isfinite(v) for v in measured):
+            bad = ', '.join(n for n, v in zip(arm.joints, measured) if not math.isfinite(v))
+            return self._hold(now, f'joint_states gives {bad} a NaN or infinite position', joints)
+        if age > self.state_timeout:
+            return self._hold(now, f'joint_states is {age:.2f} s old (more than ~state_timeout '
+                                   f'{self.state_timeout:g} s)', joints)
+        if not enabled:
+            return self._hold(now, 'disabled (~enable true to go on)', joints)
+        if self.said_hold:
+            rospy.loginfo(f'going on: {self.said_hold} no more')
+            self.said_hold = ''
+        q = [min(max(v, lo), hi) for v, lo, hi in zip(measured, arm._lower, arm._upper)]
+        velocity = [speeds.get(n, 0.0) for n in arm.joints]
+        if going_home:
+            target = self.setup.home.tolist()
+            if max(abs(a - b) for a, b in zip(q, target)) < AT_HOME:
+                with self.lock:
+                    self.going_home = False
+        elif goal is None:
+            target = None                  # a stop that is not over: it goes on
+        else:
+            tip = self._tip()
+            if tip is None:
+                return self._hold(now, f'no transform {self.base} -> {self.tip}', joints)
+            publish(self.distance_pub, Float64(goal_distance_one(tip, goal)))
+            if holding:
+                target = self.best_q
+            elif homing:
+                target = self._home_target(goal, q)
+            else:
+                target = self._policy_target(policy, q, tip, goal)
+                if target is None:
+                    return self._hold(now, 'the policy gave no action', joints)
+        plan = self._plan_and_send(now, target, measured, velocity, joints)
+        if self.layer.resynced:
+            rospy.logwarn_throttle(5.0, self.layer.resynced)
+        blocked = ''
+        if plan.held and target is not None:
+            blocked = ', '.join(plan.contacts) or plan.held
+            rospy.logwarn_throttle(2.0, f'holding: {plan.held}, so the motion was not sent')
+        elif self.layer.body is not None and goal is not None and not homing and not holding and (
+                not self.trail or max(abs(a - b) for a, b in zip(q, self.trail[-1])) > TRAIL_STEP):
+            self.trail.append(q)          # where the arm is: clear of contacts, the way back home
+            del self.trail[:-MAX_TRAIL]
+        with self.lock:
+            if version == self.version:
+                self.blocked = blocked if plan.contacts else ''
+        if goal is not None and not homing and not holding:
+            # judged on the joints' own tip (the kinematics of q), not /tf's: the two can be a message apart under
+            # load, and the configuration held after `not reached` must be the one whose distance was said
+            self._judge(goal, goal_distance_one(self.setup.place_one(q)[0], goal), q)
+
+    def _policy_target(self, policy, q: list[float], tip: list[float], goal: list[float]) -> list[float] | None:
+        """The joints the policy's action asks for from q (the env's move), or None when it gives no action."""
         observation = self.setup.observation_one(q, tip, goal)
         try:
             action = policy.act_batch(ars.flatten_batch(self.setup.observation_space,
-                                                            {k: v[None] for k, v in observation.items()}))[0]
+                                                        {k: v[None] for k, v in observation.items()}))[0]
             a = self.setup.check_action_one(np.asarray(action, dtype=np.float64))
-        except (policies.PolicyError, ValueError) as e:      # a model that answers no action here: no command
-            rospy.logerr_throttle(10.0, f'the policy gave no action for this state, so no command was sent: {e}')
-            return
-        target = self.setup.move_one(q, self.setup.place_one(q)[1], a)
-        body = self.setup.body
-        blocked = ''
-        held, hit = self.setup.guard_one(q, target)       # a motion that would touch: the arm holds where it is
-        if hit:
-            blocked = ', '.join(body.contacts(target)) or 'a contact'
-            rospy.logwarn_throttle(2.0, f'holding: the next motion would touch ({blocked}), so it was not sent')
-            target = held
-        elif body is not None and (not self.trail or max(abs(a - b) for a, b in zip(q, self.trail[-1])) > TRAIL_STEP):
-            self.trail.append(q)          # where the arm is: clear of contacts, the way back home
-            del self.trail[:-MAX_TRAIL]
-        self.blocked = blocked
-        with self.lock:                  # a ~home or a new goal that came meanwhile wins: no stale command after it
-            if goal is not self.goal:
-                return
-            self._command(joints, target)
-        # judged on the joints' own tip (the kinematics of q), not /tf's: the two can be a message apart under load,
-        # and the configuration held after `not reached` must be the one whose distance was said
-        hold = self._judge(goal, goal_distance_one(self.setup.place_one(q)[0], goal), q)   # after the command
-        if hold is not None:
-            with self.lock:
-                if goal is self.goal:
-                    self._command(joints, hold)
+        except (policies.PolicyError, ValueError) as e:      # a model that answers no action here (NaN): none
+            rospy.logerr_throttle(10.0, f'the policy gave no action for this state, so the arm holds: {e}')
+            return None
+        return self.setup.move_one(q, self.setup.place_one(q)[1], a)
 
-    def _judge(self, goal: list[float], distance: float, q: list[float]) -> list[float] | None:
-        """Says reached or not reached once per goal; after not reached, the joints to hold (the arm's closest
-        configuration: at the edge of its workspace a policy would otherwise jitter), else None."""
+    def _judge(self, goal: list[float], distance: float, q: list[float]) -> None:
+        """Says reached or not reached once per goal; after not reached, the arm holds at its closest configuration
+        (at the edge of its workspace a policy would otherwise jitter); at joint limits or a collision, home first
+        and once more from there."""
         now = time.monotonic()
         with self.lock:
             if goal is not self.goal or self.said:
-                return None
+                return
             if self.best_q is None or distance < self.progress_mark - PROGRESS:
                 self.progress_mark, self.improved_at = distance, now    # progress: the stall clock starts again
             if self.best_q is None or distance < self.best:     # the closest configuration, however small the gain
@@ -364,47 +568,38 @@ class ReachController:
             reached = distance < self.setup.task.distance_threshold
             stalled = now - self.improved_at > self.stalled_after
             if not (reached or stalled):
-                return None
+                return
             kind, why = why_unreached(self.setup.arm, goal, q, distance) if not reached else ('', '')
             if not reached and self.blocked and kind != 'beyond':
                 kind, why = 'collision', f'blocked {distance:.3f} m away by a collision ({self.blocked})'
             if kind in ('limits', 'collision') and not self.retried:       # home, and once more from there
                 self.homing, self.retried, self.homing_since = True, True, now
                 rospy.loginfo(f'{why}: going home to try again from there')
-                return self.setup.home.tolist()
+                return
             self.said = True
             self.holding = not reached
-            since, hold, best = self.goal_since, self.best_q, self.best
+            since, best = self.goal_since, self.best
         where = f'({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f})'
         if reached:
             rospy.loginfo(f'reached {where} in {now - since:.2f} s ({distance:.3f} m)')
-            return None
+            return
         rospy.loginfo(f'not reached: closest {best:.3f} m to {where}: {why}; holding at the closest')
-        return hold
 
-    def _home_step(self, goal: list[float], joints: dict, q: list[float]) -> None:
-        """On the way home for a retry: home commanded until every joint is there (or ~stalled_after has passed
-        twice without getting there), then the policy drives again from home, its stall clock started afresh. With
-        a body, the arm goes back the way it came (the configurations it passed, each clear of contacts), then
-        home, and a step home that would touch is not sent."""
+    def _home_target(self, goal: list[float], q: list[float]) -> list[float] | None:
+        """On the way home for a retry: home (with a body, back the way the arm came first: the configurations it
+        passed, each clear of contacts) until every joint is there (or ~stalled_after has passed twice without
+        getting there); then None, and the policy drives again from home, its stall clock started afresh."""
         home = self.setup.home.tolist()
         there = max(abs(a - b) for a, b in zip(q, home)) < AT_HOME
         with self.lock:
-            if goal is not self.goal:
-                return
             if there or time.monotonic() - self.homing_since > 2 * self.stalled_after + 30.0:
                 self.homing, self.improved_at, self.progress_mark = False, time.monotonic(), float('inf')
                 if there:
                     self.trail = [home]
-                return
+                return q
             while self.trail and max(abs(a - b) for a, b in zip(q, self.trail[-1])) < 2 * TRAIL_STEP:
                 self.trail.pop()          # passed: the next one back
-            target = self.trail[-1] if self.trail else home
-            body = self.setup.body
-            if body is not None and not self.trail and body.in_collision(np.array([home]))[0]:
-                rospy.logwarn_throttle(2.0, f'holding: home is in contact ({", ".join(body.contacts(home))})')
-                return
-            self._command(joints, target)
+            return self.trail[-1] if self.trail else home
 
 
 @quiet_on_shutdown

@@ -405,29 +405,32 @@ class CollisionModel:
         return np.stack(self._centres_by_coordinate(np.atleast_2d(np.asarray(q, dtype=float))), axis=2) \
             .transpose(1, 0, 2)
 
-    def in_collision(self, q) -> np.ndarray:
-        """(N,) bool: the arm touches itself (a checked pair) or an obstacle, for (N, arm.n) configurations. The
-        numbers run coordinate by coordinate over (spheres, N) arrays: the batch is the fast axis."""
+    def in_collision(self, q, padding: float = 0.0) -> np.ndarray:
+        """(N,) bool: the arm touches itself (a checked pair) or an obstacle, for (N, arm.n) configurations; with
+        padding (m), coming nearer than that counts as touching (a safety margin). The numbers run coordinate by
+        coordinate over (spheres, N) arrays: the batch is the fast axis."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         x, y, z = self._centres_by_coordinate(q)
         hit = np.zeros(len(q), dtype=bool)
         if len(self.pair_a):
-            hit |= self._touching(x, y, z, self.pair_a, self.pair_b).any(axis=0)
+            hit |= self._touching(x, y, z, self.pair_a, self.pair_b, padding).any(axis=0)
         if self.obstacles and len(self.moving_spheres):
-            hit |= self._touching_obstacles(x, y, z).any(axis=(0, 1))
+            hit |= self._touching_obstacles(x, y, z, padding).any(axis=(0, 1))
         return hit
 
-    def _touching(self, x, y, z, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """(len(a), N) bool: sphere a[p] touches sphere b[p], for centres given as (K, N) x, y and z."""
+    def _touching(self, x, y, z, a: np.ndarray, b: np.ndarray, padding: float = 0.0) -> np.ndarray:
+        """(len(a), N) bool: sphere a[p] touches sphere b[p] (or comes within padding), for centres given as (K, N)
+        x, y and z."""
         d2 = (x[a] - x[b]) ** 2
         d2 += (y[a] - y[b]) ** 2
         d2 += (z[a] - z[b]) ** 2
-        return d2 < ((self.radii[a] + self.radii[b])[:, None] ** 2)
+        return d2 < ((self.radii[a] + self.radii[b] + padding)[:, None] ** 2)
 
-    def _touching_obstacles(self, x, y, z) -> np.ndarray:
-        """(len(obstacles), K_moving, N) bool: the moving spheres that touch each obstacle."""
+    def _touching_obstacles(self, x, y, z, padding: float = 0.0) -> np.ndarray:
+        """(len(obstacles), K_moving, N) bool: the moving spheres that touch each obstacle (or come within
+        padding)."""
         m = self.moving_spheres
-        radii = self.radii[m][:, None]
+        radii = self.radii[m][:, None] + padding
         xs, ys, zs = x[m], y[m], z[m]
         out = np.empty((len(self.obstacles), len(m), xs.shape[1]), dtype=bool)
         for k, o in enumerate(self.obstacles):
@@ -529,13 +532,14 @@ class CollisionModel:
             poses[j.child] = (rot_child, p_origin)
         return {link: poses[link] for link in self._wanted if link in poses}
 
-    def contacts(self, q) -> list[str]:
-        """The pairs in contact in one configuration, by name ('link_a - link_b', 'link - <obstacle>')."""
+    def contacts(self, q, padding: float = 0.0) -> list[str]:
+        """The pairs in contact (or within padding) in one configuration, by name ('link_a - link_b',
+        'link - <obstacle>')."""
         x, y, z = self._centres_by_coordinate(np.asarray(q, dtype=float)[None])
         out = [f'{self.links[i]} - {self.links[j]}' for i, j in self.link_pairs
-               if self._touching(x, y, z, *self._sphere_pairs([(i, j)])).any()]
+               if self._touching(x, y, z, *self._sphere_pairs([(i, j)]), padding).any()]
         if self.obstacles and len(self.moving_spheres):
-            hits = self._touching_obstacles(x, y, z)[:, :, 0].T          # (K_moving, obstacles)
+            hits = self._touching_obstacles(x, y, z, padding)[:, :, 0].T          # (K_moving, obstacles)
             for k, m in zip(*np.nonzero(hits)):
                 name = f'{self.links[self.owner[self.moving_spheres[k]]]} - {self.obstacles[m].name}'
                 if name not in out:

@@ -1,0 +1,436 @@
+"""The safety layer between any reach policy and an arm's controller: limits no policy can pass. No rospy.
+
+    limits = Limits.of(arm, joint_limits='joint_limits.yaml', velocity_scale=0.25)
+    layer = SafetyLayer(limits, period=0.05, body=collision_model, margin=0.02)
+    plan = layer.plan(now, target, measured)      # every control step; target None: stop
+    plan.state_at(t)                              # (positions, velocities) the arm is commanded to be at, at t
+
+Each step plans from the state the previous plan commands at the plan's start (``now`` + one ``lead``): one step of
+``period`` seconds toward the target at a constant acceleration per joint, then a stop at the acceleration limits.
+The plan is sent whole (a trajectory's points: the step's end, then where each joint comes to rest), so an arm whose
+next command is late, or never comes, stops on a path already checked. A plan is sent only if its whole path, step
+and stop, stays within the joint limits and clear of the arm's body and the world (with a margin); otherwise the
+previous plan's stop goes on, and the plan says why. Every velocity is within the limit, every acceleration within
+its limit, by construction: within a segment between two points each joint's acceleration is constant, so a cubic
+Hermite interpolation of the points (what joint_trajectory_controller does with positions and velocities) is the
+plan itself.
+
+Limits come from the URDF (position, velocity) and MoveIt's ``joint_limits.yaml`` (``joint_limits: {name:
+{has_velocity_limits, max_velocity, has_acceleration_limits, max_acceleration, has_position_limits, min_position,
+max_position}}``), which can only narrow the URDF's; velocities and accelerations are scaled by velocity_scale (and
+acceleration_scale, the same by default), as a real bring-up starts well below full speed. A joint without an
+acceleration limit anywhere gets ``DEFAULT_ACCELERATION_TIME``'s: full (scaled) speed in a quarter second.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from robot_ai.reach.arm import Arm, ReachError
+
+DEFAULT_VELOCITY_SCALE = 0.25
+DEFAULT_ACCELERATION_TIME = 0.25   # s to full speed where no acceleration limit is given: max_acceleration = v / this
+DEFAULT_MARGIN = 0.02              # m kept between the arm's body and itself or an obstacle
+SAMPLE_STEP = 0.005                # rad (or m) of any joint between two configurations checked along a plan
+MAX_SAMPLES = 200                  # configurations checked per plan at most
+RESYNC = 0.1                       # rad (or m): an arm this far from where its plan puts it is planned from anew
+POSITION_TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Per joint of the arm, in its order: the positions, velocities and accelerations no command passes."""
+    joints: tuple[str, ...]
+    lower: np.ndarray
+    upper: np.ndarray
+    velocity: np.ndarray         # scaled
+    acceleration: np.ndarray     # scaled
+    velocity_scale: float
+    acceleration_scale: float
+    notes: tuple[str, ...] = ()  # what was assumed (no acceleration limit given)
+
+    @classmethod
+    def of(cls, arm: Arm, joint_limits=None, velocity_scale: float = DEFAULT_VELOCITY_SCALE,
+           acceleration_scale: float | None = None) -> Limits:
+        """The arm's URDF limits, narrowed by joint_limits (a MoveIt joint_limits.yaml: a path, its text, or its
+        parsed dict; None: none) and scaled."""
+        velocity_scale = _scale('velocity_scale', velocity_scale)
+        acceleration_scale = velocity_scale if acceleration_scale is None else _scale('acceleration_scale',
+                                                                                        acceleration_scale)
+        given = read_joint_limits(joint_limits)
+        lower, upper = arm.lower.copy(), arm.upper.copy()
+        velocity = arm.velocity.copy()
+        acceleration = np.full(arm.n, np.nan)
+        for k, name in enumerate(arm.joints):
+            entry = given.get(name, {})
+            if entry.get('has_position_limits'):
+                lower[k] = max(lower[k], entry.get('min_position', lower[k]))
+                upper[k] = min(upper[k], entry.get('max_position', upper[k]))
+                if lower[k] >= upper[k]:
+                    raise ReachError(f'joint_limits: {name} has no positions left between the URDF\'s range and '
+                                     f'min_position/max_position')
+            if entry.get('has_velocity_limits') and 'max_velocity' in entry:
+                velocity[k] = min(velocity[k], entry['max_velocity'])
+            if entry.get('has_acceleration_limits') and 'max_acceleration' in entry:
+                acceleration[k] = entry['max_acceleration']
+        missing = [n for n, a in zip(arm.joints, acceleration) if math.isnan(a)]
+        acceleration = np.where(np.isnan(acceleration), velocity / DEFAULT_ACCELERATION_TIME, acceleration)
+        notes = (f'no acceleration limit for {", ".join(missing)}: full speed in {DEFAULT_ACCELERATION_TIME:g} s '
+                 f'assumed (give them in a joint_limits.yaml)',) if missing else ()
+        return cls(tuple(arm.joints), lower, upper, velocity * velocity_scale, acceleration * acceleration_scale,
+                   velocity_scale, acceleration_scale, notes)
+
+    def describe(self) -> str:
+        return (f'velocities x{self.velocity_scale:g} (up to {self.velocity.max():.3g}), accelerations '
+                f'x{self.acceleration_scale:g} (up to {self.acceleration.max():.3g})')
+
+
+def _scale(name: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= 1:
+        raise ReachError(f'{name} must be a number in (0, 1], got {value!r}')
+    return float(value)
+
+
+def read_joint_limits(source) -> dict[str, dict]:
+    """{joint: {has_velocity_limits: bool, max_velocity: float, ...}} of MoveIt's joint_limits.yaml format, from a
+    path, YAML text or a dict (a ROS parameter); None or '' is {}. ReachError of one line for anything else."""
+    if source is None or source == '' or source == {}:
+        return {}
+    if isinstance(source, str):
+        import yaml
+        text = source
+        if '\n' not in source and (os.path.exists(source) or source.endswith(('.yaml', '.yml'))):
+            try:
+                with open(source, encoding='utf-8') as f:
+                    text = f.read(1 << 20)
+            except OSError as e:
+                raise ReachError(f'joint_limits: cannot read {source}: {e.strerror}') from None
+        try:
+            source = yaml.safe_load(text)
+        except yaml.YAMLError as e:
+            raise ReachError(f'joint_limits: not YAML: {str(e).splitlines()[0]}') from None
+    if not isinstance(source, dict) or not isinstance(source.get('joint_limits'), dict):
+        raise ReachError('joint_limits: expected MoveIt\'s format, a mapping with joint_limits: {joint: {...}}')
+    out = {}
+    for name, entry in source['joint_limits'].items():
+        if not isinstance(entry, dict):
+            raise ReachError(f'joint_limits: {name} must be a mapping, got {entry!r}')
+        clean = {}
+        for key, value in entry.items():
+            if key.startswith('has_'):
+                if not isinstance(value, bool):
+                    raise ReachError(f'joint_limits: {name}.{key} must be true or false, got {value!r}')
+            elif key in ('max_velocity', 'max_acceleration', 'max_jerk', 'max_deceleration'):
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < math.inf:
+                    raise ReachError(f'joint_limits: {name}.{key} must be a positive number, got {value!r}')
+            elif key in ('min_position', 'max_position'):
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                    raise ReachError(f'joint_limits: {name}.{key} must be a finite number, got {value!r}')
+            clean[key] = value
+        out[str(name)] = clean
+    return out
+
+
+# ----------------------------------------------------------------------------------------------------- plans
+@dataclass
+class Plan:
+    """Commanded motion from ``start`` (s): at ``times[k]`` after it each joint is at ``positions[k]`` with
+    ``velocities[k]``, each joint's acceleration constant between two points; the last point is at rest.
+    ``held``: '' when the step moves toward the target asked for, else why it does not (the previous plan's stop
+    goes on); ``contacts``: the pairs that refused it."""
+    start: float
+    times: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+    held: str = ''
+    contacts: list[str] = field(default_factory=list)
+
+    def state_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(positions, velocities) commanded at time t (before the start: the first point; after the end: rest)."""
+        tau = t - self.start
+        if tau <= 0.0:
+            return self.positions[0].copy(), self.velocities[0].copy()
+        if tau >= self.times[-1]:
+            return self.positions[-1].copy(), np.zeros_like(self.velocities[-1])
+        k = int(np.searchsorted(self.times, tau, side='right')) - 1
+        return _along(self.times[k + 1] - self.times[k], self.positions[k], self.velocities[k],
+                      self.velocities[k + 1], tau - self.times[k])
+
+    @property
+    def end(self) -> float:
+        return self.start + float(self.times[-1])
+
+    def rest(self) -> np.ndarray:
+        return self.positions[-1].copy()
+
+    def after(self, t: float) -> Plan:
+        """This plan from time t on (its state at t first), to be sent again."""
+        t = max(t, self.start)
+        p, v = self.state_at(t)
+        keep = self.start + self.times > t + 1e-9
+        times = np.concatenate(([0.0], self.start + self.times[keep] - t))
+        return Plan(t, times, np.vstack((p, self.positions[keep])), np.vstack((v, self.velocities[keep])),
+                    self.held, self.contacts)
+
+    def points(self, hold: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(times from the start, positions, velocities) of a trajectory message: the points after the first (the
+        state at the start, which the arm is in); a plan at rest is one point at rest, hold seconds on."""
+        if len(self.times) > 1:
+            return self.times[1:], self.positions[1:], self.velocities[1:]
+        return np.array([hold]), self.positions[:1], np.zeros_like(self.positions[:1])
+
+    def samples(self, step: float = SAMPLE_STEP, most: int = MAX_SAMPLES) -> np.ndarray:
+        """(M, n) configurations along the plan, no joint moving more than about step between two."""
+        out = [self.positions[:1]]
+        for k in range(len(self.times) - 1):
+            span = self.times[k + 1] - self.times[k]
+            p0, v0, v1 = self.positions[k], self.velocities[k], self.velocities[k + 1]
+            # the most a joint travels within the segment (a reversal included)
+            a = (v1 - v0) / span
+            reach = np.abs(self.positions[k + 1] - p0)
+            with np.errstate(divide='ignore', invalid='ignore'):
+                turn = np.where((v0 * v1 < 0) & (a != 0), v0 * v0 / np.abs(a), 0.0)
+            m = int(min(most, max(1, math.ceil(float(np.max(reach + turn, initial=0.0)) / step))))
+            taus = np.linspace(span / m, span, m)[:, None]
+            out.append(p0 + v0 * taus + 0.5 * a * taus * taus)
+        q = np.vstack(out)
+        if len(q) > most:
+            q = q[np.linspace(0, len(q) - 1, most).round().astype(int)]
+        return q
+
+
+def _along(span: float, p0: np.ndarray, v0: np.ndarray, v1: np.ndarray, tau: float):
+    """(position, velocity) tau into a segment of constant acceleration from (p0, v0) to velocity v1 over span."""
+    a = (v1 - v0) / span
+    return p0 + v0 * tau + 0.5 * a * tau * tau, v0 + a * tau
+
+
+def stop_from(start: float, p: np.ndarray, v: np.ndarray, acceleration: np.ndarray) -> Plan:
+    """Each joint from (p, v) to rest at its acceleration limit: points at every joint's stop time."""
+    with np.errstate(divide='ignore', invalid='ignore'):
+        stops = np.where(v != 0.0, np.abs(v) / acceleration, 0.0)
+    times = [0.0]
+    for s in sorted(float(s) for s in stops if s > 0.0):      # stops closer than 1 us: one point, at the later
+        if s - times[-1] < 1e-6 and len(times) > 1:
+            times[-1] = s
+        elif s >= 1e-6:
+            times.append(s)
+    positions, velocities = [], []
+    for t in times:
+        tt = np.minimum(t, stops)
+        sign = np.sign(v)
+        positions.append(p + v * tt - 0.5 * sign * acceleration * tt * tt)
+        velocities.append(np.where(t >= stops, 0.0, v - sign * acceleration * tt))
+    if len(times) == 1:                         # at rest already: one point
+        return Plan(start, np.array([0.0]), p[None].copy(), np.zeros((1, len(p))))
+    return Plan(start, np.array(times), np.array(positions), np.array(velocities))
+
+
+def step_velocity(p0: np.ndarray, v0: np.ndarray, target: np.ndarray, limits: Limits, dt: float) -> np.ndarray:
+    """Each joint's velocity at the end of a step of dt at constant acceleration from (p0, v0): as fast toward the
+    target as the velocity and acceleration limits let it and still able to stop at the target (and so within the
+    position limits, where the target is)."""
+    a, vmax = limits.acceleration, limits.velocity
+    e = target - p0
+    sign = np.where(e >= 0.0, 1.0, -1.0)
+    e, w0 = np.abs(e), v0 * sign                 # toward the target is positive
+    # the largest w1 with w1^2 / (2a) <= e - (w0 + w1) dt / 2 (stop at the target after the step)
+    disc = (a * dt) ** 2 + 4.0 * (2.0 * a * e - a * dt * w0)
+    w1 = np.where(disc >= 0.0, (-a * dt + np.sqrt(np.maximum(disc, 0.0))) / 2.0, -np.inf)
+    w1 = np.minimum(w1, 2.0 * e / dt - w0)                             # reach the target, no farther, in one step
+    with np.errstate(divide='ignore', invalid='ignore'):                # a turn within the step: not beyond it either
+        w1 = np.where((w0 > 0.0) & (w1 < 0.0), np.minimum(w1, w0 - dt * w0 * w0 / (2.0 * e)), w1)
+    w1 = np.clip(w1, -vmax, vmax)
+    w1 = np.clip(w1, w0 - a * dt, w0 + a * dt)                         # the acceleration limit wins
+    return w1 * sign
+
+
+class SafetyLayer:
+    """Plans every command (see the module); body: a CollisionModel (reach.collision) or None (limits only)."""
+
+    def __init__(self, limits: Limits, period: float, body=None, margin: float = DEFAULT_MARGIN,
+                 lead: float | None = None):
+        if not 0 < period < math.inf:
+            raise ReachError(f'period must be a positive number of seconds, got {period!r}')
+        if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin <= 1:
+            raise ReachError(f'margin must be a number of metres from 0 to 1, got {margin!r}')
+        self.limits, self.period, self.body, self.margin = limits, float(period), body, float(margin)
+        self.lead = self.period if lead is None else float(lead)
+        self.last: Plan | None = None
+        self.resynced = ''       # why the last plan started from the measured state rather than the previous plan
+
+    def reset(self) -> None:
+        self.last = None
+
+    def start_state(self, now: float, measured: np.ndarray,
+                    measured_velocity: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray, str]:
+        """(the next plan's start, positions and velocities there, '' or why the arm is planned from anew)."""
+        start = now + self.lead
+        measured = np.asarray(measured, dtype=float)
+        if self.last is not None:
+            here, _ = self.last.state_at(now)
+            off = np.abs(here - measured)
+            if off.max() <= RESYNC:
+                p, v = self.last.state_at(start)
+                return start, p, v, ''
+            k = int(np.argmax(off))
+            why = (f'the arm is {off[k]:.3f} away from where its commands put it ({self.limits.joints[k]}): planned '
+                   f'from where it stands')
+        else:
+            why = ''
+        v = np.zeros(len(measured)) if measured_velocity is None else np.clip(
+            np.nan_to_num(np.asarray(measured_velocity, dtype=float)), -self.limits.velocity, self.limits.velocity)
+        p = np.clip(measured, self.limits.lower, self.limits.upper)
+        self.last = stop_from(now, p, v, self.limits.acceleration)
+        p, v = self.last.state_at(start)
+        return start, p, v, why
+
+    def plan(self, now: float, target, measured, measured_velocity=None, why_not: str = '') -> Plan:
+        """The plan to send at time now toward target (joint positions; None, or why_not given: stop and hold),
+        the arm measured at `measured`. Never raises on numbers: a NaN anywhere stops the arm."""
+        measured = np.asarray(measured, dtype=float)
+        if not np.isfinite(measured).all():
+            if self.last is None:
+                raise ReachError('the arm\'s state is not finite and there is no plan to hold: nothing to send')
+            return self._hold(now + self.lead, 'the arm\'s state has a NaN or infinite position')
+        start, p0, v0, self.resynced = self.start_state(now, measured, measured_velocity)
+        if why_not or target is None:
+            return self._hold(start, why_not or 'stopped')
+        target = np.asarray(target, dtype=float)
+        if target.shape != p0.shape or not np.isfinite(target).all():
+            return self._hold(start, 'the target has a NaN or infinite position' if target.shape == p0.shape else
+                              f'the target has {target.size} positions, the arm {p0.size} joints')
+        target = np.clip(target, self.limits.lower, self.limits.upper)
+        plan = self._step(start, p0, v0, target)
+        refused, contacts = self.check(plan, p0)
+        if refused:
+            held = self._hold(start, refused)
+            held.contacts = contacts
+            return held
+        self.last = plan
+        return plan
+
+    def _step(self, start: float, p0: np.ndarray, v0: np.ndarray, target: np.ndarray) -> Plan:
+        """One step of period toward target, then the stop. Each joint moves in one of three ways within the step:
+        at a constant acceleration (step_velocity's); to rest at the target at the step's end, in two halves, where
+        the limits allow it (so that a target held still is reached, not circled); or, where the first would pass
+        a position limit (a target that moved, a float's last bit), braking as the previous plan's stop has it do,
+        to rest within the step if it can (a point at its stop time)."""
+        lim, dt = self.limits, self.period
+        a, half = lim.acceleration, dt / 2.0
+        out = lambda x: (x < lim.lower - POSITION_TOLERANCE) | (x > lim.upper + POSITION_TOLERANCE)   # noqa: E731
+        v1 = step_velocity(p0, v0, target, lim, dt)
+        p1 = p0 + 0.5 * (v0 + v1) * dt
+        steady = (v1 - v0) / dt
+        with np.errstate(divide='ignore', invalid='ignore'):
+            turn = np.where(v0 * v1 < 0.0, p0 - 0.5 * v0 * v0 / steady, p1)        # the turning point, if any
+        rest = p1 + v1 * np.abs(v1) / (2.0 * a)
+        brake = out(turn) | out(p1) | out(rest)
+        # to rest at the target: from v0 to vm over the first half, from vm to 0 over the second
+        vm = (4.0 * (target - p0) / dt - v0) / 2.0
+        a1, a2 = (vm - v0) / half, -vm / half
+        with np.errstate(divide='ignore', invalid='ignore'):
+            turn1 = np.where(v0 * vm < 0.0, p0 - 0.5 * v0 * v0 / a1, p0)
+        tol = 1 + 1e-9
+        arrive = ((np.abs(a1) <= a * tol) & (np.abs(a2) <= a * tol) & (np.abs(vm) <= lim.velocity) & ~out(turn1)
+                  & ~brake)
+        stops = np.where(brake, np.abs(v0) / a, np.inf)
+        times = sorted({0.0, dt, *([half] if arrive.any() else []),
+                        *(float(t) for t in stops if 1e-6 < t < dt - 1e-6)})
+        sign = np.sign(v0)
+        pm = p0 + v0 * half + 0.5 * a1 * half * half
+        positions, velocities = [], []
+        for t in times:
+            tb = np.minimum(t, stops)
+            pb, vb = p0 + v0 * tb - 0.5 * sign * a * tb * tb, np.where(t >= stops, 0.0, v0 - sign * a * tb)
+            if t <= half:
+                pa, va = p0 + v0 * t + 0.5 * a1 * t * t, v0 + a1 * t
+            else:
+                pa, va = pm + vm * (t - half) + 0.5 * a2 * (t - half) ** 2, vm + a2 * (t - half)
+            ps, vs = p0 + v0 * t + 0.5 * steady * t * t, v0 + steady * t
+            positions.append(np.where(brake, pb, np.where(arrive, pa, ps)))
+            velocities.append(np.where(brake, vb, np.where(arrive, va, vs)))
+        positions, velocities = np.array(positions), np.array(velocities)
+        velocities[-1, arrive] = 0.0
+        positions[-1, arrive] = target[arrive]
+        tail = stop_from(start + dt, positions[-1], velocities[-1], a)
+        return Plan(start, np.concatenate((times, dt + tail.times[1:])), np.vstack((positions, tail.positions[1:])),
+                    np.vstack((velocities, tail.velocities[1:])))
+
+    def check(self, plan: Plan, here: np.ndarray) -> tuple[str, list[str]]:
+        """('' or why the plan may not be sent, the contacts): within the position limits and, with a body, clear
+        of it and the world by the margin (by the body's own spheres where the arm is within the margin already:
+        it may move out)."""
+        q = plan.samples()
+        lim = self.limits
+        low, high = q < lim.lower - POSITION_TOLERANCE, q > lim.upper + POSITION_TOLERANCE
+        if low.any() or high.any():
+            k = int(np.argmax((low | high).any(axis=0)))
+            return f'it would pass {lim.joints[k]}\'s limit', []
+        if self.body is None:
+            return '', []
+        padding = self.margin
+        if self.margin and self.body.in_collision(here[None], self.margin)[0]:
+            padding = 0.0
+        hit = self.body.in_collision(q, padding)
+        if not hit.any():
+            return '', []
+        first = q[int(np.argmax(hit))]
+        contacts = self.body.contacts(first, padding)
+        within = f' within {padding:g} m' if padding else ''
+        return f'the motion would touch{within} ({", ".join(contacts) or "a contact"})', contacts
+
+    def _hold(self, start: float, why: str) -> Plan:
+        """The previous plan's stop from start on (already checked when it was sent)."""
+        if self.last is None:
+            raise ReachError(f'{why}, and there is no plan to hold')
+        plan = self.last.after(start)
+        plan.held, plan.contacts = why, []
+        self.last = plan
+        return plan
+
+
+# ------------------------------------------------------------------------------------------------- measuring
+@dataclass
+class Violations:
+    """Limits passed by a motion sampled in time (what a test reads from joint_states)."""
+    position: int = 0
+    velocity: int = 0
+    acceleration: int = 0
+    worst: dict = field(default_factory=dict)     # kind -> (ratio of the limit, joint)
+
+    @property
+    def total(self) -> int:
+        return self.position + self.velocity + self.acceleration
+
+
+def violations(times, positions, limits: Limits, tolerance: float = 1e-3, min_dt: float = 1e-4) -> Violations:
+    """Counts of samples whose position is outside the limits, whose velocity (between two samples) or
+    acceleration (between three) is beyond the limits, by more than tolerance (relative: 0.1 % covers a plan's stop
+    times kept to a microsecond and a message's times to a nanosecond). Samples closer than min_dt in time are
+    merged (a message published twice)."""
+    t = np.asarray(times, dtype=float)
+    q = np.asarray(positions, dtype=float)
+    keep = np.concatenate(([True], np.diff(t) > min_dt))
+    t, q = t[keep], q[keep]
+    out = Violations()
+    slack = lambda bound: bound * (1 + tolerance) + 1e-12      # noqa: E731
+    out.position = int(((q < limits.lower - POSITION_TOLERANCE) | (q > limits.upper + POSITION_TOLERANCE)).any(
+        axis=1).sum())
+    if len(t) < 2:
+        return out
+    dt = np.diff(t)[:, None]
+    v = np.diff(q, axis=0) / dt
+    ratio = np.abs(v) / limits.velocity
+    out.velocity = int((np.abs(v) > slack(limits.velocity)).any(axis=1).sum())
+    out.worst['velocity'] = (float(ratio.max()), limits.joints[int(np.argmax(ratio.max(axis=0)))])
+    if len(t) >= 3:
+        mid = (t[2:] - t[:-2])[:, None] / 2.0
+        acc = np.diff(v, axis=0) / mid
+        ratio = np.abs(acc) / limits.acceleration
+        out.acceleration = int((np.abs(acc) > slack(limits.acceleration)).any(axis=1).sum())
+        out.worst['acceleration'] = (float(ratio.max()), limits.joints[int(np.argmax(ratio.max(axis=0)))])
+    return out

@@ -1,0 +1,284 @@
+"""The safety layer (robot_ai.reach.safety) and the trajectory follower (robot_ai.reach.trajectory), no roscore:
+hostile targets on every reference arm, executed as a joint_trajectory_controller executes them, pass no position,
+velocity or acceleration limit and touch nothing."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from robot_ai.reach.arm import ReachError
+from robot_ai.reach.env import ReachSetup
+from robot_ai.reach.safety import Limits, SafetyLayer, read_joint_limits, stop_from, violations
+from robot_ai.reach.trajectory import Follower, TrajectoryError
+
+ROBOTS = os.path.realpath(os.path.join(os.path.dirname(__file__), '..', '..', '..', 'shared', 'robots'))
+WORLD = os.path.realpath(os.path.join(os.path.dirname(__file__), '..', 'world.yaml'))
+PERIOD = 0.05
+
+
+def setup_of(name: str, **kwargs) -> ReachSetup:
+    path = os.path.join(ROBOTS, f'{name}.urdf')
+    if not os.path.exists(path):
+        pytest.fail(f'{path} is missing: the reference robots are part of the test set-up')
+    return ReachSetup(path, **kwargs)
+
+
+@pytest.fixture(scope='module')
+def kuka_world():
+    return setup_of('kuka_lwr_arm', obstacles=WORLD)
+
+
+# ------------------------------------------------------------------------------------------------------- limits
+def test_limits_are_the_urdf_s_scaled_and_joint_limits_yaml_only_narrows_them(tmp_path):
+    setup = setup_of('kuka_lwr_arm')
+    arm = setup.arm
+    urdf = Limits.of(arm, velocity_scale=1.0)
+    np.testing.assert_array_equal(urdf.velocity, arm.velocity)
+    np.testing.assert_array_equal(urdf.lower, arm.lower)
+    assert urdf.notes and 'no acceleration limit' in urdf.notes[0]
+    half = Limits.of(arm, velocity_scale=0.5)
+    np.testing.assert_allclose(half.velocity, arm.velocity * 0.5)
+    np.testing.assert_allclose(half.acceleration, urdf.acceleration * 0.5)
+    j0, j1 = arm.joints[0], arm.joints[1]
+    yaml_file = tmp_path / 'joint_limits.yaml'
+    yaml_file.write_text(f'''joint_limits:
+  {j0}:
+    has_velocity_limits: true
+    max_velocity: 0.5
+    has_acceleration_limits: true
+    max_acceleration: 2.0
+    has_position_limits: true
+    min_position: -1.0
+    max_position: 9.0
+  {j1}:
+    has_velocity_limits: true
+    max_velocity: 99.0
+  panda_finger_joint1:
+    has_velocity_limits: true
+    max_velocity: 0.1
+''')
+    given = Limits.of(arm, str(yaml_file), velocity_scale=0.5, acceleration_scale=0.25)
+    assert given.velocity[0] == pytest.approx(0.25) and given.acceleration[0] == pytest.approx(0.5)
+    assert given.lower[0] == -1.0 and given.upper[0] == arm.upper[0]          # narrowed, never widened
+    assert given.velocity[1] == pytest.approx(arm.velocity[1] * 0.5)          # 99 > the URDF's: the URDF's
+    assert j0 not in given.notes[0] and j1 in given.notes[0]
+
+
+@pytest.mark.parametrize('text, words', [
+    ('joint_limits: [1, 2]', 'MoveIt'),
+    ('{a: 1}', 'MoveIt'),
+    ('joint_limits: {j: {has_velocity_limits: yes please}}', 'true or false'),
+    ('joint_limits: {j: {has_velocity_limits: true, max_velocity: -1}}', 'positive number'),
+    ('joint_limits: {j: {has_velocity_limits: true, max_velocity: .nan}}', 'positive number'),
+    ('joint_limits: {j: {min_position: .inf}}', 'finite'),
+    ('joint_limits: {j: 3}', 'mapping'),
+    ('joint_limits: {: [}', 'not YAML'),
+    ('/no/such/joint_limits.yaml', 'cannot read'),
+])
+def test_a_bad_joint_limits_file_is_one_line(text, words):
+    with pytest.raises(ReachError) as e:
+        read_joint_limits(text)
+    assert words in str(e.value) and '\n' not in str(e.value)
+
+
+@pytest.mark.parametrize('scale', [0, -0.5, 1.5, float('nan'), True, 'fast'])
+def test_a_scale_outside_0_to_1_is_refused(scale):
+    with pytest.raises(ReachError, match='velocity_scale'):
+        Limits.of(setup_of('ur5').arm, velocity_scale=scale)
+
+
+# ------------------------------------------------------------------------------------------------------- plans
+def run(setup: ReachSetup, targets, steps: int, seed: int = 0, body=None, late: float = 0.03):
+    """The layer driven by targets(k, q) every period (ticks late by up to `late` s, and some later than a whole
+    period), each plan taken by a Follower when it arrives (up to 30 ms after it is made): the arm's motion sampled
+    every 5 ms, the plans."""
+    limits = Limits.of(setup.arm)
+    layer = SafetyLayer(limits, PERIOD, body=body)
+    arm = Follower(setup.home)
+    rng = np.random.default_rng(seed)
+    now, times, positions, plans = 0.0, [], [], []
+    for k in range(steps):
+        q, v = arm.state_at(now)
+        plan = layer.plan(now, targets(k, q, rng), q, v)
+        plans.append(plan)
+        arrive = now + rng.uniform(0.0, late)
+        after = now + PERIOD * (rng.uniform(1.0, 1.4) if rng.random() > 0.05 else rng.uniform(1.5, 4.0))
+        for t in np.arange(now, after, 0.005):
+            if arrive is not None and t >= arrive:
+                arm.take(arrive, plan.start, *plan.points(PERIOD))
+                arrive = None
+            times.append(t)
+            positions.append(arm.state_at(t)[0])
+        now = after
+    return limits, np.array(times), np.array(positions), plans
+
+
+HOSTILE = {
+    'random goals': lambda lower, upper: (lambda k, q, rng: rng.uniform(lower, upper) if k % 30 == 0 else None),
+    'always +1': lambda lower, upper: (lambda k, q, rng: q + 1.0),
+    'oscillating': lambda lower, upper: (lambda k, q, rng: q + (1.0 if k % 2 else -1.0)),
+    'random': lambda lower, upper: (lambda k, q, rng: q + rng.normal(0.0, 1.0, len(q))),
+    'beyond the limits': lambda lower, upper: (lambda k, q, rng: np.where(rng.random(len(q)) < 0.5, lower - 5,
+                                                                          upper + 5)),
+    'NaN now and then': lambda lower, upper: (lambda k, q, rng: np.where(rng.random(len(q)) < 0.2, np.nan,
+                                                                         q + rng.normal(0.0, 0.5, len(q)))),
+}
+
+
+def targets_of(kind: str, setup: ReachSetup):
+    fn = HOSTILE[kind](setup.arm.lower, setup.arm.upper)
+    held = {}
+
+    def targets(k, q, rng):
+        t = fn(k, q, rng)
+        if t is None:
+            return held['t']
+        held['t'] = t
+        return t
+    return targets
+
+
+@pytest.mark.parametrize('robot', ['ur5', 'kuka_lwr_arm', 'panda', 'pr2'])
+@pytest.mark.parametrize('kind', sorted(HOSTILE))
+def test_no_target_makes_the_executed_motion_pass_a_limit(robot, kind):
+    setup = setup_of(robot)
+    limits, times, positions, plans = run(setup, targets_of(kind, setup), 300, seed=len(kind))
+    found = violations(times, positions, limits)
+    assert found.total == 0, (found, kind)
+    assert np.isfinite(positions).all()
+    if kind in ('random goals', 'oscillating', 'random'):
+        assert np.abs(np.diff(positions, axis=0)).sum() > 0.5, 'the arm hardly moved'
+        if kind != 'oscillating':         # which turns every step: the acceleration limit keeps it slow
+            assert found.worst['velocity'][0] > 0.5, 'never near its speed: the layer is slower than it need be'
+    if kind == 'NaN now and then':
+        assert any('NaN' in p.held for p in plans)
+
+
+def test_in_a_world_the_arm_touches_nothing_and_the_holds_name_the_contact(kuka_world):
+    setup = kuka_world
+    limits, times, positions, plans = run(setup, targets_of('random goals', setup), 1500, seed=3, body=setup.body)
+    assert violations(times, positions, limits).total == 0
+    assert not setup.body.in_collision(positions).any()
+    held = [p for p in plans if p.contacts]
+    assert held, 'random goals among a table and two boxes never met one: the test does not test'
+    assert all('box' in ' '.join(p.contacts) or 'table' in ' '.join(p.contacts) or ' - ' in p.contacts[0]
+               for p in held)
+    assert all('would touch within 0.02 m' in p.held for p in held)
+
+
+def test_a_reachable_target_is_reached_about_as_fast_as_the_limits_allow():
+    setup = setup_of('kuka_lwr_arm')
+    limits = Limits.of(setup.arm)
+    layer = SafetyLayer(limits, PERIOD)
+    target = setup.arm.lower * 0.6 + setup.arm.upper * 0.4
+    distance = np.abs(target - setup.home)
+    # one joint's time-optimal move: accelerate, cruise, brake
+    needed = np.where(distance > limits.velocity ** 2 / limits.acceleration,
+                      distance / limits.velocity + limits.velocity / limits.acceleration,
+                      2 * np.sqrt(distance / limits.acceleration)).max()
+    now, q = 0.0, setup.home.copy()
+    while np.abs(q - target).max() > 1e-6:
+        layer.plan(now, target, q)
+        now += PERIOD
+        q = layer.last.state_at(now)[0]
+        assert now < 1.5 * needed + 0.5, f'not there after {now:.2f} s; the limits allow {needed:.2f} s'
+    assert layer.last.state_at(now + 10)[1].max() == 0.0
+
+
+def test_a_stop_from_full_speed_brakes_at_the_limit_and_holds():
+    setup = setup_of('ur5')
+    limits = Limits.of(setup.arm)
+    v = limits.velocity * np.where(np.arange(setup.arm.n) % 2, 1.0, -1.0)
+    plan = stop_from(1.0, setup.home, v, limits.acceleration)
+    rest = plan.rest()
+    np.testing.assert_allclose(rest - setup.home, v * np.abs(v) / (2 * limits.acceleration), atol=1e-12)
+    assert plan.end == pytest.approx(1.0 + (limits.velocity / limits.acceleration).max())
+    t = np.linspace(1.0, plan.end + 0.2, 400)
+    assert violations(t, [plan.state_at(x)[0] for x in t], limits).total == 0
+    np.testing.assert_array_equal(plan.state_at(plan.end + 1)[1], 0.0)
+
+
+def test_a_stale_state_a_stop_or_a_nan_state_holds_along_the_stop_already_sent():
+    setup = setup_of('kuka_lwr_arm')
+    limits = Limits.of(setup.arm)
+    layer = SafetyLayer(limits, PERIOD)
+    q, now = setup.home.copy(), 0.0
+    for _ in range(10):          # up to speed toward the upper limits
+        layer.plan(now, setup.arm.upper, q)
+        now += PERIOD
+        q = layer.last.state_at(now)[0]
+    moving = layer.last
+    held = layer.plan(now, setup.arm.upper, q, why_not='joint_states is 0.5 s old')
+    assert held.held == 'joint_states is 0.5 s old'
+    for t in np.linspace(held.start, held.end + 1, 50):       # the same motion as the stop sent before
+        np.testing.assert_allclose(held.state_at(t)[0], moving.state_at(t)[0], atol=1e-12)
+    nan = layer.plan(now + PERIOD, setup.arm.upper, np.full(setup.arm.n, np.nan))
+    assert 'NaN' in nan.held
+    np.testing.assert_allclose(nan.rest(), moving.rest(), atol=1e-12)
+
+
+def test_an_arm_that_is_not_where_its_commands_put_it_is_planned_from_where_it_stands():
+    setup = setup_of('ur5')
+    layer = SafetyLayer(Limits.of(setup.arm), PERIOD)
+    layer.plan(0.0, setup.home + 0.1, setup.home)
+    moved = setup.home + 0.5                      # someone else moved it
+    plan = layer.plan(PERIOD, setup.home + 0.1, moved)
+    assert 'planned from where it stands' in layer.resynced
+    np.testing.assert_allclose(plan.positions[0], moved, atol=1e-9)
+
+
+def test_bad_settings_are_one_line():
+    limits = Limits.of(setup_of('ur5').arm)
+    for kwargs, words in [(dict(period=0), 'period'), (dict(period=PERIOD, margin=-1), 'margin')]:
+        with pytest.raises(ReachError, match=words):
+            SafetyLayer(limits, **kwargs)
+    with pytest.raises(ReachError, match='no plan to hold'):
+        SafetyLayer(limits, PERIOD).plan(0.0, None, np.full(limits.lower.shape, np.nan))
+
+
+# ------------------------------------------------------------------------------------------------ the follower
+def test_the_follower_follows_a_plan_exactly_and_a_new_one_from_its_start():
+    setup = setup_of('kuka_lwr_arm')
+    layer = SafetyLayer(Limits.of(setup.arm), PERIOD)
+    first = layer.plan(0.0, setup.arm.upper, setup.home)
+    arm = Follower(setup.home)
+    arm.take(0.01, first.start, *first.points(PERIOD))
+    for t in np.linspace(0.0, first.end + 0.1, 97):
+        np.testing.assert_allclose(arm.state_at(t)[0], first.state_at(t)[0], atol=1e-12)
+        np.testing.assert_allclose(arm.state_at(t)[1], first.state_at(t)[1], atol=1e-9)
+    second = layer.plan(PERIOD, setup.arm.lower, first.state_at(PERIOD)[0])
+    arm.take(PERIOD + 0.001, second.start, *second.points(PERIOD))       # arrives before its start
+    for t in np.linspace(0.0, second.start, 20):                          # the first until then
+        np.testing.assert_allclose(arm.state_at(t)[0], first.state_at(t)[0], atol=1e-12)
+    for t in np.linspace(second.start, second.end + 0.1, 50):
+        np.testing.assert_allclose(arm.state_at(t)[0], second.state_at(t)[0], atol=1e-12)
+
+
+def test_a_late_trajectory_starts_from_where_the_arm_is_and_straight_lines_without_velocities():
+    arm = Follower([0.0, 0.0])
+    arm.take(1.0, 0.5, [1.0, 2.0], [[1.0, 2.0], [1.0, 0.0]])        # its start 0.5 s past: from now, 1.0
+    np.testing.assert_allclose(arm.state_at(1.0)[0], [0.0, 0.0])
+    np.testing.assert_allclose(arm.state_at(1.25)[0], [0.5, 1.0])   # halfway to the point at 1.5
+    np.testing.assert_allclose(arm.state_at(1.25)[1], [2.0, 4.0])
+    np.testing.assert_allclose(arm.state_at(9.0)[0], [1.0, 0.0])
+    np.testing.assert_allclose(arm.state_at(9.0)[1], [0.0, 0.0])
+
+
+@pytest.mark.parametrize('times, positions, velocities, words', [
+    ([0.1, 0.1], [[0, 0], [1, 1]], None, 'increase'),
+    ([0.1], [[0, np.nan]], None, 'NaN'),
+    ([0.1], [[0, 0, 0]], None, 'one position per joint'),
+    ([0.1], [[0, 0]], [[0, 0], [1, 1]], 'every point or at none'),
+    ([0.1], [[0, 0]], None, 'past'),
+    ([], np.zeros((0, 2)), None, 'no point'),
+])
+def test_a_trajectory_that_cannot_be_followed_is_refused_and_changes_nothing(times, positions, velocities, words):
+    arm = Follower([0.0, 0.0])
+    arm.take(0.0, 0.0, [1.0], [[1.0, 1.0]])
+    before = [arm.state_at(t)[0] for t in (0.5, 2.0)]
+    now = 5.0 if words == 'past' else 0.2
+    with pytest.raises(TrajectoryError, match=words):
+        arm.take(now, 0.0 if words == 'past' else now, times, positions, velocities)
+    np.testing.assert_allclose([arm.state_at(t)[0] for t in (0.5, 2.0)], before)
