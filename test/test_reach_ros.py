@@ -270,8 +270,12 @@ class TestReachRos(unittest.TestCase):
             self.assertLess(max(distances[-10:]) - min(distances[-10:]), 0.001, distances[-10:])
             answer = rospy.ServiceProxy('/controlled/reach_controller/home', Trigger)()
             self.assertTrue(answer.success)
-            time.sleep(3.0)
-            joints = rospy.wait_for_message('/controlled/joint_states', JointState, 10)
+            deadline = time.monotonic() + 20.0           # at a quarter of the velocity limits (~velocity_scale)
+            while True:
+                joints = rospy.wait_for_message('/controlled/joint_states', JointState, 10)
+                if np.abs(np.array(joints.position) - setup.home).max() < 1e-6 or time.monotonic() > deadline:
+                    break
+                time.sleep(0.2)
             np.testing.assert_allclose(joints.position, setup.home, atol=1e-6)
         finally:
             sub.unregister()

@@ -224,7 +224,12 @@ def test_an_arm_that_is_not_where_its_commands_put_it_is_planned_from_where_it_s
     layer = SafetyLayer(Limits.of(setup.arm), PERIOD)
     layer.plan(0.0, setup.home + 0.1, setup.home)
     moved = setup.home + 0.5                      # someone else moved it
-    plan = layer.plan(PERIOD, setup.home + 0.1, moved)
+    first = layer.plan(PERIOD, setup.home + 0.1, moved)
+    assert 'away from where its commands put it' in first.held and not layer.resynced   # a late message, maybe
+    plan = layer.plan(PERIOD + 0.1, setup.home + 0.1, setup.home + 0.004)           # it was: the next is right
+    assert not plan.held
+    layer.plan(1.0, setup.home + 0.1, moved)
+    plan = layer.plan(1.5, setup.home + 0.1, moved)                                  # it stays there: from there
     assert 'planned from where it stands' in layer.resynced
     np.testing.assert_allclose(plan.positions[0], moved, atol=1e-9)
 

@@ -163,6 +163,7 @@ class ReachController:
                                                   # 1970 keeps only 0.2 us: it shows in an acceleration)
         self.lock = threading.Lock()
         self.output_lock = threading.Lock()
+        self.step_lock = threading.Lock()         # one control step at a time
         self.joints: dict[str, float] = {}
         self.speeds: dict[str, float] = {}
         self.received: dict[str, float] = {}     # ROS time each joint's state last came
@@ -171,6 +172,8 @@ class ReachController:
         self.version = 0                          # one more at every goal and ~home: a step of an older one changes
                                                   # no state of the new one
         self.said_hold = ''                       # the last reason to hold that was said (said again when it changes)
+        self.hold_kind = ''                       # and its kind (a stale state, a NaN, ...), '' when not holding
+        self.announced: dict[str, float] = {}     # when each kind was said last
         self.goal: list[float] | None = None
         self.goal_since = 0.0
         self.best = float('inf')
@@ -326,6 +329,8 @@ class ReachController:
             self.version += 1
         self._draw(goal)
         rospy.loginfo(f'goal ({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f}) m in {self.base}')
+        if hasattr(self, 'timer'):
+            self._step(None)              # the first command at once, not at the next tick
 
     def _draw(self, goal: list[float] | None) -> None:
         marker = Marker(type=Marker.SPHERE, ns='reach_goal', id=0,
@@ -382,8 +387,7 @@ class ReachController:
         if last is None or last.end <= self._now():
             return
         try:
-            now = self._now()
-            self._plan_and_send(now, None, last.state_at(now)[0], None, joints, why_not='shut down', final=True)
+            self._plan_and_send(None, None, None, joints, why_not='shut down', final=True)
         except Exception:             # the node is going: nothing more to do
             pass
 
@@ -392,11 +396,15 @@ class ReachController:
         """Seconds of ROS time since the node started."""
         return (rospy.Time.now() - self.epoch).to_sec()
 
-    def _plan_and_send(self, now: float, target, measured, velocity, joints: dict, why_not: str = '',
+    def _plan_and_send(self, target, measured, velocity, joints: dict, why_not: str = '',
                        final: bool = False) -> Plan:
         """The safety layer's plan, sent: every plan made is sent (the next one starts where it leaves the arm),
-        one at a time (the control step, a hold, the shutdown)."""
+        one at a time (the control step, a hold, the shutdown). The plan starts a period from now, now taken
+        here, after the policy's and the tf's time, so that the command reaches the arm before its start."""
         with self.output_lock:
+            now = self._now()
+            if measured is None:            # a hold: where the last plan puts the arm now
+                measured = self.layer.last.state_at(now)[0]
             plan = self.layer.plan(now, target, measured, velocity, why_not=why_not)
             self._send(plan, joints, final)
             return plan
@@ -449,9 +457,11 @@ class ReachController:
         return [t.x, t.y, t.z]
 
     def _step(self, event) -> None:
-        """One control step; whatever goes wrong in it, the arm stops and the loop goes on."""
+        """One control step (the timer's, or at once for a new goal); whatever goes wrong in it, the arm stops and
+        the loop goes on."""
         try:
-            self._control()
+            with self.step_lock:
+                self._control()
         except Exception as e:          # noqa: BLE001 (the loop must survive anything)
             rospy.logerr_throttle(5.0, f'the control step failed ({type(e).__name__}: {e}): the arm stops and '
                                        f'holds')
@@ -460,19 +470,23 @@ class ReachController:
             except Exception:          # noqa: BLE001
                 pass
 
-    def _hold(self, now: float, why: str, joints: dict) -> None:
-        """The arm stops (the last plan's stop goes on) and holds, said once per reason; nothing is sent once it is
-        at rest (so that another controller may take it over)."""
+    def _hold(self, now: float, why: str, joints: dict, kind: str = '') -> None:
+        """The arm stops (the last plan's stop goes on) and holds, said once per kind of reason (kind, or why);
+        nothing is sent once it is at rest (so that another controller may take it over)."""
         last = self.layer.last
-        if why != self.said_hold:
-            self.said_hold = why
-            rospy.logwarn(f'holding: {why}')
+        kind = kind or why
+        if kind != self.hold_kind:               # a hold begins: said, unless this kind was said within 5 s
+            said = time.monotonic() - self.announced.get(kind, -math.inf) > 5.0
+            self.said_hold, self.hold_kind = (why if said else ''), kind
+            if said:
+                self.announced[kind] = time.monotonic()
+                rospy.logwarn(f'holding: {why}')
         else:
             rospy.logwarn_throttle(5.0, f'holding: {why}')
         self.improved_at = time.monotonic()          # no stall while held from outside
-        if last is None or last.end + self.layer.period < now:
-            return
-        self._plan_and_send(now, None, last.state_at(now)[0], None, joints, why_not=why)
+        if last is None or last.end < now or not last.velocities.any():
+            return                                   # at rest: nothing more to send
+        self._plan_and_send(None, None, None, joints, why_not=why)
 
     def _control(self) -> None:
         now = self._now()
@@ -481,8 +495,9 @@ class ReachController:
             holding, homing, enabled, going_home = self.holding, self.homing, self.enabled, self.going_home
             received, version = dict(self.received), self.version
         arm = self.setup.arm
-        if goal is None and not going_home and (self.layer.last is None or self.layer.last.end < now):
-            return
+        last = self.layer.last
+        if goal is None and not going_home and (last is None or last.end < now or not last.velocities.any()):
+            return                                   # idle, at rest
         if not all(n in joints for n in arm.joints):
             missing = ', '.join(n for n in arm.joints if n not in joints)
             rospy.logwarn_throttle(5.0, f'joint_states does not report {missing} yet')
@@ -491,15 +506,15 @@ class ReachController:
         age = now - min(received[n] for n in arm.joints)
         if not all(math.isfinite(v) for v in measured):
             bad = ', '.join(n for n, v in zip(arm.joints, measured) if not math.isfinite(v))
-            return self._hold(now, f'joint_states gives {bad} a NaN or infinite position', joints)
+            return self._hold(now, f'joint_states gives {bad} a NaN or infinite position', joints, kind='nan')
         if age > self.state_timeout:
             return self._hold(now, f'joint_states is {age:.2f} s old (more than ~state_timeout '
-                                   f'{self.state_timeout:g} s)', joints)
+                                   f'{self.state_timeout:g} s)', joints, kind='stale')
         if not enabled:
             return self._hold(now, 'disabled (~enable true to go on)', joints)
         if self.said_hold:
             rospy.loginfo(f'going on: {self.said_hold} no more')
-            self.said_hold = ''
+        self.said_hold = self.hold_kind = ''
         q = [min(max(v, lo), hi) for v, lo, hi in zip(measured, arm._lower, arm._upper)]
         velocity = [speeds.get(n, 0.0) for n in arm.joints]
         if going_home:
@@ -522,7 +537,7 @@ class ReachController:
                 target = self._policy_target(policy, q, tip, goal)
                 if target is None:
                     return self._hold(now, 'the policy gave no action', joints)
-        plan = self._plan_and_send(now, target, measured, velocity, joints)
+        plan = self._plan_and_send(target, measured, velocity, joints)
         if self.layer.resynced:
             rospy.logwarn_throttle(5.0, self.layer.resynced)
         blocked = ''

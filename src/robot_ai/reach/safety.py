@@ -36,7 +36,8 @@ DEFAULT_ACCELERATION_TIME = 0.25   # s to full speed where no acceleration limit
 DEFAULT_MARGIN = 0.02              # m kept between the arm's body and itself or an obstacle
 SAMPLE_STEP = 0.005                # rad (or m) of any joint between two configurations checked along a plan
 MAX_SAMPLES = 200                  # configurations checked per plan at most
-RESYNC = 0.1                       # rad (or m): an arm this far from where its plan puts it is planned from anew
+RESYNC = 0.1                       # rad (or m): an arm this far from where its plan puts it holds, and
+RESYNC_AFTER = 0.3                 # s: if it stays that far this long, is planned from where it stands
 POSITION_TOLERANCE = 1e-9
 
 
@@ -261,24 +262,34 @@ class SafetyLayer:
         self.lead = self.period if lead is None else float(lead)
         self.last: Plan | None = None
         self.resynced = ''       # why the last plan started from the measured state rather than the previous plan
+        self.off_since: float | None = None    # since when the arm is RESYNC from where its plan puts it
 
     def reset(self) -> None:
         self.last = None
 
     def start_state(self, now: float, measured: np.ndarray,
                     measured_velocity: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray, str]:
-        """(the next plan's start, positions and velocities there, '' or why the arm is planned from anew)."""
+        """(the next plan's start, positions and velocities there, '' or why the arm is planned from anew, or
+        'off: ...' while it is far from where its commands put it but not yet for RESYNC_AFTER: a state that came
+        late, say, whose next message puts it right; a trajectory that started from it would jump)."""
         start = now + self.lead
         measured = np.asarray(measured, dtype=float)
         if self.last is not None:
             here, _ = self.last.state_at(now)
             off = np.abs(here - measured)
             if off.max() <= RESYNC:
+                self.off_since = None
                 p, v = self.last.state_at(start)
                 return start, p, v, ''
             k = int(np.argmax(off))
-            why = (f'the arm is {off[k]:.3f} away from where its commands put it ({self.limits.joints[k]}): planned '
-                   f'from where it stands')
+            self.off_since = now if self.off_since is None else self.off_since
+            if now - self.off_since < RESYNC_AFTER:
+                p, v = self.last.state_at(start)
+                return start, p, v, (f'off: the arm is {off[k]:.3f} away from where its commands put it '
+                                     f'({self.limits.joints[k]})')
+            why = (f'the arm is {off[k]:.3f} away from where its commands put it ({self.limits.joints[k]}) for '
+                   f'{now - self.off_since:.1f} s: planned from where it stands')
+            self.off_since = None
         else:
             why = ''
         v = np.zeros(len(measured)) if measured_velocity is None else np.clip(
@@ -297,6 +308,9 @@ class SafetyLayer:
                 raise ReachError('the arm\'s state is not finite and there is no plan to hold: nothing to send')
             return self._hold(now + self.lead, 'the arm\'s state has a NaN or infinite position')
         start, p0, v0, self.resynced = self.start_state(now, measured, measured_velocity)
+        if self.resynced.startswith('off: '):
+            why, self.resynced = self.resynced[5:], ''
+            return self._hold(start, why)
         if why_not or target is None:
             return self._hold(start, why_not or 'stopped')
         target = np.asarray(target, dtype=float)

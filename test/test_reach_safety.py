@@ -1,0 +1,204 @@
+#!/usr/bin/env python3
+"""reach_controller's safety layer through ROS, as on a real arm: trajectory commands to arm_sim; a learned policy
+and hostile ones (always +1, oscillating, random) never make the arm pass a position, velocity or acceleration limit
+(read from arm_sim's joint_states, each stamped with the time it describes) nor touch itself or the world; a stale
+joint_states (the controller's come through this test, which stops passing them on), a NaN and ~stop stop the arm
+within its limits and it goes on afterwards."""
+import os
+import sys
+import tempfile
+import time
+import unittest
+
+import numpy as np
+import rospy
+import rostest
+from geometry_msgs.msg import PointStamped
+from rosgraph_msgs.msg import Log
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Empty
+from std_srvs.srv import SetBool
+from trajectory_msgs.msg import JointTrajectory
+
+import onnx_models
+from robot_ai.reach import ReachSetup
+from robot_ai.reach.safety import Limits, violations
+from robot_ai.srv import LoadPolicy
+
+HERE = os.path.dirname(os.path.realpath(__file__))
+KUKA = os.path.realpath(os.path.join(HERE, '..', '..', 'shared', 'robots', 'kuka_lwr_arm.urdf'))
+WORLD = os.path.join(HERE, 'world.yaml')
+NS = '/safe'
+NODE = f'{NS}/reach_controller'
+SCALE = 0.5           # reach_safety.test's velocity_scale
+
+
+class TestReachSafety(unittest.TestCase):
+
+    @classmethod
+    def setUpClass(cls):
+        cls.setup = ReachSetup(KUKA, obstacles=WORLD)
+        cls.limits = Limits.of(cls.setup.arm, velocity_scale=SCALE)
+        cls.log, cls.states, cls.commands, cls.events = [], [], [], []
+        cls.relaying = True
+        cls.relay = rospy.Publisher(f'{NS}/relayed_joint_states', JointState, queue_size=10, tcp_nodelay=True)
+        cls.subs = [rospy.Subscriber('/rosout', Log, lambda m: cls.log.append((m.name, m.msg)), queue_size=1000),
+                    rospy.Subscriber(f'{NS}/joint_states', JointState, cls.on_state, queue_size=1000,
+                                     tcp_nodelay=True),
+                    rospy.Subscriber(f'{NS}/joint_trajectory_controller/command', JointTrajectory,
+                                     lambda m: cls.commands.append(time.monotonic()), queue_size=1000)]
+        cls.epoch = rospy.Time.now()
+        deadline = time.monotonic() + 300      # the controller trains ARS at its start (seconds)
+        while not any(n == NODE and 'reach_controller ready' in m for n, m in cls.log):
+            assert time.monotonic() < deadline, 'reach_controller never started'
+            time.sleep(0.5)
+        cls.goals = rospy.Publisher(f'{NODE}/goal', PointStamped, queue_size=1, latch=True)
+
+    @classmethod
+    def on_state(cls, msg):
+        if cls.relaying:                     # the controller's joint_states come through here: the plug
+            cls.relay.publish(msg)
+        joints = dict(zip(msg.name, msg.position))
+        cls.states.append(((msg.header.stamp - cls.epoch).to_sec(), [joints[n] for n in cls.setup.arm.joints]))
+
+    def wait_for_log(self, words, since, timeout=30.0):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            said = [m for n, m in self.log[since:] if n == NODE and any(all(w in m for w in ws) for ws in words)]
+            if said:
+                return said[0]
+            time.sleep(0.05)
+        self.fail(f'reach_controller never said {words}: {[m for n, m in self.log[since:] if n == NODE][-10:]}')
+
+    def goal(self, seed):
+        """A goal the arm can reach clear of the world: the tip of a random configuration clear of contacts."""
+        rng = np.random.default_rng(seed)
+        while True:
+            q = rng.uniform(self.setup.arm.lower, self.setup.arm.upper)
+            if not self.setup.body.in_collision(q[None], 0.03)[0]:
+                return self.setup.arm.tip_positions(q[None])[0]
+
+    def send(self, point):
+        msg = PointStamped()
+        msg.header.frame_id = self.setup.arm.base
+        msg.point.x, msg.point.y, msg.point.z = (float(v) for v in point)
+        self.goals.publish(msg)
+
+    def assert_motion_safe(self, since_state):
+        times = np.array([t for t, _ in self.states[since_state:]])
+        positions = np.array([q for _, q in self.states[since_state:]])
+        self.assertGreater(len(times), 100)
+        found = violations(times, positions, self.limits)
+        if found.total:
+            v = np.abs(np.diff(positions, axis=0)) / np.diff(times)[:, None] / self.limits.velocity
+            where = [(round(times[k] - times[0], 3), round(float(v[k].max()), 3)) for k in
+                     np.flatnonzero(v.max(axis=1) > 1.001)][:10]
+            events = [(round(t - times[0], 3), e) for t, e in self.events]
+            self.fail(f'{found}; (s after the first state, velocity / limit): {where}; events: {events}')
+        touching = self.setup.body.in_collision(positions)
+        first = positions[np.argmax(touching)]
+        self.assertFalse(touching.any(), f'{touching.sum()} states touch: {self.setup.body.contacts(first)}')
+        return found
+
+    # ----------------------------------------------------------------------------------------------------- tests
+    def test_1_no_policy_makes_the_arm_pass_a_limit_or_touch_anything(self):
+        """The ARS policy trained at start, then ONNX models that answer always +1, an action that turns at every
+        sub-millimetre of motion, and random actions: 3 goals each."""
+        folder = tempfile.mkdtemp()
+        n_in = self.setup.arm.n + 3 + 3 + 3
+        meta = dict(env_id='robot_ai/Reach-v0', env_kwargs=dict(tip=self.setup.arm.tip, control='ee'),
+                    robot=self.setup.model.tree.name, joints=list(self.setup.arm.joints))
+        helper, tensor, TP = onnx_models.helper, onnx_models.tensor, onnx_models.TensorProto
+        plus = onnx_models.linear_tanh(np.zeros((n_in, 3)), np.full(3, 10.0), meta)
+        w = np.zeros((n_in, 3), np.float32)
+        w[:3, :] = 3000.0                                       # the tip's coordinates, every 0.3 mm a turn
+        oscillating = onnx_models.model(
+            [helper.make_node('MatMul', ['obs', 'W'], ['z']), helper.make_node('Sin', ['z'], ['s']),
+             helper.make_node('Sign', ['s'], ['action'])],
+            [tensor('obs', TP.FLOAT, ['batch', n_in])], [tensor('action', TP.FLOAT, ['batch', 3])],
+            [onnx_models.numpy_helper.from_array(w, 'W')], meta)
+        random = onnx_models.model(
+            [helper.make_node('MatMul', ['obs', 'W'], ['z']),
+             helper.make_node('RandomUniformLike', ['z'], ['action'], low=-1.0, high=1.0)],
+            [tensor('obs', TP.FLOAT, ['batch', n_in])], [tensor('action', TP.FLOAT, ['batch', 3])],
+            [onnx_models.numpy_helper.from_array(np.zeros((n_in, 3), np.float32), 'W')], meta)
+        load = rospy.ServiceProxy(f'{NODE}/load_policy', LoadPolicy)
+        since_state = len(self.states)
+        reached = 0
+        for k, model in enumerate((None, plus, oscillating, random)):
+            if model is not None:
+                answer = load(onnx_models.save(model, os.path.join(folder, f'{k}.onnx')))
+                self.assertTrue(answer.success, answer.message)
+            for g in range(3):
+                since = len(self.log)
+                self.send(self.goal(10 * k + g))
+                said = self.wait_for_log([['reached'], ['not reached']], since, timeout=60)
+                reached += k == 0 and said.startswith('reached')
+        self.assertGreaterEqual(reached, 2, 'the learned policy reached fewer than 2 of 3 goals')
+        found = self.assert_motion_safe(since_state)
+        self.assertGreater(found.worst['velocity'][0], 0.5, 'the arm never moved at half its speed')
+
+    def test_2_stale_joint_states_stop_the_arm_and_it_goes_on_when_they_return(self):
+        since_state = len(self.states)
+        since = len(self.log)
+        self.send(self.goal(101))
+        time.sleep(0.4)                      # on its way
+        self.events.append(((rospy.Time.now() - self.epoch).to_sec(), 'unplugged'))
+        type(self).relaying = False          # the plug pulled: the arm moves on, its joint_states do not come
+        try:
+            said = self.wait_for_log([['holding: joint_states is', 's old']], since, timeout=10)
+            self.assertIn('~state_timeout', said)
+            time.sleep(1.5)                  # the stop has run out: nothing more is sent
+            quiet_since = time.monotonic() - 0.8
+            self.assertFalse([t for t in self.commands if t > quiet_since], 'commands went on while it held')
+        finally:
+            type(self).relaying = True
+            self.events.append(((rospy.Time.now() - self.epoch).to_sec(), 'plugged in'))
+        self.wait_for_log([['going on: joint_states is']], since, timeout=10)
+        self.wait_for_log([['reached'], ['not reached']], since, timeout=60)
+        self.assert_motion_safe(since_state)
+
+    def test_3_a_nan_in_joint_states_or_in_a_goal_holds_and_the_loop_goes_on(self):
+        since = len(self.log)
+        stray = rospy.Publisher(f'{NS}/joint_states', JointState, queue_size=1)
+        time.sleep(1.0)
+        self.send(self.goal(102))
+        time.sleep(0.3)
+        bad = JointState(name=list(self.setup.arm.joints), position=[float('nan')] * self.setup.arm.n)
+        for _ in range(150):                 # a stray publisher at 500 Hz for 0.3 s, beside arm_sim's 100 Hz
+            stray.publish(bad)
+            time.sleep(0.002)
+        self.wait_for_log([['holding: joint_states gives', 'NaN']], since, timeout=10)
+        self.send([float('nan'), 0.0, 0.3])
+        self.wait_for_log([['ignored', 'finite']], since, timeout=10)
+        since = len(self.log)
+        self.send(self.goal(103))
+        self.wait_for_log([['reached'], ['not reached']], since, timeout=60)
+        stray.unregister()
+
+    def test_4_stop_stops_within_the_limits_and_enable_goes_on(self):
+        since_state = len(self.states)
+        since = len(self.log)
+        rospy.ServiceProxy(f'{NODE}/home', __import__('std_srvs.srv', fromlist=['Trigger']).Trigger)()
+        time.sleep(3.0)
+        self.send(self.goal(104))
+        time.sleep(0.5)
+        stop = rospy.Publisher(f'{NODE}/stop', Empty, queue_size=1, latch=True)
+        stop.publish(Empty())
+        stopped_at = time.monotonic()
+        self.wait_for_log([['stop (~stop)']], since, timeout=10)
+        time.sleep(2.0)
+        recent = [q for t, q in self.states[-20:]]
+        self.assertLess(np.abs(np.diff(recent, axis=0)).max(), 1e-9, 'the arm still moves 2 s after ~stop')
+        quiet_since = stopped_at + (self.limits.velocity / self.limits.acceleration).max() + 0.5
+        self.assertFalse([t for t in self.commands if t > quiet_since], 'commands went on after the stop')
+        answer = rospy.ServiceProxy(f'{NODE}/enable', SetBool)(True)
+        self.assertTrue(answer.success, answer.message)
+        self.wait_for_log([['reached'], ['not reached']], since, timeout=60)
+        self.assert_motion_safe(since_state)
+        stop.unregister()
+
+
+if __name__ == '__main__':
+    rospy.init_node('test_reach_safety')
+    rostest.rosrun('robot_ai', 'reach_safety', TestReachSafety, sys.argv)
