@@ -19,8 +19,9 @@ the limits; a command that comes late, or never, leaves the arm stopping on a ch
 
 Goals come from rviz's Publish Point tool (/clicked_point) or ~goal, in any frame tf knows; the goal is drawn as a
 marker and its distance published. It says `reached <goal> in <s> s (<d> m)` once the tip is within the policy's
-threshold. When the distance stops shrinking with joints at their limits (a goal the arm must come at another way),
-it takes the arm home and tries once more from there; then it says `not reached: closest <d> m ...` and why (beyond
+threshold. When the distance stops shrinking within the arm's reach (joints at their limits, a collision, a
+configuration the policy cannot leave: a goal the arm must come at another way), it takes the arm home and tries
+once more from there; then it says `not reached: closest <d> m ...` and why (beyond
 the arm's reach, with the distance; stalled with the joints at their limits, named; blocked by a collision; or
 neither), takes the arm back to the closest configuration it found and holds it until the next goal. ~home takes the
 arm home and drops the goal.
@@ -399,7 +400,7 @@ class ReachController:
     def _plan_and_send(self, target, measured, velocity, joints: dict, why_not: str = '',
                        final: bool = False) -> Plan:
         """The safety layer's plan, sent: every plan made is sent (the next one starts where it leaves the arm),
-        one at a time (the control step, a hold, the shutdown). The plan starts a period from now, now taken
+        one at a time (the control step, a hold, the shutdown). The plan starts two periods from now, now taken
         here, after the policy's and the tf's time, so that the command reaches the arm before its start."""
         with self.output_lock:
             now = self._now()
@@ -587,7 +588,7 @@ class ReachController:
             kind, why = why_unreached(self.setup.arm, goal, q, distance) if not reached else ('', '')
             if not reached and self.blocked and kind != 'beyond':
                 kind, why = 'collision', f'blocked {distance:.3f} m away by a collision ({self.blocked})'
-            if kind in ('limits', 'collision') and not self.retried:       # home, and once more from there
+            if kind != 'beyond' and not self.retried:       # stalled within reach: home, and once more from there
                 self.homing, self.retried, self.homing_since = True, True, now
                 rospy.loginfo(f'{why}: going home to try again from there')
                 return

@@ -5,7 +5,8 @@
     plan = layer.plan(now, target, measured)      # every control step; target None: stop
     plan.state_at(t)                              # (positions, velocities) the arm is commanded to be at, at t
 
-Each step plans from the state the previous plan commands at the plan's start (``now`` + one ``lead``): one step of
+Each step plans from the state the previous plan commands at the plan's start (``now`` + ``lead``, two control
+periods by default): one step of
 ``period`` seconds toward the target at a constant acceleration per joint, then a stop at the acceleration limits.
 The plan is sent whole (a trajectory's points: the step's end, then where each joint comes to rest), so an arm whose
 next command is late, or never comes, stops on a path already checked. A plan is sent only if its whole path, step
@@ -39,6 +40,9 @@ MAX_SAMPLES = 200                  # configurations checked per plan at most
 RESYNC = 0.1                       # rad (or m): an arm this far from where its plan puts it holds, and
 RESYNC_AFTER = 0.3                 # s: if it stays that far this long, is planned from where it stands
 POSITION_TOLERANCE = 1e-9
+LEAD_PERIODS = 2                   # a plan starts this many control periods after it is made: a command that reaches
+                                   # the arm later than that is spliced in from where the arm is, with a jolt
+SHORTER = (0.5, 0.25, 0.1)         # a step that would touch is tried again toward these shares of its target
 
 
 @dataclass(frozen=True)
@@ -259,7 +263,7 @@ class SafetyLayer:
         if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin <= 1:
             raise ReachError(f'margin must be a number of metres from 0 to 1, got {margin!r}')
         self.limits, self.period, self.body, self.margin = limits, float(period), body, float(margin)
-        self.lead = self.period if lead is None else float(lead)
+        self.lead = LEAD_PERIODS * self.period if lead is None else float(lead)
         self.last: Plan | None = None
         self.resynced = ''       # why the last plan started from the measured state rather than the previous plan
         self.off_since: float | None = None    # since when the arm is RESYNC from where its plan puts it
@@ -320,6 +324,13 @@ class SafetyLayer:
         target = np.clip(target, self.limits.lower, self.limits.upper)
         plan = self._step(start, p0, v0, target)
         refused, contacts = self.check(plan, p0)
+        for share in SHORTER:            # refused: a step toward a nearer target (a slower approach, a shorter stop)
+            if not contacts:
+                break
+            shorter = self._step(start, p0, v0, p0 + (target - p0) * share)
+            if not self.check(shorter, p0)[0]:
+                plan, refused = shorter, ''
+                break
         if refused:
             held = self._hold(start, refused)
             held.contacts = contacts
