@@ -17,7 +17,6 @@
 """
 import argparse
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -29,7 +28,7 @@ HERE = os.path.dirname(os.path.realpath(__file__))
 ROOT = os.path.dirname(HERE)
 ROBOTS = os.path.realpath(os.path.join(ROOT, '..', 'shared', 'robots'))
 sys.path.insert(0, HERE)
-from ros_env_speed import free_port  # noqa: E402
+from ros_env_speed import free_port, stop_all  # noqa: E402
 
 PERIOD = 0.05
 SCALE = 0.5
@@ -211,14 +210,7 @@ def through_ros(clicks: int) -> None:
             print(f'    {label:15s} p50 {np.percentile(waits, 50):6.1f}   p99 {np.percentile(waits, 99):6.1f}   '
                   f'max {waits.max():6.1f}   ({len(waits)} of {clicks} answered within 5 s)')
     finally:
-        for p in procs:
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGINT)
-        for p in procs:
-            try:
-                p.wait(20)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
+        stop_all(procs)
 
 
 def main() -> int:

@@ -31,6 +31,18 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def stop_all(procs) -> None:
+    """The benchmark's launches and nodes (each a process group of its own) ended: Ctrl-C, then SIGKILL after 20 s."""
+    for p in procs:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGINT)
+    for p in procs:
+        try:
+            p.wait(20)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+
+
 def echo_node() -> None:
     """The reference peer: answers every Float64 on /ping with a JointState on /pong, as a lockstep sim does."""
     import rospy
@@ -190,14 +202,7 @@ def main() -> int:
                   f'in-process {v[f"gymnasium {kind}"]:8,.0f} ({v[f"gymnasium {kind}"] / v[f"ros {kind}"]:.1f} x)')
         return 0
     finally:
-        for p in procs:
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGINT)
-        for p in procs:
-            try:
-                p.wait(20)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
+        stop_all(procs)
 
 
 if __name__ == '__main__':

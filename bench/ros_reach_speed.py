@@ -17,7 +17,6 @@ to see a loaded machine.
 """
 import argparse
 import os
-import signal
 import struct
 import subprocess
 import sys
@@ -29,7 +28,7 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.realpath(__file__))
 sys.path.insert(0, HERE)
-from ros_env_speed import echo_node, free_port, ping_pong_rate, rate  # noqa: E402
+from ros_env_speed import echo_node, free_port, ping_pong_rate, rate, stop_all  # noqa: E402
 
 
 def bare_exchange_rate(steps: int) -> float:
@@ -171,14 +170,7 @@ def main() -> int:
                   f'max {worst:6.1f}')
         return 0
     finally:
-        for p in procs:
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGINT)
-        for p in procs:
-            try:
-                p.wait(20)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
+        stop_all(procs)
 
 
 if __name__ == '__main__':

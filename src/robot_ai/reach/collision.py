@@ -71,24 +71,30 @@ def _numbers(value, count: int, what: str) -> tuple[float, ...]:
     return values
 
 
+def read_yaml(value: str, what: str):
+    """A YAML file's contents (a path: one line that names a file, or ends in .yaml or .yml; at most 1 MiB) or YAML
+    text's; ReachError of one line naming `what` for a file that cannot be read or text that is not YAML."""
+    import yaml
+    text = value
+    if '\n' not in value and (value.endswith(('.yaml', '.yml')) or os.path.isfile(value)):
+        try:
+            with open(value, encoding='utf-8') as f:
+                text = f.read(1 << 20)
+        except OSError as e:
+            raise ReachError(f'{what}: cannot read {value}: {e.strerror}') from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise ReachError(f'{what}: not YAML: {str(e).splitlines()[0]}') from None
+
+
 def parse_obstacles(value) -> tuple[Obstacle, ...]:
     """Obstacles from a list of dicts, a YAML file's path, or YAML text of such a list (None or empty: none);
     ReachError of one line for anything else."""
     if value is None or (isinstance(value, (str, list, tuple)) and len(value) == 0):
         return ()
     if isinstance(value, str):
-        import yaml
-        text = value
-        if '\n' not in value and (value.endswith(('.yaml', '.yml')) or os.path.isfile(value)):
-            try:
-                with open(value) as f:
-                    text = f.read(1 << 20)
-            except OSError as e:
-                raise ReachError(f'obstacles: cannot read {value}: {e.strerror}') from None
-        try:
-            value = yaml.safe_load(text)
-        except yaml.YAMLError as e:
-            raise ReachError(f'obstacles: not YAML: {str(e).splitlines()[0]}') from None
+        value = read_yaml(value, 'obstacles')
         if isinstance(value, dict) and 'obstacles' in value:
             value = value['obstacles']
     if not isinstance(value, (list, tuple)):

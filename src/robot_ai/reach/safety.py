@@ -25,12 +25,12 @@ acceleration limit anywhere gets ``DEFAULT_ACCELERATION_TIME``'s: full (scaled) 
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from robot_ai.reach.arm import Arm, ReachError
+from robot_ai.reach.collision import read_yaml
 
 DEFAULT_VELOCITY_SCALE = 0.25
 DEFAULT_ACCELERATION_TIME = 0.25   # s to full speed where no acceleration limit is given: max_acceleration = v / this
@@ -105,18 +105,7 @@ def read_joint_limits(source) -> dict[str, dict]:
     if source is None or source == '' or source == {}:
         return {}
     if isinstance(source, str):
-        import yaml
-        text = source
-        if '\n' not in source and (os.path.exists(source) or source.endswith(('.yaml', '.yml'))):
-            try:
-                with open(source, encoding='utf-8') as f:
-                    text = f.read(1 << 20)
-            except OSError as e:
-                raise ReachError(f'joint_limits: cannot read {source}: {e.strerror}') from None
-        try:
-            source = yaml.safe_load(text)
-        except yaml.YAMLError as e:
-            raise ReachError(f'joint_limits: not YAML: {str(e).splitlines()[0]}') from None
+        source = read_yaml(source, 'joint_limits')
     if not isinstance(source, dict) or not isinstance(source.get('joint_limits'), dict):
         raise ReachError('joint_limits: expected MoveIt\'s format, a mapping with joint_limits: {joint: {...}}')
     out = {}
