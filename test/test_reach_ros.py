@@ -256,6 +256,9 @@ class TestReachRos(unittest.TestCase):
                 said = self.wait_for_log(['reached'], since)
                 self.assertTrue(said.startswith('reached ('), said)
                 self.assertLessEqual(float(said.rsplit('(', 1)[1].split()[0]), 0.05)   # said to 1 mm: 0.0496 is 0.050
+                time.sleep(0.5)                # reached: it stays, and goes nowhere else (a retry from home, say)
+                after = [m for n, m in self.log[since:] if n == '/controlled/reach_controller']
+                self.assertFalse([m for m in after if 'going home' in m], after)
             since = len(self.log)
             msg = PointStamped(point=type(PointStamped().point)(3.0, 0.0, 0.2))
             msg.header.frame_id = 'base_link'

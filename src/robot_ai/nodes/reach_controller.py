@@ -588,7 +588,7 @@ class ReachController:
             kind, why = why_unreached(self.setup.arm, goal, q, distance) if not reached else ('', '')
             if not reached and self.blocked and kind != 'beyond':
                 kind, why = 'collision', f'blocked {distance:.3f} m away by a collision ({self.blocked})'
-            if kind != 'beyond' and not self.retried:       # stalled within reach: home, and once more from there
+            if not reached and kind != 'beyond' and not self.retried:    # stalled within reach: home, once more
                 self.homing, self.retried, self.homing_since = True, True, now
                 rospy.loginfo(f'{why}: going home to try again from there')
                 return
