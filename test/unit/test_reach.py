@@ -78,6 +78,19 @@ def test_tip_equals_link_poses_and_jacobian_equals_finite_differences(path, xacr
             fd = (arm.tip_positions(q + dq) - arm.tip_positions(q - dq)) / (2 * eps)
             np.testing.assert_allclose(jac[:, :, k], fd, atol=1e-8, err_msg=f'{path} {arm.tip} {arm.joints[k]}')
         np.testing.assert_array_equal(arm.tip_positions(q[3]), tips[3])          # one configuration alone
+        # the orientation (pose goals' groundwork): against link_poses, and its angular Jacobian against finite
+        # differences of the rotation, omega = vee(dR R^T)
+        rotations = arm.tip_rotations(q)
+        for i in range(0, len(q), 5):
+            poses = tree.link_poses(tree.resolve_positions(arm.positions(q[i])), base=base)
+            np.testing.assert_allclose(rotations[i], poses[arm.tip][:3, :3], atol=1e-12, err_msg=f'{path} {arm.tip}')
+        angular = arm.angular_jacobian(q)
+        for k in range(arm.n):
+            dq = np.zeros(arm.n)
+            dq[k] = eps
+            d = (arm.tip_rotations(q + dq) - arm.tip_rotations(q - dq)) / (2 * eps) @ rotations.transpose(0, 2, 1)
+            omega = np.stack((d[:, 2, 1], d[:, 0, 2], d[:, 1, 0]), axis=1)
+            np.testing.assert_allclose(angular[:, :, k], omega, atol=1e-8, err_msg=f'{path} {arm.tip} {arm.joints[k]}')
 
 
 def test_mimic_joints_follow_their_source_even_off_the_chain():

@@ -187,6 +187,7 @@ class Arm:
             rotation, translation = turn.T, np.zeros(3)
         self._segments = segments
         self._tip_offset = translation        # the tip's origin in the last moving joint's (turned) frame
+        self._tip_rotation = rotation         # and its orientation there
         self._tip_t = tuple(float(v) for v in translation)
         self._lower, self._upper = self.lower.tolist(), self.upper.tolist()
         self._half = (self.upper - self.lower) / 2.0
@@ -238,6 +239,42 @@ class Arm:
                 column = column * seg.multiplier
             out[:, seg.source] += column
         return out
+
+    def tip_rotations(self, q) -> np.ndarray:
+        """The tip's orientation (N, 3, 3) in the base frame for joint positions q (N, n); (3, 3) for one
+        configuration (n,)."""
+        q = np.asarray(q, dtype=float)
+        q_t = np.ascontiguousarray(np.atleast_2d(q).T)
+        cols = np.identity(3)[:, :, None]
+        for seg in self._segments:           # forward's frame, rotations only
+            r = seg.rotation
+            mid = cols[0][None] * r[0][:, None, None] + cols[1][None] * r[1][:, None, None] \
+                + cols[2][None] * r[2][:, None, None]
+            if seg.revolute:
+                v = q_t[seg.source] * seg.multiplier + seg.offset
+                c, s_ = np.cos(v), np.sin(v)
+                cols = np.empty((3, 3, len(v)))
+                cols[0] = mid[0] * c + mid[1] * s_
+                cols[1] = mid[1] * c - mid[0] * s_
+                cols[2] = mid[2]
+            else:
+                cols = np.broadcast_to(mid, (3, 3, q_t.shape[1]))
+        frame = np.broadcast_to(cols, (3, 3, q_t.shape[1])).transpose(2, 1, 0)     # (N, 3, 3), columns cols[j]
+        out = frame @ self._tip_rotation
+        return out if q.ndim == 2 else out[0].copy()
+
+    def angular_jacobian(self, q) -> np.ndarray:
+        """d(tip orientation)/dq as angular velocity per joint (N, 3, n) in the base frame: a revolute joint's axis,
+        nothing for a prismatic one, times a mimic's multiplier, summed where several follow one source; (3, n) for
+        one configuration (n,)."""
+        q = np.asarray(q, dtype=float)
+        q_t = np.ascontiguousarray(np.atleast_2d(q).T)
+        _, axes, _ = self.forward(q_t)
+        out = np.zeros((q_t.shape[1], 3, self.n))
+        for seg, a in zip(self._segments, axes):
+            if seg.revolute:
+                out[:, :, seg.source] += np.broadcast_to(a, (3, q_t.shape[1])).T * seg.multiplier
+        return out if q.ndim == 2 else out[0].copy()
 
     def tip_positions(self, q) -> np.ndarray:
         """Tip positions (N, 3) in the base frame for joint positions q (N, n); (3,) for one configuration (n,)."""
