@@ -112,6 +112,7 @@ COMMANDS = {'position': 'joint_group_position_controller',       # ~command -> t
             'trajectory': 'joint_trajectory_controller'}
 PROGRESS = 0.001          # m: less than this over ~stalled_after seconds is no progress
 AT_HOME = 0.01            # rad (or m): every joint this near home is home (a retry starts there)
+HOME_REACHED = 1e-6       # rad (or m): ~home is over when every joint is this near home, at rest
 MAX_GOAL = 1000.0         # m from the base: a goal farther out is a mistake (a 1e308 goal), not a place to reach
 
 
@@ -520,7 +521,9 @@ class ReachController:
         velocity = [speeds.get(n, 0.0) for n in arm.joints]
         if going_home:
             target = self.setup.home.tolist()
-            if max(abs(a - b) for a, b in zip(q, target)) < AT_HOME:
+            last = self.layer.last                # home, and at rest there: the plans arrive at it exactly
+            if max(abs(a - b) for a, b in zip(q, target)) < HOME_REACHED and last is not None \
+                    and not last.velocities.any():
                 with self.lock:
                     self.going_home = False
         elif goal is None:
