@@ -22,7 +22,7 @@ from trajectory_msgs.msg import JointTrajectory
 
 import onnx_models
 from robot_ai.reach import ReachSetup
-from robot_ai.reach.safety import Limits, violations
+from robot_ai.reach.safety import Limits, Violations, violations
 from robot_ai.srv import LoadPolicy
 
 HERE = os.path.dirname(os.path.realpath(__file__))
@@ -39,10 +39,10 @@ class TestReachSafety(unittest.TestCase):
     def setUpClass(cls):
         cls.setup = ReachSetup(KUKA, obstacles=WORLD)
         cls.limits = Limits.of(cls.setup.arm, velocity_scale=SCALE)
-        cls.log, cls.states, cls.commands, cls.events = [], [], [], []
+        cls.log, cls.states, cls.commands, cls.events, cls.late = [], [], [], [], []
         cls.relaying = True
         cls.relay = rospy.Publisher(f'{NS}/relayed_joint_states', JointState, queue_size=10, tcp_nodelay=True)
-        cls.subs = [rospy.Subscriber('/rosout', Log, lambda m: cls.log.append((m.name, m.msg)), queue_size=1000),
+        cls.subs = [rospy.Subscriber('/rosout', Log, cls.on_log, queue_size=1000),
                     rospy.Subscriber(f'{NS}/joint_states', JointState, cls.on_state, queue_size=1000,
                                      tcp_nodelay=True),
                     rospy.Subscriber(f'{NS}/joint_trajectory_controller/command', JointTrajectory,
@@ -53,6 +53,12 @@ class TestReachSafety(unittest.TestCase):
             assert time.monotonic() < deadline, 'reach_controller never started'
             time.sleep(0.5)
         cls.goals = rospy.Publisher(f'{NODE}/goal', PointStamped, queue_size=1, latch=True)
+
+    @classmethod
+    def on_log(cls, msg):
+        cls.log.append((msg.name, msg.msg))
+        if msg.name == f'{NS}/arm_sim' and 'a trajectory came' in msg.msg:
+            cls.late.append((msg.header.stamp - cls.epoch).to_sec())
 
     @classmethod
     def on_state(cls, msg):
@@ -85,10 +91,38 @@ class TestReachSafety(unittest.TestCase):
         self.goals.publish(msg)
 
     def assert_motion_safe(self, since_state):
+        """No limit passed and no contact in arm_sim's states since since_state. The layer's promise holds for commands
+        that reach the arm within its lead (two periods); one that comes later is spliced in from where the arm is,
+        with a jolt, as a joint_trajectory_controller would, and arm_sim says so (on a starved machine: a trajectory
+        513 ms late was seen). The moments around those are left out of the limits check, and must be rare."""
         times = np.array([t for t, _ in self.states[since_state:]])
         positions = np.array([q for _, q in self.states[since_state:]])
         self.assertGreater(len(times), 100)
-        found = violations(times, positions, self.limits)
+        late = [t for t in self.late if times[0] <= t <= times[-1]]
+        spliced = np.zeros(len(times), dtype=bool)
+        for t in late:                       # arm_sim's warning is throttled to 1 s: a window covers the next ones
+            spliced |= (times >= t - 0.2) & (times <= t + 1.2)
+        self.assertLess(spliced.mean(), 0.05, f'commands reached arm_sim late too often: {late}')
+        runs, start = [], None               # the stretches of states between late commands
+        for k, ok in enumerate(~spliced):
+            if ok and start is None:
+                start = k
+            elif not ok and start is not None:
+                runs.append((start, k))
+                start = None
+        if start is not None:
+            runs.append((start, len(times)))
+        found = Violations()
+        for a, b in runs:
+            if b - a < 3:
+                continue
+            part = violations(times[a:b], positions[a:b], self.limits)
+            found.position += part.position
+            found.velocity += part.velocity
+            found.acceleration += part.acceleration
+            for kind, (ratio, joint) in part.worst.items():
+                if ratio > found.worst.get(kind, (-1.0, ''))[0]:
+                    found.worst[kind] = (ratio, joint)
         if found.total:
             v = np.abs(np.diff(positions, axis=0)) / np.diff(times)[:, None] / self.limits.velocity
             where = [(round(times[k] - times[0], 3), round(float(v[k].max()), 3)) for k in

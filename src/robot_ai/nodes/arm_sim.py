@@ -243,7 +243,7 @@ class ArmSim:
                     self._publish()
                     return
                 if start < now - 1e-3:
-                    rospy.logwarn_throttle(5.0, f'a trajectory came {1000 * (now - start):.0f} ms after its start: '
+                    rospy.logwarn_throttle(1.0, f'a trajectory came {1000 * (now - start):.0f} ms after its start: '
                                                 f'followed from where the arm is')
                 follower.take(now, start, times, full, full_v)
                 self.follower = follower
