@@ -475,7 +475,6 @@ class ReachController:
     def _hold(self, now: float, why: str, joints: dict, kind: str = '') -> None:
         """The arm stops (the last plan's stop goes on) and holds, said once per kind of reason (kind, or why);
         nothing is sent once it is at rest (so that another controller may take it over)."""
-        last = self.layer.last
         kind = kind or why
         if kind != self.hold_kind:               # a hold begins: said, unless this kind was said within 5 s
             said = time.monotonic() - self.announced.get(kind, -math.inf) > 5.0
@@ -486,7 +485,7 @@ class ReachController:
         else:
             rospy.logwarn_throttle(5.0, f'holding: {why}')
         self.improved_at = time.monotonic()          # no stall while held from outside
-        if last is None or last.end < now or not last.velocities.any():
+        if self.layer.resting(now):
             return                                   # at rest: nothing more to send
         self._plan_and_send(None, None, None, joints, why_not=why)
 
@@ -497,8 +496,7 @@ class ReachController:
             holding, homing, enabled, going_home = self.holding, self.homing, self.enabled, self.going_home
             received, version = dict(self.received), self.version
         arm = self.setup.arm
-        last = self.layer.last
-        if goal is None and not going_home and (last is None or last.end < now or not last.velocities.any()):
+        if goal is None and not going_home and self.layer.resting(now):
             return                                   # idle, at rest
         if not all(n in joints for n in arm.joints):
             missing = ', '.join(n for n in arm.joints if n not in joints)

@@ -197,6 +197,14 @@ class Arm:
     def forward(self, q_t: np.ndarray, with_axes: bool = True):
         """The tip (3, N) for joint positions q_t (n, N) (the batch last); with_axes, also every moving joint's axis
         and origin in the base frame, as lists of (3, N) arrays, or (3, 1) where they do not depend on q."""
+        pos, cols, axes, origins = self._last_frame(q_t, with_axes)
+        t = self._tip_offset
+        tip = pos + (cols[0] * t[0] + cols[1] * t[1] + cols[2] * t[2])
+        return tip, axes, origins
+
+    def _last_frame(self, q_t: np.ndarray, with_axes: bool):
+        """The last moving joint's frame (its origin (3, N), its rotation's columns cols[j] (3, N) each) for q_t, and
+        with_axes every moving joint's axis and origin (forward's lists)."""
         cols = np.identity(3)[:, :, None]        # the frame's rotation, column j = cols[j]: (3, 3, 1), then (3, 3, N)
         pos = np.zeros((3, 1))
         axes, origins = [], []
@@ -220,9 +228,7 @@ class Arm:
             else:
                 pos = pos + mid[2] * v
                 cols = mid
-        t = self._tip_offset
-        tip = pos + (cols[0] * t[0] + cols[1] * t[1] + cols[2] * t[2])
-        return tip, axes, origins
+        return pos, cols, axes, origins
 
     def jacobian_t(self, tip: np.ndarray, axes: list, origins: list) -> np.ndarray:
         """d tip / d q as (3, n, N) from forward()'s results: revolute joints axis x (tip - origin), prismatic
@@ -245,20 +251,7 @@ class Arm:
         configuration (n,)."""
         q = np.asarray(q, dtype=float)
         q_t = np.ascontiguousarray(np.atleast_2d(q).T)
-        cols = np.identity(3)[:, :, None]
-        for seg in self._segments:           # forward's frame, rotations only
-            r = seg.rotation
-            mid = cols[0][None] * r[0][:, None, None] + cols[1][None] * r[1][:, None, None] \
-                + cols[2][None] * r[2][:, None, None]
-            if seg.revolute:
-                v = q_t[seg.source] * seg.multiplier + seg.offset
-                c, s_ = np.cos(v), np.sin(v)
-                cols = np.empty((3, 3, len(v)))
-                cols[0] = mid[0] * c + mid[1] * s_
-                cols[1] = mid[1] * c - mid[0] * s_
-                cols[2] = mid[2]
-            else:
-                cols = np.broadcast_to(mid, (3, 3, q_t.shape[1]))
+        _, cols, _, _ = self._last_frame(q_t, with_axes=False)
         frame = np.broadcast_to(cols, (3, 3, q_t.shape[1])).transpose(2, 1, 0)     # (N, 3, 3), columns cols[j]
         out = frame @ self._tip_rotation
         return out if q.ndim == 2 else out[0].copy()

@@ -257,9 +257,6 @@ class SafetyLayer:
         self.resynced = ''       # why the last plan started from the measured state rather than the previous plan
         self.off_since: float | None = None    # since when the arm is RESYNC from where its plan puts it
 
-    def reset(self) -> None:
-        self.last = None
-
     def start_state(self, now: float, measured: np.ndarray,
                     measured_velocity: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray, str]:
         """(the next plan's start, positions and velocities there, '' or why the arm is planned from anew, or
@@ -312,12 +309,13 @@ class SafetyLayer:
                               f'the target has {target.size} positions, the arm {p0.size} joints')
         target = np.clip(target, self.limits.lower, self.limits.upper)
         plan = self._step(start, p0, v0, target)
-        refused, contacts = self.check(plan, p0)
+        padding = self.padding(p0)
+        refused, contacts = self.check(plan, padding)
         for share in SHORTER:            # refused: a step toward a nearer target (a slower approach, a shorter stop)
             if not contacts:
                 break
             shorter = self._step(start, p0, v0, p0 + (target - p0) * share)
-            if not self.check(shorter, p0)[0]:
+            if not self.check(shorter, padding)[0]:
                 plan, refused = shorter, ''
                 break
         if refused:
@@ -374,10 +372,22 @@ class SafetyLayer:
         return Plan(start, np.concatenate((times, dt + tail.times[1:])), np.vstack((positions, tail.positions[1:])),
                     np.vstack((velocities, tail.velocities[1:])))
 
-    def check(self, plan: Plan, here: np.ndarray) -> tuple[str, list[str]]:
+    def padding(self, here: np.ndarray) -> float:
+        """The margin a plan from here keeps: ~margin, or none where the arm is within it already (it may move
+        out, touching nothing)."""
+        if self.body is None or not self.margin or self.body.in_collision(here[None], self.margin)[0]:
+            return 0.0
+        return self.margin
+
+    def resting(self, now: float) -> bool:
+        """Whether the arm is at rest by its commands at now (no plan, or the last one's stop has run out or holds
+        it still): nothing more needs sending."""
+        last = self.last
+        return last is None or last.end < now or not last.velocities.any()
+
+    def check(self, plan: Plan, padding: float) -> tuple[str, list[str]]:
         """('' or why the plan may not be sent, the contacts): within the position limits and, with a body, clear
-        of it and the world by the margin (by the body's own spheres where the arm is within the margin already:
-        it may move out)."""
+        of it and the world by padding (padding())."""
         q = plan.samples()
         lim = self.limits
         low, high = q < lim.lower - POSITION_TOLERANCE, q > lim.upper + POSITION_TOLERANCE
@@ -386,9 +396,6 @@ class SafetyLayer:
             return f'it would pass {lim.joints[k]}\'s limit', []
         if self.body is None:
             return '', []
-        padding = self.margin
-        if self.margin and self.body.in_collision(here[None], self.margin)[0]:
-            padding = 0.0
         hit = self.body.in_collision(q, padding)
         if not hit.any():
             return '', []

@@ -30,10 +30,6 @@ class Follower:
         self.velocities = np.zeros((1, len(p)))
         self.hermite = np.zeros(0, dtype=bool)     # per segment: velocities given (else a straight line)
 
-    def hold(self, positions) -> None:
-        """At rest at positions (a position command, a reset)."""
-        self.__init__(positions)
-
     @property
     def final(self) -> np.ndarray:
         return self.positions[-1].copy()
