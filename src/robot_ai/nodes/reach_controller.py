@@ -17,8 +17,9 @@ controller real arms' drivers expose, ur_robot_driver's and franka_ros': traject
 <~controller>/command, each step's motion and the stop after it, with positions, velocities and times that respect
 the limits; a command that comes late, or never, leaves the arm stopping on a checked path). arm_sim takes both.
 
-Goals come from rviz's Publish Point tool (/clicked_point) or ~goal, in any frame tf knows; the goal is drawn as a
-marker and its distance published. It says `reached <goal> in <s> s (<d> m)` once the tip is within the policy's
+Goals come from rviz's Publish Point tool (/clicked_point), ~goal, ~goal_pose or the interactive marker
+~pose_marker (dragged and released in rviz), in any frame tf knows; the goal is drawn as a marker and its distance
+published. ~goal pose: a goal is the tip's position and orientation (a point keeps the tip's orientation now). It says `reached <goal> in <s> s (<d> m)` once the tip is within the policy's
 threshold. When the distance stops shrinking within the arm's reach (joints at their limits, a collision, a
 configuration the policy cannot leave: a goal the arm must come at another way), it takes the arm home and tries
 once more from there; then it says `not reached: closest <d> m ...` and why (beyond
@@ -33,6 +34,8 @@ ROS Parameters
         robot description at start (seconds) and says so. A bad file, or one of another robot or tip, ends the node
         with one line.
     ~tip (str, ""): the tip link; empty: the policy's, or the arm's end (a tool frame such as tool0, not a finger).
+    ~goal (str, ""): position | pose, the kind of goal (pose: the tip's position and orientation, within the
+        policy's distance and angle thresholds); empty: the policy file's, or position when ARS learns at start.
     ~rate (float, 20): control steps per second of ROS time.
     ~command_joints (list of str, [] = the robot's active joints): the joints of the command, in its order (a real
         controller's joints); those the arm does not move hold the positions joint_states reports.
@@ -59,13 +62,19 @@ ROS Parameters
 ROS Subscribers
     joint_states (sensor_msgs/JointState): the arm's joints.
     /clicked_point (geometry_msgs/PointStamped): a goal, from rviz's Publish Point tool.
-    ~goal (geometry_msgs/PointStamped): a goal.
+    ~goal (geometry_msgs/PointStamped): a goal (pose goals: at the tip's orientation now).
+    ~goal_pose (geometry_msgs/PoseStamped): a goal pose, in any frame tf knows (position goals: its position).
+    ~pose_marker/feedback (visualization_msgs/InteractiveMarkerFeedback): the interactive marker server ~pose_marker;
+        a marker released in rviz is the next goal.
     ~stop (std_msgs/Empty): the arm stops at once, within its limits, and holds until ~enable true.
 
 ROS Publishers
     <~controller>/command (std_msgs/Float64MultiArray or trajectory_msgs/JointTrajectory, as ~command): the
         commands, for ~command_joints.
-    ~goal_marker (visualization_msgs/Marker, latched): the goal, a sphere of the threshold's size, in the base frame.
+    ~goal_marker (visualization_msgs/Marker, latched): the goal, a sphere of the threshold's size, in the base frame
+        (pose goals: and an arrow along the goal's x axis).
+    ~pose_marker/update, ~pose_marker/update_full: the interactive marker `goal` (6-DoF for pose goals, 3 arrows
+        for position goals), for rviz's InteractiveMarkers display.
     ~distance (std_msgs/Float64): the tip's distance to the goal, every step.
     ~obstacle_markers (visualization_msgs/MarkerArray, latched): the obstacles, in the base frame.
 
@@ -88,12 +97,14 @@ import time
 import numpy as np
 import rospy
 import tf2_ros
-from geometry_msgs.msg import PointStamped
+from geometry_msgs.msg import PointStamped, PoseStamped
+from interactive_markers.interactive_marker_server import InteractiveMarkerServer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Empty, Float64, Float64MultiArray
 from std_srvs.srv import SetBool, SetBoolResponse, Trigger, TriggerResponse
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
-from visualization_msgs.msg import Marker, MarkerArray
+from visualization_msgs.msg import (InteractiveMarker, InteractiveMarkerControl, InteractiveMarkerFeedback, Marker,
+                                    MarkerArray)
 
 from robot_ai import ars
 from robot_ai import policies
@@ -105,7 +116,7 @@ from robot_ai.reach.arm import ReachError
 from robot_ai.reach.collision import CollisionModel
 from robot_ai.reach.env import ReachSetup
 from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, Limits, Plan, SafetyLayer
-from robot_ai.reach.task import goal_distance_one, why_unreached
+from robot_ai.reach.task import GOALS, goal_angle, goal_distance_one, why_unreached
 from robot_ai.text import percent
 
 COMMANDS = {'position': 'joint_group_position_controller',       # ~command -> the default ~controller
@@ -128,6 +139,23 @@ def _quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
     return tuple(float(v) for v in tft.quaternion_from_matrix(m))
 
 
+def _multiply(a, b) -> tuple[float, float, float, float]:
+    """The product a b of quaternions (x, y, z, w)."""
+    ax, ay, az, aw = a
+    bx, by, bz, bw = b
+    return (aw * bx + bw * ax + ay * bz - az * by, aw * by + bw * ay + az * bx - ax * bz,
+            aw * bz + bw * az + ax * by - ay * bx, aw * bw - ax * bx - ay * by - az * bz)
+
+
+def _unit(q) -> list[float] | None:
+    """q (x, y, z, w) as a unit quaternion with w >= 0, or None when it has no length or is not finite."""
+    norm = math.sqrt(sum(v * v for v in q))
+    if not math.isfinite(norm) or norm < 1e-6:
+        return None
+    sign = -1.0 if q[3] < 0 else 1.0
+    return [sign * v / norm for v in q]
+
+
 def _rotate(q, v) -> list[float]:
     """v rotated by the unit quaternion q (x, y, z, w)."""
     x, y, z, w = q
@@ -148,8 +176,11 @@ class ReachController:
             raise ValueError(f'~command must be one of {", ".join(COMMANDS)}, got {self.command_kind!r}')
         controller = str_param('~controller', '') or COMMANDS[self.command_kind]
         world = rospy.get_param('~obstacles', '') or None
+        goal_kind = str_param('~goal', '')
+        if goal_kind not in ('', *GOALS):
+            raise ValueError(f'~goal must be one of {", ".join(GOALS)} (or empty: the policy\'s), got {goal_kind!r}')
         self.policy, self.setup, info, success = self._policy(xml, str_param('~policy', ''), str_param('~tip', ''),
-                                                              world)
+                                                              world, goal_kind)
         self._announce(info, success)
         arm = self.setup.arm
         self.base, self.tip = arm.base, arm.tip
@@ -200,9 +231,12 @@ class ReachController:
         self.distance_pub = rospy.Publisher('~distance', Float64, queue_size=1)
         self.obstacles_pub = rospy.Publisher('~obstacle_markers', MarkerArray, queue_size=1, latch=True)
         self._draw_obstacles()
+        self.markers = InteractiveMarkerServer(rospy.resolve_name('~pose_marker'))
+        self._offer_marker(self.setup.goals_of(self.setup.home[:, None])[:, 0].tolist())
         self.subs = [rospy.Subscriber('joint_states', JointState, self._on_joints, queue_size=1, tcp_nodelay=True),
                      rospy.Subscriber('/clicked_point', PointStamped, self._on_goal, queue_size=1),
                      rospy.Subscriber('~goal', PointStamped, self._on_goal, queue_size=1),
+                     rospy.Subscriber('~goal_pose', PoseStamped, self._on_goal_pose, queue_size=1),
                      rospy.Subscriber('~stop', Empty, self._on_stop, queue_size=1, tcp_nodelay=True)]
         self.services = [rospy.Service('~home', Trigger, self._on_home),
                          rospy.Service('~load_policy', LoadPolicy, self._on_load_policy),
@@ -211,8 +245,9 @@ class ReachController:
         self.timer = rospy.Timer(rospy.Duration(1.0 / self.rate), self._step)
         rospy.loginfo(f'reach_controller ready: {arm.describe()}; {self.rate:g} steps/s; {self.command_kind} commands '
                       f'on {rospy.resolve_name(topic)}, {self.layer.limits.describe()}'
-                      f'{"" if self.enabled else "; disabled until ~enable"}; click a point in rviz (Publish Point) '
-                      f'or publish {rospy.resolve_name("~goal")}')
+                      f'{"" if self.enabled else "; disabled until ~enable"}; {self.setup.task.goal} goals: click a '
+                      f'point in rviz (Publish Point), drag and release the marker {rospy.resolve_name("~pose_marker")}'
+                      f', or publish {rospy.resolve_name("~goal")} or {rospy.resolve_name("~goal_pose")}')
 
     def _safety_layer(self, tree, xml: str) -> SafetyLayer:
         """~joint_limits, ~velocity_scale, ~acceleration_scale, ~collision and ~collision_margin as a SafetyLayer."""
@@ -250,19 +285,22 @@ class ReachController:
         rospy.loginfo(f'reach_controller: driving with {info}')
 
     @staticmethod
-    def _policy(xml: str, path: str, tip: str, world=None):
+    def _policy(xml: str, path: str, tip: str, world=None, goal: str = ''):
         """(an object with act_batch(flat observations), the reach setup it acts in, a line on it, its success rate)
-        of ~policy, or of an ARS run on the robot description when it is empty; world: ~obstacles."""
+        of ~policy, or of an ARS run on the robot description when it is empty; world: ~obstacles; goal: ~goal
+        ('' : the policy file's, or position)."""
         if path:
             try:
-                policy, setup, note = policy_files.load(path, urdf=xml, tip=tip or None, obstacles=world)
+                policy, setup, note = policy_files.load(path, urdf=xml, tip=tip or None, obstacles=world,
+                                                        goal=goal or None)
             except (policies.PolicyError, ReachError) as e:
                 raise ValueError(f'~policy: {e}') from None
             if note:
                 rospy.logwarn(note)
             return policy.actor, setup, policy.describe(), policy.metadata.get('success_rate')
+        pose = dict(goal='pose') if goal == 'pose' else {}
         try:
-            setup = ReachSetup(urdf=xml, tip=tip or None, obstacles=world)
+            setup = ReachSetup(urdf=xml, tip=tip or None, obstacles=world, **pose)
         except ReachError as e:
             raise ValueError(f'~tip or ~obstacles: {e}') from None
         for warning in setup.arm.warnings:
@@ -273,14 +311,16 @@ class ReachController:
         # a Ctrl-C during the training ends it at the next iteration (it took ARS's seconds, and under load minutes,
         # before roslaunch's escalation to SIGTERM 15 s later)
         stop = rospy.core.is_shutdown_requested
-        kwargs = dict(urdf=xml, tip=setup.arm.tip) if world is None else dict(urdf=xml, tip=setup.arm.tip,
-                                                                                obstacles=world)
+        kwargs = dict(urdf=xml, tip=setup.arm.tip, **pose)
+        if world is not None:
+            kwargs['obstacles'] = world
         training = learn.train(kwargs, seed=0, should_stop=stop, evaluate_episodes=1000)
         if stop():
             raise rospy.ROSInterruptException('reach_controller: shut down during its training')
         rate = training.held_out.success_rate
-        info = (f'ARS trained at start on {setup.model.tree.name}: {percent(rate)} of 1000 fresh goals within '
-                f'{setup.task.distance_threshold:g} m, {time.monotonic() - t:.1f} s, {training.result.steps:,} steps')
+        within = f'{setup.task.distance_threshold:g} m' + (f' and {setup.task.angle_threshold:g} rad' if pose else '')
+        info = (f'ARS trained at start on {setup.model.tree.name}: {percent(rate)} of 1000 fresh {setup.task.goal} '
+                f'goals within {within}, {time.monotonic() - t:.1f} s, {training.result.steps:,} steps')
         return training.policy, training.setup, info, rate
 
     # ------------------------------------------------------------------------------------------------ callbacks
@@ -309,15 +349,58 @@ class ReachController:
         return [r[0] + t.translation.x, r[1] + t.translation.y, r[2] + t.translation.z]
 
     def _on_goal(self, point: PointStamped) -> None:
+        """A point: the goal's position; for pose goals the tip keeps the orientation it has."""
         goal = self._in_base(point)
         if goal is None:
             return
-        if not all(math.isfinite(v) and abs(v) <= MAX_GOAL for v in goal):
+        if self.setup.pose:
+            goal = goal + self._orientation_now()
+        self._set_goal(goal)
+
+    def _on_goal_pose(self, msg: PoseStamped) -> None:
+        """A pose (any frame tf knows): the goal; for position goals its position only."""
+        goal = self._pose_in_base(msg.header.frame_id, msg.pose)
+        if goal is not None:
+            self._set_goal(goal if self.setup.pose else goal[:3])
+
+    def _pose_in_base(self, frame: str, pose) -> list[float] | None:
+        """A geometry_msgs/Pose in frame as [x, y, z, qx, qy, qz, qw] in the base frame (unit, qw >= 0), or None
+        (said) when the frame is unknown or the quaternion has no length."""
+        o = pose.orientation
+        q = _unit((o.x, o.y, o.z, o.w))
+        if q is None:
+            rospy.logwarn(f'goal pose ignored: its orientation ({o.x:g}, {o.y:g}, {o.z:g}, {o.w:g}) is not a '
+                          f'quaternion (0, 0, 0, 1 is its frame\'s own orientation)')
+            return None
+        point = PointStamped()
+        point.header.frame_id, point.point = frame, pose.position
+        p = self._in_base(point)
+        if p is None:
+            return None
+        frame = frame.lstrip('/') or self.base
+        if frame != self.base:
+            try:
+                r = self.tf_buffer.lookup_transform(self.base, frame, rospy.Time(0), rospy.Duration(1.0)).transform.rotation
+            except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as e:
+                rospy.logwarn(f'goal in {frame} ignored: no transform from {frame} to {self.base} ({e})')
+                return None
+            q = _unit(_multiply((r.x, r.y, r.z, r.w), q))
+        return p + q
+
+    def _orientation_now(self) -> list[float]:
+        """The tip's orientation now (from /tf), or at home when /tf has none yet."""
+        tip = self._tip()
+        if tip is not None:
+            return tip[3:]
+        return self.setup.goals_of(self.setup.home[:, None])[3:, 0].tolist()
+
+    def _set_goal(self, goal: list[float]) -> None:
+        if not all(math.isfinite(v) for v in goal) or not all(abs(v) <= MAX_GOAL for v in goal[:3]):
             shown = ', '.join(f'{v:.4g}' for v in goal)
             rospy.logwarn(f'goal ({shown}) in {self.base} ignored: each coordinate must be a finite number of metres, '
                           f'at most {MAX_GOAL:g} from the base')
             return
-        inside = next((o.name for o in self.setup.obstacles if o.contains(goal)), None)
+        inside = next((o.name for o in self.setup.obstacles if o.contains(goal[:3])), None)
         if inside is not None:
             rospy.logwarn(f'goal ({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f}) in {self.base} ignored: it is inside '
                           f'{inside}')
@@ -330,22 +413,71 @@ class ReachController:
             self.going_home = False
             self.version += 1
         self._draw(goal)
-        rospy.loginfo(f'goal ({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f}) m in {self.base}')
+        self._offer_marker(goal)
+        rospy.loginfo(f'goal {self._shown(goal)} in {self.base}')
         if hasattr(self, 'timer'):
             self._step(None)              # the first command at once, not at the next tick
 
+    @staticmethod
+    def _shown(goal: list[float]) -> str:
+        text = f'({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f}) m'
+        if len(goal) == 7:
+            text += f', orientation ({goal[3]:+.3f}, {goal[4]:+.3f}, {goal[5]:+.3f}, {goal[6]:+.3f})'
+        return text
+
     def _draw(self, goal: list[float] | None) -> None:
+        """The goal as a sphere of the threshold's size; a pose goal also as an arrow along its x axis."""
         marker = Marker(type=Marker.SPHERE, ns='reach_goal', id=0,
                         action=Marker.ADD if goal is not None else Marker.DELETE)
         marker.header.frame_id = self.base
         marker.header.stamp = rospy.Time.now()
+        arrow = Marker(type=Marker.ARROW, ns='reach_goal', id=1,
+                       action=Marker.ADD if goal is not None and len(goal) == 7 else Marker.DELETE)
+        arrow.header = marker.header
         if goal is not None:
-            marker.pose.position.x, marker.pose.position.y, marker.pose.position.z = goal
+            marker.pose.position.x, marker.pose.position.y, marker.pose.position.z = goal[:3]
             marker.pose.orientation.w = 1.0
             size = 2 * self.setup.task.distance_threshold
             marker.scale.x = marker.scale.y = marker.scale.z = size
             marker.color.r, marker.color.g, marker.color.b, marker.color.a = 0.1, 0.9, 0.1, 0.6
+            if len(goal) == 7:
+                arrow.pose.position = marker.pose.position
+                o = arrow.pose.orientation
+                o.x, o.y, o.z, o.w = goal[3:]
+                arrow.scale.x, arrow.scale.y, arrow.scale.z = 3 * size, 0.2 * size, 0.2 * size
+                arrow.color.r, arrow.color.g, arrow.color.b, arrow.color.a = 0.9, 0.2, 0.1, 0.9
         publish(self.marker_pub, marker)
+        publish(self.marker_pub, arrow)
+
+    def _offer_marker(self, goal: list[float]) -> None:
+        """The interactive marker (~pose_marker) at goal (at start: the tip at home): arrows and rings to drag
+        (rings only for pose goals); released, it is the next goal."""
+        marker = InteractiveMarker(name='goal', description=f'{self.setup.task.goal} goal: drag, then release')
+        marker.header.frame_id = self.base
+        marker.pose.position.x, marker.pose.position.y, marker.pose.position.z = goal[:3]
+        o = marker.pose.orientation
+        o.x, o.y, o.z, o.w = goal[3:] if len(goal) == 7 else (0.0, 0.0, 0.0, 1.0)
+        marker.scale = max(0.15, 4 * self.setup.task.distance_threshold)
+        modes = (InteractiveMarkerControl.MOVE_AXIS,) + ((InteractiveMarkerControl.ROTATE_AXIS,)
+                                                          if self.setup.pose else ())
+        for axis, (x, y, z) in (('x', (1, 0, 0)), ('y', (0, 1, 0)), ('z', (0, 0, 1))):
+            for mode in modes:
+                control = InteractiveMarkerControl(name=f'{"move" if mode == modes[0] else "rotate"}_{axis}',
+                                                   interaction_mode=mode)
+                # a control's axis is the x axis of its orientation: the quaternion turning x onto the axis
+                q = _unit((x, z, y, 1.0))         # the interactive_markers tutorial's: x (1, 0, 0, 1), ...
+                control.orientation.x, control.orientation.y, control.orientation.z, control.orientation.w = q
+                control.orientation_mode = InteractiveMarkerControl.FIXED if not self.setup.pose else \
+                    InteractiveMarkerControl.INHERIT
+                marker.controls.append(control)
+        self.markers.insert(marker, self._on_marker, InteractiveMarkerFeedback.MOUSE_UP)
+        self.markers.applyChanges()
+
+    def _on_marker(self, feedback) -> None:
+        """The marker released: its pose is the goal."""
+        goal = self._pose_in_base(feedback.header.frame_id, feedback.pose)
+        if goal is not None:
+            self._set_goal(goal if self.setup.pose else goal[:3])
 
     def _on_load_policy(self, req) -> LoadPolicyResponse:
         try:
@@ -450,13 +582,19 @@ class ReachController:
         publish(self.obstacles_pub, markers)
 
     def _tip(self) -> list[float] | None:
+        """The tip from /tf in the base frame: its position, and for pose goals its orientation after it (unit,
+        w >= 0)."""
         try:
-            t = self.tf_buffer.lookup_transform(self.base, self.tip, rospy.Time(0)).transform.translation
+            transform = self.tf_buffer.lookup_transform(self.base, self.tip, rospy.Time(0)).transform
         except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as e:
             rospy.logwarn_throttle(5.0, f'no transform {self.base} -> {self.tip} yet ({e}): is forward_kinematics '
                                         f'(or robot_state_publisher) running?')
             return None
-        return [t.x, t.y, t.z]
+        t, r = transform.translation, transform.rotation
+        if not self.setup.pose:
+            return [t.x, t.y, t.z]
+        q = _unit((r.x, r.y, r.z, r.w))
+        return None if q is None else [t.x, t.y, t.z] + q
 
     def _step(self, event) -> None:
         """One control step (the timer's, or at once for a new goal); whatever goes wrong in it, the arm stops and
@@ -556,7 +694,7 @@ class ReachController:
         if goal is not None and not homing and not holding:
             # judged on the joints' own tip (the kinematics of q), not /tf's: the two can be a message apart under
             # load, and the configuration held after `not reached` must be the one whose distance was said
-            self._judge(goal, goal_distance_one(self.setup.place_one(q)[0], goal), q)
+            self._judge(goal, self.setup.place_one(q)[0], q)
 
     def _policy_target(self, policy, q: list[float], tip: list[float], goal: list[float]) -> list[float] | None:
         """The joints the policy's action asks for from q (the env's move), or None when it gives no action."""
@@ -570,23 +708,34 @@ class ReachController:
             return None
         return self.setup.move_one(q, self.setup.place_one(q)[1], a)
 
-    def _judge(self, goal: list[float], distance: float, q: list[float]) -> None:
+    def _judge(self, goal: list[float], achieved: list[float], q: list[float]) -> None:
         """Says reached or not reached once per goal; after not reached, the arm holds at its closest configuration
         (at the edge of its workspace a policy would otherwise jitter); at joint limits or a collision, home first
-        and once more from there."""
+        and once more from there. Pose goals: the distance judged is the task's dense error, the distance plus the
+        angle x distance_threshold / angle_threshold."""
         now = time.monotonic()
+        task = self.setup.task
+        distance = goal_distance_one(achieved, goal)
+        angle = float(goal_angle(np.array(achieved), np.array(goal))) if self.setup.pose else 0.0
+        error = distance + angle * (task.distance_threshold / task.angle_threshold)
         with self.lock:
             if goal is not self.goal or self.said:
                 return
-            if self.best_q is None or distance < self.progress_mark - PROGRESS:
-                self.progress_mark, self.improved_at = distance, now    # progress: the stall clock starts again
-            if self.best_q is None or distance < self.best:     # the closest configuration, however small the gain
-                self.best, self.best_q = distance, q
-            reached = distance < self.setup.task.distance_threshold
+            if self.best_q is None or error < self.progress_mark - PROGRESS:
+                self.progress_mark, self.improved_at = error, now    # progress: the stall clock starts again
+            if self.best_q is None or error < self.best:     # the closest configuration, however small the gain
+                self.best, self.best_q = error, q
+            reached = distance < task.distance_threshold and angle < task.angle_threshold
             stalled = now - self.improved_at > self.stalled_after
             if not (reached or stalled):
                 return
-            kind, why = why_unreached(self.setup.arm, goal, q, distance) if not reached else ('', '')
+            kind, why = why_unreached(self.setup.arm, goal[:3], q, distance) if not reached else ('', '')
+            if not reached and distance < task.distance_threshold:
+                stuck = self.setup.arm.at_limits(q)
+                kind, why = 'turn', (f'at the goal\'s position, turned {angle:.3f} rad from its orientation (more than '
+                                     f'{task.angle_threshold:g} rad)' + (f', with {", ".join(stuck)} at '
+                                                                         f'{"its limit" if len(stuck) == 1 else "their limits"}'
+                                                                         if stuck else ''))
             if not reached and self.blocked and kind != 'beyond':
                 kind, why = 'collision', f'blocked {distance:.3f} m away by a collision ({self.blocked})'
             if not reached and kind != 'beyond' and not self.retried:    # stalled within reach: home, once more
@@ -597,10 +746,12 @@ class ReachController:
             self.holding = not reached
             since, best = self.goal_since, self.best
         where = f'({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f})'
+        turned = f', {angle:.3f} rad' if self.setup.pose else ''
         if reached:
-            rospy.loginfo(f'reached {where} in {now - since:.2f} s ({distance:.3f} m)')
+            rospy.loginfo(f'reached {where} in {now - since:.2f} s ({distance:.3f} m{turned})')
             return
-        rospy.loginfo(f'not reached: closest {best:.3f} m to {where}: {why}; holding at the closest')
+        closest = f'{best:.3f} m' if not self.setup.pose else f'{best:.3f} m (distance + angle x {task.distance_threshold / task.angle_threshold:g} m/rad)'
+        rospy.loginfo(f'not reached: closest {closest} to {where}: {why}; holding at the closest')
 
     def _home_target(self, goal: list[float], q: list[float]) -> list[float] | None:
         """On the way home for a retry: home (with a body, back the way the arm came first: the configurations it

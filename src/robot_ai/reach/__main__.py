@@ -25,6 +25,7 @@ from robot_ai.cli import (add_ray, connect_ray, fraction, output_folder, positiv
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import CONTROLS, STARTS, ReachSetup
+from robot_ai.reach.task import ANGLE_THRESHOLD, GOALS
 from robot_ai.text import percent
 
 
@@ -49,6 +50,10 @@ def train_parser(sub) -> None:
                    help='ee: tip displacements (damped least squares); joints: joint displacements')
     p.add_argument('--start', default='home', choices=STARTS, help='where each episode starts: home (mid-range), '
                    'random configurations, or chained (where the last episode left the arm)')
+    p.add_argument('--goal', default='position', choices=GOALS, help='position: the tip\'s position; pose: its '
+                   'position and orientation (within --angle-threshold too)')
+    p.add_argument('--angle-threshold', type=positive_number, default=ANGLE_THRESHOLD,
+                   help='pose goals: radians within which the orientation is reached')
     add_world(p)
     p.add_argument('--seed', type=int, default=0, help='random seed; the same seed gives the same policy')
     p.add_argument('--iterations', type=whole_number(1, 100000), default=None,
@@ -103,6 +108,12 @@ def world(a) -> dict:
     return out
 
 
+def within(setup: ReachSetup) -> str:
+    """The task's thresholds in words: '0.05 m', or '0.05 m and 0.1 rad' for pose goals."""
+    task = setup.task
+    return f'{task.distance_threshold:g} m' + (f' and {task.angle_threshold:g} rad' if setup.pose else '')
+
+
 def stem_name(setup: ReachSetup) -> str:
     """The robot's name as a file name's part."""
     return 'reach-' + (re.sub(r'[^A-Za-z0-9_.-]+', '_', setup.model.tree.name or 'robot')[:60] or 'robot')
@@ -114,6 +125,8 @@ def run_train(a, parser) -> int:
     connect_ray(parser, a.ray)
     kwargs = dict(model=a.model, xacro_args=a.xacro_args or None, tip=a.tip, control=a.control, start=a.start,
                   **world(a))
+    if a.goal == 'pose':          # position goals: no such settings (a file as before)
+        kwargs.update(goal='pose', angle_threshold=a.angle_threshold)
     try:
         setup = ReachSetup(**kwargs)
     except ReachError as e:
@@ -129,7 +142,7 @@ def run_train(a, parser) -> int:
     if setup.body is not None:
         print(f'world             {describe_world(setup)}')
     where = dict(home='home', random='random starts', chained='where the last goal left the arm')[a.start]
-    print(f'task              reach within {setup.task.distance_threshold:g} m in 50 steps from {where}, control '
+    print(f'task              reach within {within(setup)} in 50 steps from {where}, control '
           f'{a.control} (ee_step {setup.ee_step:.3f} m)')
     print(f'ARS               {settings.directions} directions, top {settings.top_directions}, step '
           f'{settings.step_size:g}, noise {settings.noise:g}, {settings.episodes} goals each, seed {a.seed}')
@@ -153,7 +166,7 @@ def run_train(a, parser) -> int:
         signal.signal(signal.SIGINT, previous)
     result, held = training.result, training.held_out
     print(f'held-out          {percent(held.success_rate)} of {len(held.distances)} fresh goals within '
-          f'{setup.task.distance_threshold:g} m (mean final distance {held.mean_distance:.3f} m), the policy of '
+          f'{within(setup)} (mean final distance {held.mean_distance:.3f} m), the policy of '
           f'iteration {result.best_iteration}')
     if training.p_controller is not None:
         print(f'P-controller      {percent(training.p_controller.success_rate)} of the same goals (the plain '
@@ -185,7 +198,7 @@ def plot_job(training: learn.Training) -> dict:
     return dict(title=f'Reach with ARS: {setup.model.tree.name} ({setup.model.name}), tip {setup.arm.tip}, '
                       f'{setup.control} control, seed {result.seed}: {result.elapsed:.1f} s',
                 xlabel='training steps (millions)', ylabel='goals reached within '
-                f'{setup.task.distance_threshold:g} m (%)',
+                f'{within(setup)} (%)',
                 series=[dict(x=x, y=[100 * h.success_rate for h in result.history], style='line', color='tab:blue',
                              lw=2, label='each iteration\'s policy on 256 fresh goals')],
                 hlines=hlines, ylim=[0, 105])
@@ -224,7 +237,7 @@ def run_evaluate(a, parser) -> int:
     print(f'robot             {setup.arm.describe()}')
     if setup.body is not None:
         print(f'world             {describe_world(setup)}')
-    print(f'goals             {a.episodes} fresh goals within {setup.task.distance_threshold:g} m in 50 steps (seed '
+    print(f'goals             {a.episodes} fresh goals within {within(setup)} in 50 steps (seed '
           f'{a.seed}); the policy learned from {setup.start}')
     for start in starts:
         try:

@@ -230,6 +230,26 @@ class Arm:
                 cols = mid
         return pos, cols, axes, origins
 
+    def pose_t(self, q_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, list]:
+        """(tip (3, N), the tip's rotation (3, 3, N) in the base frame (rows, columns, batch), axes, origins) for
+        joint positions q_t (n, N): forward's with the orientation."""
+        pos, cols, axes, origins = self._last_frame(q_t, True)
+        t, r = self._tip_offset, self._tip_rotation
+        tip = pos + (cols[0] * t[0] + cols[1] * t[1] + cols[2] * t[2])
+        rotation = np.stack([cols[0] * r[0, k] + cols[1] * r[1, k] + cols[2] * r[2, k] for k in range(3)], axis=1)
+        return tip, np.broadcast_to(rotation, (3, 3, q_t.shape[1])), axes, origins
+
+    def jacobian6_t(self, tip: np.ndarray, axes: list, origins: list, angular_weight: float = 1.0) -> np.ndarray:
+        """(6, n, N): jacobian_t's three rows, then the tip's angular velocity per joint (a revolute joint's axis,
+        times a mimic's multiplier; nothing for a prismatic one) times angular_weight (metres per radian)."""
+        n_batch = tip.shape[1]
+        out = np.zeros((6, self.n, n_batch))
+        out[:3] = self.jacobian_t(tip, axes, origins)
+        for seg, a in zip(self._segments, axes):
+            if seg.revolute:
+                out[3:, seg.source] += np.broadcast_to(a, (3, n_batch)) * (seg.multiplier * angular_weight)
+        return out
+
     def jacobian_t(self, tip: np.ndarray, axes: list, origins: list) -> np.ndarray:
         """d tip / d q as (3, n, N) from forward()'s results: revolute joints axis x (tip - origin), prismatic
         ones their axis, times a mimic's multiplier, summed where several chain joints follow one source."""
@@ -285,7 +305,10 @@ class Arm:
     @staticmethod
     def damped_least_squares(jac_t: np.ndarray, dx_t: np.ndarray, damping: float) -> np.ndarray:
         """dq (n, N) = J^T (J J^T + damping^2 I)^-1 dx for J (3, n, N) and dx (3, N): the joint motion that moves
-        the tip by dx as well as it can, bounded near singular configurations."""
+        the tip by dx as well as it can, bounded near singular configurations. Six rows (a pose: jacobian6_t) are
+        solved by Cholesky, element-wise over the batch as well."""
+        if jac_t.shape[0] != 3:
+            return Arm._damped_least_squares_rows(jac_t, dx_t, damping)
         products = jac_t[:, None] * jac_t[None, :]            # (3, 3, n, N)
         a = products[:, :, 0].copy()
         for k in range(1, jac_t.shape[1]):
@@ -297,6 +320,47 @@ class Arm:
         det = a[0, 0] * cof[0, 0] + a[0, 1] * cof[0, 1] + a[0, 2] * cof[0, 2]
         y = (cof[:, 0] * dx_t[0] + cof[:, 1] * dx_t[1] + cof[:, 2] * dx_t[2]) / det
         return jac_t[0] * y[0] + jac_t[1] * y[1] + jac_t[2] * y[2]
+
+    @staticmethod
+    def _damped_least_squares_rows(jac_t: np.ndarray, dx_t: np.ndarray, damping: float) -> np.ndarray:
+        """damped_least_squares for any number of rows r: (J J^T + damping^2 I) y = dx by Cholesky, one element-wise
+        operation over the batch at a time (an arm's numbers do not depend on its batch)."""
+        r, n = jac_t.shape[0], jac_t.shape[1]
+        lam2 = damping * damping
+        a = [[None] * r for _ in range(r)]
+        for i in range(r):
+            for j in range(i + 1):
+                total = jac_t[i, 0] * jac_t[j, 0]
+                for k in range(1, n):
+                    total = total + jac_t[i, k] * jac_t[j, k]
+                a[i][j] = total + lam2 if i == j else total
+        low = [[None] * r for _ in range(r)]
+        for j in range(r):
+            s = a[j][j]
+            for k in range(j):
+                s = s - low[j][k] * low[j][k]
+            low[j][j] = np.sqrt(s)
+            for i in range(j + 1, r):
+                s = a[i][j]
+                for k in range(j):
+                    s = s - low[i][k] * low[j][k]
+                low[i][j] = s / low[j][j]
+        y = []
+        for i in range(r):
+            s = dx_t[i]
+            for k in range(i):
+                s = s - low[i][k] * y[k]
+            y.append(s / low[i][i])
+        x = [None] * r
+        for i in reversed(range(r)):
+            s = y[i]
+            for k in range(i + 1, r):
+                s = s - low[k][i] * x[k]
+            x[i] = s / low[i][i]
+        out = jac_t[0] * x[0]
+        for i in range(1, r):
+            out = out + jac_t[i] * x[i]
+        return out
 
     def clip(self, q_t: np.ndarray) -> np.ndarray:
         """q_t (n, N) within the joint limits."""
@@ -319,7 +383,8 @@ class Arm:
 
     def move_t(self, q_t: np.ndarray, jac_t: np.ndarray, dx_t: np.ndarray, damping: float,
                passes: int = CLAMP_PASSES, limit_gain: float = 0.0) -> np.ndarray:
-        """Joint positions (n, N) after moving the tip by dx_t (3, N) from q_t (n, N), within the limits.
+        """Joint positions (n, N) after moving the tip by dx_t (3, N) from q_t (n, N), within the limits (or its pose
+        by dx_t (6, N), with jacobian6_t's rows and weight).
 
         Damped least squares, clamped: a joint the solution would take past a limit goes to that limit and is locked,
         and the rest of the displacement is solved again with the other joints (up to `passes` times), so that a

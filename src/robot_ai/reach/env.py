@@ -24,6 +24,13 @@ steps back as far as a joint turns for a full ee_step. 50 steps (TimeLimit); no 
 convention: the policy has to stay there). reward_type 'sparse': -1 outside the threshold, 0 inside; 'dense':
 -distance.
 
+Pose goals (goal='pose'): the goals, achieved and desired, are the tip's position and orientation, 7 numbers
+``[x, y, z, qx, qy, qz, qw]`` (unit quaternion, qw >= 0), and observation holds the n joint positions, then the tip's
+7; success is also an orientation within ``angle_threshold`` (0.1 rad; robot_ai.reach.task). ee control's action is
+``Box(-1, 1, (6,))``: the tip's displacement (ee_step x the first three) and its turn about the base frame's axes
+(``angle_step`` x the last three, 0.2 rad, in the base frame), solved together by damped least squares on the
+6-row Jacobian, the turn's rows weighted by ee_step / angle_step metres per radian.
+
 ReachVectorEnv computes its N arms in one numpy pass per step and equals gymnasium's SyncVectorEnv over N ReachEnvs
 bit for bit (autoreset next-step, reset(seed=s) seeds env i with s + i).
 """
@@ -45,7 +52,7 @@ from gymnasium.vector.utils import batch_space
 from robot_ai.reach.arm import Arm, ReachError
 from robot_ai.reach.collision import CollisionModel, parse_obstacles
 from robot_ai.reach.model import Model, load_model
-from robot_ai.reach.task import DISTANCE_THRESHOLD, ReachTask, goal_distance, goal_distance_one
+from robot_ai.reach.task import ANGLE_THRESHOLD, DISTANCE_THRESHOLD, ReachTask, goal_distance_one, quaternions_t
 
 CONTROLS = ('ee', 'joints')
 STARTS = ('home', 'random', 'chained')
@@ -53,6 +60,7 @@ EPISODE_STEPS = 50
 JOINT_STEP = 0.05            # rad (or m) per unit of a joints action
 EE_STEP_FRACTION = 1 / 20    # of the chain's length: 50 steps cross the workspace
 DAMPING_FRACTION = 0.5       # damped least squares' damping, in ee_steps
+ANGLE_STEP = 0.2             # rad per unit of a pose goal's rotation action: pi in 16 steps
 LIMIT_AVOIDANCE = 4.0        # ee control: the null-space step away from a joint limit, at the limit, in ee_step's turn
 RENDER_FPS = 10
 MAX_DRAWS = 1000             # draws of a goal or a start clear of collisions before the world is called too full
@@ -65,16 +73,23 @@ class ReachSetup:
     def __init__(self, model: str | None = None, xacro_args=None, tip: str | None = None, control: str = 'ee',
                  start: str = 'home', reward_type: str = 'sparse', distance_threshold: float = DISTANCE_THRESHOLD,
                  ee_step: float | None = None, damping: float | None = None, home=None, urdf: str | None = None,
-                 limit_avoidance: float = LIMIT_AVOIDANCE, obstacles=None, collision: bool | None = None):
+                 limit_avoidance: float = LIMIT_AVOIDANCE, obstacles=None, collision: bool | None = None,
+                 goal: str = 'position', angle_threshold: float = ANGLE_THRESHOLD, angle_step: float | None = None):
         if control not in CONTROLS:
             raise ReachError(f'control must be one of {", ".join(CONTROLS)}, got {control!r}')
         if start not in STARTS:
             raise ReachError(f'start must be one of {", ".join(STARTS)}, got {start!r}')
         self.model: Model = load_model(model, xacro_args, urdf)
         self.arm = Arm(self.model.tree, tip)
-        self.task = ReachTask(reward_type, distance_threshold)
+        self.task = ReachTask(reward_type, distance_threshold, goal, angle_threshold)
+        self.pose = goal == 'pose'
         self.control, self.start = control, start
         self.ee_step = self._positive('ee_step', ee_step, self.arm.length * EE_STEP_FRACTION)
+        self.angle_step = self._positive('angle_step', angle_step, ANGLE_STEP)
+        if self.angle_step > math.pi:
+            raise ReachError(f'angle_step must be at most pi rad, got {angle_step!r}')
+        # pose goals: the Jacobian's angular rows in metres, so that a full turn action weighs as a full move
+        self.angular_weight = self.ee_step / self.angle_step
         self.damping = self._positive('damping', damping, self.ee_step * DAMPING_FRACTION)
         if isinstance(limit_avoidance, bool) or not isinstance(limit_avoidance, (int, float)) \
                 or not 0 <= limit_avoidance <= 10:
@@ -97,12 +112,14 @@ class ReachSetup:
                 raise ReachError(f'home is in collision: {", ".join(touching[:4])} (move the obstacles, or give a '
                                  f'home that is clear of them)')
         bound = self.arm.radius + 1e-6
-        goal_space = spaces.Box(-bound, bound, (3,), np.float64)
-        low = np.concatenate((self.arm.lower, np.full(3, -bound)))
-        high = np.concatenate((self.arm.upper, np.full(3, bound)))
+        goal_low = np.full(3, -bound) if not self.pose else np.concatenate((np.full(3, -bound), -np.ones(4)))
+        goal_high = -goal_low
+        goal_space = spaces.Box(goal_low, goal_high, dtype=np.float64)
+        low = np.concatenate((self.arm.lower, goal_low))
+        high = np.concatenate((self.arm.upper, goal_high))
         self.observation_space = spaces.Dict(achieved_goal=goal_space, desired_goal=goal_space,
                                              observation=spaces.Box(low, high, dtype=np.float64))
-        size = 3 if control == 'ee' else self.arm.n
+        size = (6 if self.pose else 3) if control == 'ee' else self.arm.n
         self.action_space = spaces.Box(-1.0, 1.0, (size,), np.float32)
 
     @staticmethod
@@ -146,23 +163,38 @@ class ReachSetup:
             raise ReachError(f'{what} outside the joint limits: {"; ".join(outside)}')
         return out
 
+    def goal_text(self) -> str:
+        return (f'[x, y, z, qx, qy, qz, qw] in {self.arm.base}' if self.pose else f'[x, y, z] in {self.arm.base}')
+
+    def check_goal(self, value, what: str) -> list[float]:
+        """A goal given by a user: x, y, z (metres, in the base frame; any finite numbers: a goal out of reach is
+        the user's to try), and for pose goals a quaternion qx, qy, qz, qw of any non-zero length, returned as a
+        unit one with qw >= 0; ReachError of one line naming `what` otherwise."""
+        try:
+            g = np.asarray(value, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            g = np.zeros(0)
+        size = self.task.size
+        if g.shape != (size,) or not np.isfinite(g).all():
+            raise ReachError(f'{what} must be {size} finite numbers ({self.goal_text()}, metres), got '
+                             f'{str(value)[:80]}')
+        if self.pose:
+            norm = float(np.linalg.norm(g[3:]))
+            if norm < 1e-6:
+                raise ReachError(f'{what}: the quaternion {g[3:].tolist()} has no length (a unit quaternion '
+                                 f'qx, qy, qz, qw is an orientation; 0, 0, 0, 1 is the base frame\'s)')
+            g[3:] = g[3:] / norm * (-1.0 if g[6] < 0 else 1.0)
+        return g.tolist()
+
     def reset_options(self, options: dict, goal: list, q: list) -> tuple[list, list]:
-        """(goal, start configuration) of an episode with reset options: 'goal' (x, y, z in the root frame, any three
-        finite numbers: a goal out of reach is the user's to try) and 'q' (joint positions, as `configuration`
-        takes them) replace the drawn ones."""
+        """(goal, start configuration) of an episode with reset options: 'goal' (check_goal's) and 'q' (joint
+        positions, as `configuration` takes them) replace the drawn ones."""
         unknown = sorted(set(options) - {'goal', 'q'})
         if unknown:
-            raise ReachError(f'reset options are goal ([x, y, z] in {self.arm.base}) and q (joint positions), got '
+            raise ReachError(f'reset options are goal ({self.goal_text()}) and q (joint positions), got '
                              f'{", ".join(map(str, unknown))}')
         if options.get('goal') is not None:
-            try:
-                g = np.asarray(options['goal'], dtype=float).reshape(-1)
-            except (TypeError, ValueError):
-                g = np.zeros(0)
-            if g.shape != (3,) or not np.isfinite(g).all():
-                raise ReachError(f'options goal must be 3 finite numbers (x, y, z in {self.arm.base}, metres), got '
-                                 f'{str(options["goal"])[:80]}')
-            goal = g.tolist()
+            goal = self.check_goal(options['goal'], 'options goal')
         if options.get('q') is not None:
             q = self.configuration(options['q'], 'options q').tolist()
         return goal, q
@@ -174,6 +206,8 @@ class ReachSetup:
                    home=[float(v) for v in self.home], limit_avoidance=self.limit_avoidance)
         if self.body is not None:         # the world a policy learned in (files without these: none)
             out.update(collision=True, obstacles=[json.dumps(o.spec) for o in self.obstacles])
+        if self.pose:                     # files without these: position goals
+            out.update(goal='pose', angle_threshold=self.task.angle_threshold, angle_step=self.angle_step)
         return out
 
     # -------------------------------------------------------------------------------- batched steps
@@ -249,27 +283,49 @@ class ReachSetup:
             after_t[:, hit] = before_t[:, hit]
         return after_t, hit
 
+    def goals_of(self, q_t: np.ndarray) -> np.ndarray:
+        """The goals (size, N) the tip achieves at joint positions q_t (n, N): its position, or its pose."""
+        if self.pose:
+            tip, rotation, _, _ = self.arm.pose_t(q_t)
+            return np.concatenate((tip, quaternions_t(rotation)))
+        return self.arm.forward(q_t, with_axes=False)[0]
+
     def place(self, q_t: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """(tip (3, N), Jacobian (3, n, N) for ee control, else None) of joint positions q_t (n, N)."""
+        """(tip (size, N): the achieved goal, Jacobian (3 or 6, n, N) for ee control, else None) of joint positions
+        q_t (n, N)."""
+        if self.pose:
+            tip, rotation, axes, origins = self.arm.pose_t(q_t)
+            pose = np.concatenate((tip, quaternions_t(rotation)))
+            if self.control == 'ee':
+                return pose, self.arm.jacobian6_t(tip, axes, origins, self.angular_weight)
+            return pose, None
         if self.control == 'ee':
             tip, axes, origins = self.arm.forward(q_t)
             return tip, self.arm.jacobian_t(tip, axes, origins)
         return self.arm.forward(q_t, with_axes=False)[0], None
 
     def move(self, q_t: np.ndarray, jac_t: np.ndarray | None, actions_t: np.ndarray) -> np.ndarray:
-        """Joint positions (n, N) after actions_t (a, N), within the limits."""
+        """Joint positions (n, N) after actions_t (a, N), within the limits. Pose goals: the turn's rows are in
+        metres already (angular_weight), so that the six rows move by ee_step x action."""
         if self.control == 'ee':
             return self.arm.move_t(q_t, jac_t, actions_t * self.ee_step, self.damping, limit_gain=self.limit_gain)
         return self.arm.clip(q_t + actions_t * JOINT_STEP)
 
     # ------------------------------------------------------------------------------- one arm (plain floats)
     def place_one(self, q: list) -> tuple[list, list | None]:
-        """(tip, Jacobian rows for ee control, else None) of one arm: place's numbers for a batch of one."""
+        """(tip, Jacobian rows for ee control, else None) of one arm: place's numbers for a batch of one (pose
+        goals: place's own, on a batch of one)."""
+        if self.pose:
+            tip, jac = self.place(np.array(q, dtype=np.float64)[:, None])
+            return tip[:, 0].tolist(), jac
         tip, axes, origins = self.arm.forward_one(q)
         return tip, (self.arm.jacobian_one(tip, axes, origins) if self.control == 'ee' else None)
 
     def move_one(self, q: list, jac: list | None, a: list) -> list:
         """move's numbers for a batch of one: a, the action's floats already clipped (check_action_one)."""
+        if self.pose:
+            return self.move(np.array(q, dtype=np.float64)[:, None], jac,
+                             np.array(a, dtype=np.float64)[:, None])[:, 0].tolist()
         if self.control == 'ee':
             return self.arm.move_one(q, jac, [v * self.ee_step for v in a], self.damping,
                                      limit_gain=self.limit_gain)
@@ -281,7 +337,7 @@ class ReachSetup:
 
     @staticmethod
     def observations(q_t: np.ndarray, tip_t: np.ndarray, goal_t: np.ndarray) -> dict:
-        """The observation dict of a batch: (N, 3), (N, 3), (N, n + 3), float64."""
+        """The observation dict of a batch: (N, size), (N, size), (N, n + size), float64."""
         return {'achieved_goal': tip_t.T.copy(), 'desired_goal': goal_t.T.copy(),
                 'observation': np.concatenate((q_t, tip_t)).T.copy()}
 
@@ -299,7 +355,8 @@ class ReachEnv(gymnasium.Env):
     robot_ai.reach.collision), collision (the arm's body from its URDF <collision> geometry checked against itself
     and the obstacles; default: on when obstacles are given). With a body, goals and random starts are drawn clear
     of collisions, and a step whose motion would touch is not made: the arm holds, info['collision'] is True, the
-    episode goes on."""
+    episode goes on. goal ('position' or 'pose'), angle_threshold (0.1 rad) and angle_step (0.2 rad): pose goals,
+    see the module's docstring."""
 
     metadata = {'render_modes': ['rgb_array'], 'render_fps': RENDER_FPS}
 
@@ -307,11 +364,13 @@ class ReachEnv(gymnasium.Env):
                  start: str = 'home', reward_type: str = 'sparse', distance_threshold: float = DISTANCE_THRESHOLD,
                  ee_step: float | None = None, damping: float | None = None, home=None, urdf: str | None = None,
                  render_mode: str | None = None, limit_avoidance: float = LIMIT_AVOIDANCE, obstacles=None,
-                 collision: bool | None = None):
+                 collision: bool | None = None, goal: str = 'position', angle_threshold: float = ANGLE_THRESHOLD,
+                 angle_step: float | None = None):
         if render_mode not in (None, *self.metadata['render_modes']):
             raise ReachError(f'render_mode must be one of {self.metadata["render_modes"]} or None, got {render_mode!r}')
         self.setup = ReachSetup(model, xacro_args, tip, control, start, reward_type, distance_threshold, ee_step,
-                                damping, home, urdf, limit_avoidance, obstacles, collision)
+                                damping, home, urdf, limit_avoidance, obstacles, collision, goal, angle_threshold,
+                                angle_step)
         self.arm = self.setup.arm
         self.task = self.setup.task
         self.observation_space = self.setup.observation_space
@@ -330,7 +389,11 @@ class ReachEnv(gymnasium.Env):
         so the env's random numbers stay those of the same seed without options."""
         super().reset(seed=seed)
         goal_q, start_q = self.setup.first_states([self.np_random], [self._q])
-        goal, q = self.arm.forward_one(goal_q[:, 0].tolist())[0], start_q[:, 0].tolist()
+        if self.setup.pose:
+            goal = self.setup.goals_of(goal_q)[:, 0].tolist()
+        else:
+            goal = self.arm.forward_one(goal_q[:, 0].tolist())[0]
+        q = start_q[:, 0].tolist()
         if options:
             goal, q = self.setup.reset_options(options, goal, q)
         self._goal, self._q = goal, q
@@ -346,12 +409,17 @@ class ReachEnv(gymnasium.Env):
         self._q, hit = self.setup.guard_one(self._q, self.setup.move_one(self._q, self._jac, a))
         info = {} if hit is None else {'collision': hit}
         self._tip, self._jac = self.setup.place_one(self._q)
-        distance = goal_distance_one(self._tip, self._goal)
-        info['is_success'] = distance < self.task.distance_threshold
-        return (self.setup.observation_one(self._q, self._tip, self._goal), self.task.reward_one(distance), False,
-                False, info)
+        if self.setup.pose:
+            reward, success = self.task.outcome(np.array(self._tip), np.array(self._goal))
+            reward, info['is_success'] = float(reward), bool(success)
+        else:
+            distance = goal_distance_one(self._tip, self._goal)
+            reward, info['is_success'] = self.task.reward_one(distance), distance < self.task.distance_threshold
+        return self.setup.observation_one(self._q, self._tip, self._goal), reward, False, False, info
 
     def _info(self) -> dict:
+        if self.setup.pose:
+            return {'is_success': bool(self.task.is_success(np.array(self._tip), np.array(self._goal)))}
         return {'is_success': goal_distance_one(self._tip, self._goal) < self.task.distance_threshold}
 
     @property
@@ -367,7 +435,7 @@ class ReachEnv(gymnasium.Env):
             self._renderer = ArmRenderer(self.arm, self.task.distance_threshold)
         if self._q is None:
             return self._renderer.draw(self.setup.home, None)
-        return self._renderer.draw(np.array(self._q), np.array(self._goal))
+        return self._renderer.draw(np.array(self._q), np.array(self._goal[:3]))
 
     def close(self):
         if self._renderer is not None:
@@ -405,9 +473,10 @@ class ReachVectorEnv(VectorEnv):
         n = self.num_envs
         self._rngs: list[np.random.Generator | None] = [None] * n
         self._q = np.zeros((self.arm.n, n))
-        self._tip = np.zeros((3, n))
-        self._goal = np.zeros((3, n))
-        self._jac = np.zeros((3, self.arm.n, n)) if self.setup.control == 'ee' else None
+        size = self.task.size
+        self._tip = np.zeros((size, n))
+        self._goal = np.zeros((size, n))
+        self._jac = np.zeros((6 if self.setup.pose else 3, self.arm.n, n)) if self.setup.control == 'ee' else None
         self._elapsed = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=np.bool_)
         self._started = np.zeros(n, dtype=np.bool_)
@@ -425,7 +494,7 @@ class ReachVectorEnv(VectorEnv):
         rngs = [self._rng(int(i), seeds[i]) for i in chosen]
         goal_q, q = self.setup.first_states(rngs, [self._q[:, i].copy() if self._started[i] else None
                                                    for i in chosen])
-        goal = self.arm.forward(goal_q, with_axes=False)[0]
+        goal = self.setup.goals_of(goal_q)
         tip, jac = self.setup.place(q)
         self._q[:, chosen], self._goal[:, chosen], self._tip[:, chosen] = q, goal, tip
         if jac is not None:
@@ -496,13 +565,12 @@ class ReachVectorEnv(VectorEnv):
         if len(resetting):
             self._reset_envs(resetting, [None] * self.num_envs)
         self._elapsed[rows] += 1
-        distance = goal_distance(self._tip.T, self._goal.T)
-        rewards = np.where(stepping, self.task.reward_of(distance), 0.0)
+        reward, success = self.task.outcome(self._tip.T, self._goal.T)
+        rewards = np.where(stepping, reward, 0.0)
         terminations = np.zeros(self.num_envs, dtype=np.bool_)
         truncations = stepping & (self._elapsed >= self.max_episode_steps)
         self._autoreset = truncations.copy()
-        infos = {'is_success': distance < self.task.distance_threshold,
-                 '_is_success': np.ones(self.num_envs, dtype=np.bool_)}
+        infos = {'is_success': success, '_is_success': np.ones(self.num_envs, dtype=np.bool_)}
         if self.setup.body is not None:         # as SyncVectorEnv gathers the envs' info['collision']
             infos = {'collision': collision, '_collision': stepping.copy(), **infos}
         return ReachSetup.observations(self._q, self._tip, self._goal), rewards, terminations, truncations, infos
@@ -513,7 +581,7 @@ class ReachVectorEnv(VectorEnv):
         from robot_ai.reach.render import ArmRenderer
         if self._renderers is None:
             self._renderers = [ArmRenderer(self.arm, self.task.distance_threshold) for _ in range(self.num_envs)]
-        return tuple(r.draw(self._q[:, i], self._goal[:, i] if self._started[i] else None)
+        return tuple(r.draw(self._q[:, i], self._goal[:3, i] if self._started[i] else None)
                      for i, r in enumerate(self._renderers))
 
     def close_extras(self, **kwargs):

@@ -15,6 +15,12 @@ still missed 15 %). alpha and nu shrink over the run (decay). A large arm's step
 threshold, so it needs finer weights: the default number of iterations grows with ee_step / distance_threshold
 (80 for a UR5, 121 for a 2.8 m arm; default_settings).
 
+Pose goals (goal='pose'): the orientation error (the rotation from the tip's orientation to the goal's) is a
+product of the two quaternions, which no linear map of the observation gives. ARS's linear policy then acts on fixed
+features of the flattened observation (PoseFeatures: the achieved and desired positions, that rotation vector, the
+joints), a layer the policy carries (FeaturePolicy), so that the P-controller on the pose error lies in the class
+again; HER's relabelling is unaffected (the features are computed from the goals the policy is given).
+
 Its policy files (save, load) are robot_ai.reach.policy_files'.
 """
 from __future__ import annotations
@@ -25,9 +31,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+import gymnasium
+from gymnasium import spaces
+from gymnasium.wrappers.vector import TransformObservation
+
 from robot_ai import ars
 from robot_ai.reach.env import ReachSetup, ReachVectorEnv
-from robot_ai.reach.task import goal_distance, why_unreached
+from robot_ai.reach.task import goal_angle, goal_distance, rotation_error, why_unreached
 
 JOINT_SCALE = 10.0              # joint positions normalised by 10 x their range (see the module's docstring)
 PRIOR_STATES = 2000             # random configurations and goals that seed the goal coordinates' statistics
@@ -35,9 +45,74 @@ HELD_OUT_EPISODES = 1000
 HELD_OUT_SEED = 2 ** 31         # held-out goals: seeds no training iteration draws (those are below 2 ** 31)
 CHAIN_ENVS = 100               # chained evaluation: this many arms, each through its episodes one after another
 MISSES = {'beyond': 'beyond the arm\'s reach', 'collision': 'blocked by a collision',
-          'limits': 'stalled at joint limits', 'other': 'stalled elsewhere'}
+          'limits': 'stalled at joint limits', 'other': 'stalled elsewhere', 'turn': 'at the goal, not turned to it'}
+ROTATION_SCALE = 1.0            # rad: the orientation error's fixed statistics (mean 0, this std)
 SETTINGS = ars.ARSSettings(iterations=80, directions=32, top_directions=16, step_size=0.1, noise=0.1, episodes=8,
                            eval_episodes=256, decay=0.9, bias=True, normalize=True)
+
+
+@dataclass(frozen=True)
+class PoseFeatures:
+    """A pose goal's policy inputs from the flattened goal-env observation (achieved goal 0-6, desired goal 7-13,
+    joints 14 .. 13 + n, tip): the achieved position (3), the desired one (3), the rotation vector from the achieved
+    orientation to the desired one (3, rad, base frame: task.rotation_error) and the joints (n)."""
+    n: int
+
+    @property
+    def size(self) -> int:
+        return 9 + self.n
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=np.float64)
+        a, d = x[:, :7], x[:, 7:14]
+        return np.concatenate((a[:, :3], d[:, :3], rotation_error(a, d), x[:, 14:14 + self.n]), axis=1)
+
+    def space(self) -> spaces.Box:
+        return spaces.Box(-np.inf, np.inf, (self.size,), np.float64)
+
+
+@dataclass
+class FeaturePolicy:
+    """A linear policy (ars.LinearPolicy) on fixed features of the flattened observation: act_batch(x) is
+    linear.act_batch(features(x)). Its arrays are the linear policy's (a policy file holds those, kind ars_linear;
+    robot_ai.reach.policy_files puts the features back on load from the env it names)."""
+    linear: ars.LinearPolicy
+    features: PoseFeatures
+
+    kind = 'ars_linear'
+
+    def __getattr__(self, name):                 # weights, obs_mean, obs_std, bias, low, high, choices
+        if name in ('linear', 'features'):
+            raise AttributeError(name)
+        return getattr(self.linear, name)
+
+    def act_batch(self, x: np.ndarray) -> np.ndarray:
+        return self.linear.act_batch(self.features(np.atleast_2d(np.asarray(x, dtype=np.float64))))
+
+    def act(self, x) -> np.ndarray:
+        return self.act_batch(np.asarray(x, dtype=np.float64).reshape(1, -1))[0]
+
+
+def features_of(setup: ReachSetup) -> PoseFeatures | None:
+    """The fixed features a policy for setup's task acts on: PoseFeatures for pose goals, None for positions."""
+    return PoseFeatures(setup.arm.n) if setup.pose else None
+
+
+def with_features(policy, setup: ReachSetup):
+    """policy (an ars.LinearPolicy) as it acts on setup's flattened observations."""
+    features = features_of(setup)
+    return policy if features is None or isinstance(policy, FeaturePolicy) else FeaturePolicy(policy, features)
+
+
+def _feature_env(env, features: PoseFeatures):
+    space = features.space()
+    return TransformObservation(env, lambda obs: features(ars.flatten_batch(env.single_observation_space, obs)),
+                                gymnasium.vector.utils.batch_space(space, env.num_envs), space)
+
+
+def _feature_distance(features: np.ndarray) -> np.ndarray:
+    d = features[:, 3:6] - features[:, 0:3]
+    return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
 
 
 @dataclass
@@ -97,14 +172,21 @@ def env_kwargs_of(setup: ReachSetup, kwargs: dict) -> dict:
 
 def statistics(setup: ReachSetup, rng_seed: int = 1) -> tuple[list[list[int]], dict, np.ndarray]:
     """(shared groups, fixed statistics, prior states) of ARS's normalisation for setup's flattened observation:
-    achieved goal (0-2), desired goal (3-5), joints (6 .. 6 + n - 1), tip (6 + n .. 8 + n)."""
+    achieved goal (0-2), desired goal (3-5), joints (6 .. 6 + n - 1), tip (6 + n .. 8 + n); for pose goals, of
+    PoseFeatures: achieved (0-2), desired (3-5), rotation (6-8, fixed), joints (9 ..)."""
     arm, n = setup.arm, setup.arm.n
-    groups = [[i, 3 + i, 6 + n + i] for i in range(3)]
-    fixed = {6 + j: (float(setup.home[j]), float(JOINT_SCALE * (arm.upper[j] - arm.lower[j]))) for j in range(n)}
     rng = np.random.default_rng(rng_seed)
     q = rng.uniform(arm.lower, arm.upper, (PRIOR_STATES, n))
     goals = arm.tip_positions(rng.uniform(arm.lower, arm.upper, (PRIOR_STATES, n)))
     tips = arm.tip_positions(q)
+    joints = {j: (float(setup.home[j]), float(JOINT_SCALE * (arm.upper[j] - arm.lower[j]))) for j in range(n)}
+    if setup.pose:
+        groups = [[i, 3 + i] for i in range(3)]
+        fixed = {9 + j: v for j, v in joints.items()}
+        fixed.update({6 + i: (0.0, ROTATION_SCALE) for i in range(3)})
+        return groups, fixed, np.concatenate((tips, goals, np.zeros((PRIOR_STATES, 3)), q), axis=1)
+    groups = [[i, 3 + i, 6 + n + i] for i in range(3)]
+    fixed = {6 + j: v for j, v in joints.items()}
     return groups, fixed, np.concatenate((tips, goals, q, tips), axis=1)
 
 
@@ -138,11 +220,20 @@ def train(env_kwargs: dict | None = None, settings: ars.ARSSettings | None = Non
     def stop() -> bool:
         return reached['done'] or (should_stop is not None and should_stop())
 
-    result = ars.train(lambda k: ReachVectorEnv(k, reward_type='dense', **kwargs), settings, seed,
-                       progress=on_iteration, should_stop=stop, shared_statistics=groups, final_metric=final_distance,
-                       prior_states=prior, fixed_statistics=fixed, chunks=chunks, ray_address=ray_address)
+    features = features_of(setup)
+    if features is None:
+        make_env, metric = (lambda k: ReachVectorEnv(k, reward_type='dense', **kwargs)), final_distance
+    else:
+        make_env = lambda k: _feature_env(ReachVectorEnv(k, reward_type='dense', **kwargs), features)  # noqa: E731
+        metric = _feature_distance
+    result = ars.train(make_env, settings, seed, progress=on_iteration, should_stop=stop, shared_statistics=groups,
+                       final_metric=metric, prior_states=prior, fixed_statistics=fixed, chunks=chunks,
+                       ray_address=ray_address)
     if reached['done']:
         result.cancelled = False
+    if features is not None:
+        result.policy = FeaturePolicy(result.policy, features)
+        result.last_policy = FeaturePolicy(result.last_policy, features)
     training = Training(setup, env_kwargs_of(setup, kwargs), result, seed=seed)
     if evaluate_episodes:
         training.held_out = evaluate(result.policy, setup, evaluate_episodes)
@@ -186,20 +277,29 @@ def evaluate(policy, setup: ReachSetup, episodes: int = HELD_OUT_EPISODES, seed:
     blocked = np.concatenate(blocked)[:episodes]
     misses = dict.fromkeys(MISSES, 0)
     for i in np.flatnonzero(~successes):
-        kind = why_unreached(setup.arm, goals[i], configurations[i], float(distances[i]))[0]
+        if setup.pose and distances[i] < setup.task.distance_threshold:
+            misses['turn'] += 1
+            continue
+        kind = why_unreached(setup.arm, goals[i][:3], configurations[i], float(distances[i]))[0]
         misses['collision' if blocked[i] and kind != 'beyond' else kind] += 1
     return Evaluation(float(successes.mean()), distances, seed, start, misses)
 
 
-def p_controller(setup: ReachSetup, gain: float = 1.0) -> ars.LinearPolicy:
+def p_controller(setup: ReachSetup, gain: float = 1.0):
     """The plain P-controller on the tip error, action = clip(gain (goal - tip) / ee_step, -1, 1), as an ars_linear
-    policy (weights on the desired and achieved goal only): the baseline a learned reach policy is measured against."""
+    policy (weights on the desired and achieved goal only): the baseline a learned reach policy is measured against.
+    Pose goals: also the turn, clip(gain rotation_error / angle_step), on PoseFeatures (a FeaturePolicy)."""
     d = 9 + setup.arm.n
-    weights = np.zeros((3, d))
+    a = 6 if setup.pose else 3
+    weights = np.zeros((a, d))
     k = gain / setup.ee_step
     for i in range(3):
         weights[i, i], weights[i, 3 + i] = -k, k
-    return ars.LinearPolicy(weights, np.zeros(d), np.ones(d), np.zeros(3), -np.ones(3), np.ones(3))
+    if setup.pose:
+        for i in range(3):
+            weights[3 + i, 6 + i] = gain / setup.angle_step
+    linear = ars.LinearPolicy(weights, np.zeros(d), np.ones(d), np.zeros(a), -np.ones(a), np.ones(a))
+    return with_features(linear, setup)
 
 
 def record_video(policy, setup: ReachSetup, path: str, episodes: int = 3, seed: int = HELD_OUT_SEED) -> str:
@@ -216,12 +316,12 @@ def record_video(policy, setup: ReachSetup, path: str, episodes: int = 3, seed: 
             obs, _ = env.reset(seed=seed + episode)
             renderer.new_episode()
             renderer.title = f'{setup.model.tree.name}: goal {episode + 1} of {episodes}'
-            yield renderer.draw(env._q[:, 0], env._goal[:, 0])
+            yield renderer.draw(env._q[:, 0], env._goal[:3, 0])
             for _ in range(env.max_episode_steps):
                 obs, *_ = env.step(policy.act_batch(ars.flatten_batch(env.single_observation_space, obs)))
-                yield renderer.draw(env._q[:, 0], env._goal[:, 0])
+                yield renderer.draw(env._q[:, 0], env._goal[:3, 0])
             for _ in range(RENDER_FPS // 2):         # a pause on the result before the next goal
-                yield renderer.draw(env._q[:, 0], env._goal[:, 0])
+                yield renderer.draw(env._q[:, 0], env._goal[:3, 0])
     try:
         return write_video(path, frames(), RENDER_FPS)
     finally:

@@ -20,11 +20,12 @@ from robot_ai import policies
 from robot_ai.policies import PolicyError, Target, register_env
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import ReachSetup
+from robot_ai.reach.learn import with_features
 
 ENV_ID = 'robot_ai/Reach-v0'
 REACH_ENVS = (ENV_ID, 'robot_ai/RosReach-v0')
 ENV_SETTINGS = ('model', 'xacro_args', 'tip', 'control', 'start', 'distance_threshold', 'ee_step', 'damping', 'home',
-                'limit_avoidance', 'obstacles', 'collision')
+                'limit_avoidance', 'obstacles', 'collision', 'goal', 'angle_threshold', 'angle_step')
 
 
 def save(training, path: str) -> str:
@@ -95,6 +96,10 @@ def check_fits(policy, setup: ReachSetup) -> str:
     control = kwargs.get('control', 'ee')
     if control != setup.control:
         raise PolicyError(f'{where} acts with control={control}; this env has control={setup.control}')
+    goal = kwargs.get('goal', 'position')
+    if goal != setup.task.goal:
+        raise PolicyError(f'{where} learned {goal} goals; this env has goal={setup.task.goal} (a policy learns one '
+                          f'kind: train another with goal={setup.task.goal})')
     inputs, actions = policy_sizes(policy)
     if inputs != 9 + arm.n or actions != setup.action_space.shape[0]:
         raise PolicyError(f'{where} maps {inputs} observations to {actions} actions; this env has '
@@ -135,19 +140,22 @@ def load(path: str, setup: ReachSetup | None = None, **overrides):
         return target(chosen, ENV_ID, file.env_kwargs)
 
     policy = policies.load(path, choose)
-    return policy, policy.target.context, policy.note
+    setup = policy.target.context
+    if policy.kind == 'ars_linear':          # pose goals: the features its linear map acts on (learn.PoseFeatures)
+        policy.actor = with_features(policy.actor, setup)
+    return policy, setup, policy.note
 
 
 def _onnx_target(file, setup: ReachSetup | None, given: dict) -> Target:
     """The target of an ONNX model: its metadata's env (Reach-v0 when it names none; without a model, the env's default
-    robot, as gymnasium.make would make it), control from its metadata or else from its action size (3: ee,
-    otherwise joints)."""
+    robot, as gymnasium.make would make it), control from its metadata or else from its action size (3, or 6 for
+    pose goals: ee, otherwise joints)."""
     env_id = file.env_id or ENV_ID
     if env_id not in REACH_ENVS:
         raise PolicyError(f'{file.path} acts in {env_id}, not a reach env ({", ".join(REACH_ENVS)})')
     kwargs = file.env_kwargs
     if 'control' not in kwargs and file.action_size() is not None:
-        kwargs['control'] = 'ee' if file.action_size() == 3 else 'joints'
+        kwargs['control'] = 'ee' if file.action_size() == (6 if kwargs.get('goal') == 'pose' else 3) else 'joints'
     if setup is None:
         _require_model(file, kwargs, given)
         setup = _setup_of_kwargs(kwargs, given, file.info.get('robot', ''))
