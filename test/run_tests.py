@@ -28,7 +28,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 # a control group's cpu folder behind in 3 of 5 loaded runs (not understood yet), so CLASS_RUNS never overlap.
 LONGEST_FIRST = ['launch.test', 'pytest', 'check_fk.test', 'launch_rviz.test', 'check_fk_class.test',
                  'cartpole_q_learning.test', 'policy_files.test', 'cartpole_robot.test',
-                 'cartpole_search.test', 'across_machines.test', 'forward_kinematics_vs_rsp.test', 'ros_env.test',
+                 'cartpole_search.test', 'reach_pose.test', 'across_machines.test', 'forward_kinematics_vs_rsp.test',
+                 'ros_env.test',
                  'reach_ros.test', 'forward_kinematics_node.test', 'bench_output.test', 'check_fk_example.test',
                  'forward_kinematics_hz.test', 'roslaunch-check', 'ray_cluster.test']
 CLASS_RUNS = {'check_fk_class.test', 'ray_cluster.test'}

@@ -11,7 +11,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from tf import transformations as tft
 
-import robot_ai.reach  # registers robot_ai/Reach-v0
+import robot_ai.reach  # noqa: F401 (registers robot_ai/Reach-v0)
 from fk_helpers import robot_path
 from robot_ai import policies
 from robot_ai.reach import Arm, ReachError, ReachSetup, ReachVectorEnv, learn, policy_files

@@ -19,8 +19,9 @@ the limits; a command that comes late, or never, leaves the arm stopping on a ch
 
 Goals come from rviz's Publish Point tool (/clicked_point), ~goal, ~goal_pose or the interactive marker
 ~pose_marker (dragged and released in rviz), in any frame tf knows; the goal is drawn as a marker and its distance
-published. ~goal pose: a goal is the tip's position and orientation (a point keeps the tip's orientation now). It says `reached <goal> in <s> s (<d> m)` once the tip is within the policy's
-threshold. When the distance stops shrinking within the arm's reach (joints at their limits, a collision, a
+published. ~goal pose: a goal is the tip's position and orientation (a point keeps the tip's orientation now).
+It says `reached <goal> in <s> s (<d> m)` once the tip is within the policy's thresholds. When the distance stops
+shrinking within the arm's reach (joints at their limits, a collision, a
 configuration the policy cannot leave: a goal the arm must come at another way), it takes the arm home and tries
 once more from there; then it says `not reached: closest <d> m ...` and why (beyond
 the arm's reach, with the distance; stalled with the joints at their limits, named; blocked by a collision; or
@@ -380,7 +381,8 @@ class ReachController:
         frame = frame.lstrip('/') or self.base
         if frame != self.base:
             try:
-                r = self.tf_buffer.lookup_transform(self.base, frame, rospy.Time(0), rospy.Duration(1.0)).transform.rotation
+                r = self.tf_buffer.lookup_transform(self.base, frame, rospy.Time(0),
+                                                    rospy.Duration(1.0)).transform.rotation
             except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as e:
                 rospy.logwarn(f'goal in {frame} ignored: no transform from {frame} to {self.base} ({e})')
                 return None
@@ -732,10 +734,9 @@ class ReachController:
             kind, why = why_unreached(self.setup.arm, goal[:3], q, distance) if not reached else ('', '')
             if not reached and distance < task.distance_threshold:
                 stuck = self.setup.arm.at_limits(q)
+                at = f', with {", ".join(stuck)} at {"its limit" if len(stuck) == 1 else "their limits"}'
                 kind, why = 'turn', (f'at the goal\'s position, turned {angle:.3f} rad from its orientation (more than '
-                                     f'{task.angle_threshold:g} rad)' + (f', with {", ".join(stuck)} at '
-                                                                         f'{"its limit" if len(stuck) == 1 else "their limits"}'
-                                                                         if stuck else ''))
+                                     f'{task.angle_threshold:g} rad){at if stuck else ""}')
             if not reached and self.blocked and kind != 'beyond':
                 kind, why = 'collision', f'blocked {distance:.3f} m away by a collision ({self.blocked})'
             if not reached and kind != 'beyond' and not self.retried:    # stalled within reach: home, once more
@@ -750,7 +751,9 @@ class ReachController:
         if reached:
             rospy.loginfo(f'reached {where} in {now - since:.2f} s ({distance:.3f} m{turned})')
             return
-        closest = f'{best:.3f} m' if not self.setup.pose else f'{best:.3f} m (distance + angle x {task.distance_threshold / task.angle_threshold:g} m/rad)'
+        closest = f'{best:.3f} m'
+        if self.setup.pose:
+            closest += f' (distance + angle x {task.distance_threshold / task.angle_threshold:g} m/rad)'
         rospy.loginfo(f'not reached: closest {closest} to {where}: {why}; holding at the closest')
 
     def _home_target(self, goal: list[float], q: list[float]) -> list[float] | None:

@@ -37,7 +37,7 @@ from gymnasium.wrappers.vector import TransformObservation
 
 from robot_ai import ars
 from robot_ai.reach.env import ReachSetup, ReachVectorEnv
-from robot_ai.reach.task import goal_angle, goal_distance, rotation_error, why_unreached
+from robot_ai.reach.task import goal_distance, rotation_error, why_unreached
 
 JOINT_SCALE = 10.0              # joint positions normalised by 10 x their range (see the module's docstring)
 PRIOR_STATES = 2000             # random configurations and goals that seed the goal coordinates' statistics
