@@ -11,6 +11,8 @@ Per robot (control 'ee', 1000 held-out goals, seed 0):
 Where stable-baselines3 and sb3-contrib are installed (a venv of their own: torch is gigabytes): sb3-contrib's ARS
 (LinearPolicy, its defaults, 8 envs) and SAC with HER (rl-baselines3-zoo's settings for PandaReach: gamma 0.95,
 learning rate 1e-3, tau 0.05, batch 256, two layers of 64) on the UR5's Reach-v0, steps and seconds.
+Pose goals (goal='pose', within 0.05 m and 0.1 rad): ARS from home on its feature layer beside the P-controller on
+the pose error, from home, random starts and chained.
 CartPole-v1: ARS (the course's policy) over several seeds: episodes, steps and the 100-episode average, beside the
 course's random search (100 x 100).
 
@@ -74,6 +76,28 @@ def reach_section(names, extra_models):
               f'{home.result.steps:10,d} {100 * home.held_out.success_rate:5.1f}% '
               f'{100 * home.p_controller.success_rate:5.1f}% {100 * p_random:5.1f}% {100 * p_chained:6.1f}% '
               f'{100 * p_plain:6.1f}% {100 * rand.held_out.success_rate:7.1f}% {100 * ars_chained:8.1f}%', flush=True)
+
+
+POSE_ROBOTS = ('ur5_package', 'kuka_lwr', 'panda', 'pr2')
+
+
+def pose_section(names):
+    print('pose goals: ARS (train --goal pose, seed 0) beside the P-controller on the pose error, 1000 held-out goals '
+          'within 0.05 m and 0.1 rad')
+    print(f'  {"robot":16s} {"ARS wall":>8s} {"ARS home":>8s} {"P home":>6s} {"ARS rand":>8s} {"P rand":>6s} '
+          f'{"ARS chain":>9s} {"P chain":>7s}')
+    for name in names:
+        model, args = ROBOTS[name]
+        tip = 'r_gripper_tool_frame' if name == 'pr2' else None
+        t0 = time.monotonic()
+        home = learn.train(dict(model=model, xacro_args=args, tip=tip, goal='pose'), seed=0)
+        wall = time.monotonic() - t0
+        setup, p = home.setup, learn.p_controller(home.setup)
+        rates = [learn.evaluate(policy, setup, start=start).success_rate
+                 for start in ('random', 'chained') for policy in (home.policy, p)]
+        print(f'  {name:16s} {wall:6.1f} s {100 * home.held_out.success_rate:7.1f}% '
+              f'{100 * home.p_controller.success_rate:5.1f}% {100 * rates[0]:7.1f}% {100 * rates[1]:5.1f}% '
+              f'{100 * rates[2]:8.1f}% {100 * rates[3]:6.1f}%', flush=True)
 
 
 def sb3_section(sb3_steps, sac_steps):
@@ -161,13 +185,15 @@ def main() -> int:
     p.add_argument('--seeds', type=int, default=10, help='CartPole seeds')
     p.add_argument('--sb3-steps', type=int, default=200000, help='sb3-contrib ARS steps')
     p.add_argument('--sac-steps', type=int, default=20000, help='SAC + HER steps')
-    p.add_argument('--skip', default='', help='sections to skip: reach, sb3, cartpole')
+    p.add_argument('--skip', default='', help='sections to skip: reach, pose, sb3, cartpole')
     a = p.parse_args()
     load = open('/proc/loadavg').read().split()[0]
     print(f'reach and ARS, {os.cpu_count()} cores (load average {load})   [bench/reach_ars.py, '
           f'{time.strftime("%Y-%m-%d")}]')
     if 'reach' not in a.skip:
         reach_section([n for n in a.robots.split(',') if n], a.model)
+    if 'pose' not in a.skip:
+        pose_section([n for n in a.robots.split(',') if n in POSE_ROBOTS])
     if 'cartpole' not in a.skip:
         cartpole_section(a.seeds)
     if 'sb3' not in a.skip:
