@@ -136,6 +136,19 @@ def wait_for(predicate, timeout=10.0, step=0.02):
     return predicate()
 
 
+def said_by(log, node, words, since, timeout=30.0):
+    """The first line node said in log ([(name, text)], from index since) that holds every word of one of words (a
+    list of word lists), waiting up to timeout seconds; None when none came (the caller fails with the lines)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        said = [m for n, m in log[since:] if n == node and any(all(w in m for w in ws) for ws in words)]
+        if said:
+            return said[0]
+        if time.monotonic() >= deadline:
+            return None
+        time.sleep(0.05)
+
+
 def wait_file(path, timeout=20.0):
     """True once path is a non-empty file (a plot appears after its response), False after timeout seconds."""
     deadline = time.time() + timeout

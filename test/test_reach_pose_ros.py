@@ -18,6 +18,7 @@ from std_srvs.srv import Trigger
 from tf import transformations as tft
 from visualization_msgs.msg import InteractiveMarkerFeedback, InteractiveMarkerUpdate
 
+from ros_helpers import said_by
 from robot_ai.reach import ReachSetup
 
 HERE = os.path.dirname(os.path.realpath(__file__))
@@ -76,13 +77,10 @@ class TestReachPose(unittest.TestCase):
         time.sleep(1.0)
 
     def wait_for_log(self, words, since, timeout=60.0):
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            said = [m for n, m in self.log[since:] if n == NODE and any(all(w in m for w in ws) for ws in words)]
-            if said:
-                return said[0]
-            time.sleep(0.05)
-        self.fail(f'reach_controller never said {words}: {[m for n, m in self.log[since:] if n == NODE][-10:]}')
+        said = said_by(self.log, NODE, words, since, timeout)
+        if said is None:
+            self.fail(f'reach_controller never said {words}: {[m for n, m in self.log[since:] if n == NODE][-10:]}')
+        return said
 
     def go_home(self):
         self.assertTrue(self.home().success)
@@ -113,8 +111,11 @@ class TestReachPose(unittest.TestCase):
         self.assertGreater(rate, 0.8)           # its in-process evaluation over 1000 held-out pose goals
         rng = np.random.default_rng(11)
         reached = []
-        for i in range(GOALS):
-            goal = self.setup.goals_of(rng.uniform(self.setup.arm.lower, self.setup.arm.upper)[:, None])[:, 0]
+        # first, the goal a user's stalled on: from the straight-up (singular) home the arm turns first, its distance
+        # growing for seconds at velocity_scale 0.25 (it was called not reached after a fixed 2 s)
+        for i in range(GOALS + 1):
+            goal = np.array([0.4, 0.3, 0.5, 0, 2 ** -0.5, 0, 2 ** -0.5]) if i == GOALS else \
+                self.setup.goals_of(rng.uniform(self.setup.arm.lower, self.setup.arm.upper)[:, None])[:, 0]
             self.go_home()
             since = len(self.log)
             if i % 2:
@@ -125,9 +126,11 @@ class TestReachPose(unittest.TestCase):
             shown = [float(v) for v in said.split('(')[1].split(')')[0].split(',')]
             np.testing.assert_allclose(shown, goal[:3], atol=2e-3, err_msg=said)    # the frame converted
             reached.append(self.outcome(goal, since))
-        print(f'reached {sum(reached)} of {GOALS} pose goals through ROS; in-process: {rate:.3f}')
+        print(f'reached {sum(reached[:GOALS])} of {GOALS} pose goals through ROS; in-process: {rate:.3f}; the '
+              f'user\'s goal: {reached[GOALS]}')
         # 8 goals at the in-process rate p >= 0.8: fewer than 5 has a chance below 1 % (binomial)
-        self.assertGreaterEqual(sum(reached), 5, (reached, rate))
+        self.assertGreaterEqual(sum(reached[:GOALS]), 5, (reached, rate))
+        self.assertTrue(reached[GOALS], 'the goal from the singular home was not reached')
 
     def test_2_the_released_marker_is_the_goal(self):
         rng = np.random.default_rng(5)

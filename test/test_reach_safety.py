@@ -21,6 +21,7 @@ from std_srvs.srv import SetBool
 from trajectory_msgs.msg import JointTrajectory
 
 import onnx_models
+from ros_helpers import said_by
 from robot_ai.reach import ReachSetup
 from robot_ai.reach.safety import Limits, Violations, violations
 from robot_ai.srv import LoadPolicy
@@ -68,13 +69,10 @@ class TestReachSafety(unittest.TestCase):
         cls.states.append(((msg.header.stamp - cls.epoch).to_sec(), [joints[n] for n in cls.setup.arm.joints]))
 
     def wait_for_log(self, words, since, timeout=30.0):
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            said = [m for n, m in self.log[since:] if n == NODE and any(all(w in m for w in ws) for ws in words)]
-            if said:
-                return said[0]
-            time.sleep(0.05)
-        self.fail(f'reach_controller never said {words}: {[m for n, m in self.log[since:] if n == NODE][-10:]}')
+        said = said_by(self.log, NODE, words, since, timeout)
+        if said is None:
+            self.fail(f'reach_controller never said {words}: {[m for n, m in self.log[since:] if n == NODE][-10:]}')
+        return said
 
     def goal(self, seed):
         """A goal the arm can reach clear of the world: the tip of a random configuration clear of contacts."""
@@ -166,7 +164,7 @@ class TestReachSafety(unittest.TestCase):
             for g in range(3):
                 since = len(self.log)
                 self.send(self.goal(10 * k + g))
-                said = self.wait_for_log([['reached'], ['not reached']], since, timeout=60)
+                said = self.wait_for_log([['reached'], ['not reached']], since, timeout=120)   # stalls: 4 s at 0.5
                 reached += k == 0 and said.startswith('reached')
         self.assertGreaterEqual(reached, 2, 'the learned policy reached fewer than 2 of 3 goals')
         found = self.assert_motion_safe(since_state)

@@ -40,7 +40,8 @@ ROS Parameters
     ~rate (float, 20): control steps per second of ROS time.
     ~command_joints (list of str, [] = the robot's active joints): the joints of the command, in its order (a real
         controller's joints); those the arm does not move hold the positions joint_states reports.
-    ~stalled_after (float, 2.0): seconds without a millimetre of progress before a goal is called not reached.
+    ~stalled_after (float, 2.0): seconds without a millimetre of progress before a goal is called not reached, at
+        full speed: divided by ~velocity_scale, as the arm's motions take that much longer (8 s at 0.25).
     ~command (str, "position"): position | trajectory, the output (above).
     ~controller (str, "" = joint_group_position_controller or joint_trajectory_controller, as ~command): the
         controller whose <controller>/command topic takes the commands (scaled_pos_joint_traj_controller on a UR,
@@ -193,6 +194,9 @@ class ReachController:
             raise ValueError(f'~command_joints lacks {", ".join(missing)}, which the arm moves to reach')
         self.slot = [self.command_joints.index(n) for n in arm.joints]
         self.layer = self._safety_layer(tree, xml)
+        # the arm moves at velocity_scale of its speed: a motion takes 1 / velocity_scale as long, a stall too (a
+        # pose goal from a singular home turns first, its distance growing for seconds at 0.25)
+        self.stall_window = self.stalled_after / self.layer.limits.velocity_scale
         self.epoch = rospy.Time.now()             # the safety layer's times count from here (a float of seconds since
                                                   # 1970 keeps only 0.2 us: it shows in an acceleration)
         self.lock = threading.Lock()
@@ -728,7 +732,7 @@ class ReachController:
             if self.best_q is None or error < self.best:     # the closest configuration, however small the gain
                 self.best, self.best_q = error, q
             reached = distance < task.distance_threshold and angle < task.angle_threshold
-            stalled = now - self.improved_at > self.stalled_after
+            stalled = now - self.improved_at > self.stall_window
             if not (reached or stalled):
                 return
             kind, why = why_unreached(self.setup.arm, goal[:3], q, distance) if not reached else ('', '')
@@ -758,12 +762,12 @@ class ReachController:
 
     def _home_target(self, goal: list[float], q: list[float]) -> list[float] | None:
         """On the way home for a retry: home (with a body, back the way the arm came first: the configurations it
-        passed, each clear of contacts) until every joint is there (or ~stalled_after has passed twice without
+        passed, each clear of contacts) until every joint is there (or the stall window has passed twice without
         getting there); then None, and the policy drives again from home, its stall clock started afresh."""
         home = self.setup.home.tolist()
         there = max(abs(a - b) for a, b in zip(q, home)) < AT_HOME
         with self.lock:
-            if there or time.monotonic() - self.homing_since > 2 * self.stalled_after + 30.0:
+            if there or time.monotonic() - self.homing_since > 2 * self.stall_window + 30.0:
                 self.homing, self.improved_at, self.progress_mark = False, time.monotonic(), float('inf')
                 if there:
                     self.trail = [home]
