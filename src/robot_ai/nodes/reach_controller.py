@@ -237,6 +237,7 @@ class ReachController:
         self.obstacles_pub = rospy.Publisher('~obstacle_markers', MarkerArray, queue_size=1, latch=True)
         self._draw_obstacles()
         self.markers = InteractiveMarkerServer(rospy.resolve_name('~pose_marker'))
+        self.marker_placed = False                # at the tip once /tf has it (at home until then)
         self._offer_marker(self.setup.goals_of(self.setup.home[:, None])[:, 0].tolist())
         self.subs = [rospy.Subscriber('joint_states', JointState, self._on_joints, queue_size=1, tcp_nodelay=True),
                      rospy.Subscriber('/clicked_point', PointStamped, self._on_goal, queue_size=1),
@@ -419,6 +420,7 @@ class ReachController:
             self.going_home = False
             self.version += 1
         self._draw(goal)
+        self.marker_placed = True
         self._offer_marker(goal)
         rospy.loginfo(f'goal {self._shown(goal)} in {self.base}')
         if hasattr(self, 'timer'):
@@ -456,7 +458,7 @@ class ReachController:
         publish(self.marker_pub, arrow)
 
     def _offer_marker(self, goal: list[float]) -> None:
-        """The interactive marker (~pose_marker) at goal (at start: the tip at home): arrows and rings to drag
+        """The interactive marker (~pose_marker) at goal (at start: where the tip is): arrows and rings to drag
         (rings only for pose goals); released, it is the next goal."""
         marker = InteractiveMarker(name='goal', description=f'{self.setup.task.goal} goal: drag, then release')
         marker.header.frame_id = self.base
@@ -478,6 +480,15 @@ class ReachController:
                 marker.controls.append(control)
         self.markers.insert(marker, self._on_marker, InteractiveMarkerFeedback.MOUSE_UP)
         self.markers.applyChanges()
+
+    def _place_marker(self) -> None:
+        """The marker to where the tip stands (a real arm starts anywhere), once /tf has the tip."""
+        if not self.tf_buffer.can_transform(self.base, self.tip, rospy.Time(0)):
+            return
+        tip = self._tip()
+        if tip is not None:
+            self.marker_placed = True
+            self._offer_marker(tip)
 
     def _on_marker(self, feedback) -> None:
         """The marker released: its pose is the goal."""
@@ -640,6 +651,8 @@ class ReachController:
             holding, homing, enabled, going_home = self.holding, self.homing, self.enabled, self.going_home
             received, version = dict(self.received), self.version
         arm = self.setup.arm
+        if not self.marker_placed and goal is None:
+            self._place_marker()
         if goal is None and not going_home and self.layer.resting(now):
             return                                   # idle, at rest
         if not all(n in joints for n in arm.joints):
