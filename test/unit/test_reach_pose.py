@@ -217,3 +217,21 @@ def test_command_line_trains_and_evaluates_pose_goals(tmp_path):
                           '50'], capture_output=True, text=True, env=env, timeout=300)
     assert out.returncode == 0, out.stderr
     assert 'within 0.05 m and 0.1 rad' in out.stdout
+
+
+def test_an_onnx_model_of_pose_goals_drives_the_pose_env_and_not_the_position_one(tmp_path):
+    import onnx_models
+    setup = ReachSetup(model=KUKA, goal='pose')
+    d = gymnasium.spaces.flatdim(setup.observation_space)
+    rng = np.random.default_rng(4)
+    w, b = rng.normal(size=(d, 6)) * 0.1, rng.normal(size=6) * 0.1
+    meta = {'env_id': 'robot_ai/Reach-v0', 'env_kwargs': {'model': KUKA, 'goal': 'pose'}}
+    path = onnx_models.save(onnx_models.linear_tanh(w, b, meta), str(tmp_path / 'pose.onnx'))
+    policy, loaded, _ = policy_files.load(path)
+    assert loaded.pose and loaded.action_space.shape == (6,)
+    x = policies.envs.flatten_batch(loaded.observation_space, ReachVectorEnv(5, setup=loaded).reset(seed=0)[0])
+    np.testing.assert_allclose(policy.act_batch(x), np.tanh(x @ w + b), atol=1e-5)
+    policy, loaded, _ = policy_files.load(path, setup)        # the env of a node with ~goal pose
+    assert loaded is setup
+    with pytest.raises(policies.PolicyError):
+        policy_files.load(path, ReachSetup(model=KUKA))      # its 21 inputs and 6 actions are not position goals'

@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 
 import numpy as np
+from gymnasium import spaces
 
 from robot_ai import policies
 from robot_ai.policies import PolicyError, Target, register_env
@@ -61,7 +62,7 @@ def target(setup: ReachSetup, env_id: str = ENV_ID, env_kwargs: dict | None = No
 
 def _registered(env_id: str, env_kwargs: dict) -> Target:
     """Reach-v0 and RosReach-v0 by id (an ONNX model naming them): the arm of their model, tip and control."""
-    keep = ('model', 'xacro_args', 'tip', 'control', 'urdf')
+    keep = ('model', 'xacro_args', 'tip', 'control', 'urdf', 'goal', 'angle_threshold', 'angle_step')
     try:
         setup = ReachSetup(**{k: v for k, v in env_kwargs.items() if k in keep})
     except ReachError as e:
@@ -101,9 +102,12 @@ def check_fits(policy, setup: ReachSetup) -> str:
         raise PolicyError(f'{where} learned {goal} goals; this env has goal={setup.task.goal} (a policy learns one '
                           f'kind: train another with goal={setup.task.goal})')
     inputs, actions = policy_sizes(policy)
-    if inputs != 9 + arm.n or actions != setup.action_space.shape[0]:
+    # an ONNX model takes the flattened observation; ARS's linear map takes it, or for pose goals its features
+    # (learn.PoseFeatures): 9 + n either way
+    want = int(spaces.flatdim(setup.observation_space)) if onnx else 9 + arm.n
+    if inputs != want or actions != setup.action_space.shape[0]:
         raise PolicyError(f'{where} maps {inputs} observations to {actions} actions; this env has '
-                          f'{9 + arm.n} and {setup.action_space.shape[0]}')
+                          f'{want} and {setup.action_space.shape[0]}')
     if m.get('model_sha256') and m['model_sha256'] != setup.model.sha256:
         return (f'note: {setup.model.name} is not the URDF text {where} learned on ({m.get("model")}); same robot, '
                 f'tip and joints, so it drives it')
@@ -116,7 +120,6 @@ def check_fits(policy, setup: ReachSetup) -> str:
 def policy_sizes(policy) -> tuple[int, int]:
     """(observation size, action size) a reach policy takes and gives."""
     if policy.kind == 'onnx':
-        from gymnasium import spaces
         return int(spaces.flatdim(policy.observation_space)), int(np.prod(policy.action_space.shape))
     actions, inputs = policy.actor.weights.shape
     return inputs, actions
