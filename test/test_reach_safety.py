@@ -187,7 +187,7 @@ class TestReachSafety(unittest.TestCase):
             type(self).relaying = True
             self.events.append(((rospy.Time.now() - self.epoch).to_sec(), 'plugged in'))
         self.wait_for_log([['going on: joint_states is']], since, timeout=10)
-        self.wait_for_log([['reached'], ['not reached']], since, timeout=60)
+        self.wait_for_log([['reached'], ['not reached']], since, timeout=120)
         self.assert_motion_safe(since_state)
 
     def test_3_a_nan_in_joint_states_or_in_a_goal_holds_and_the_loop_goes_on(self):
@@ -205,7 +205,7 @@ class TestReachSafety(unittest.TestCase):
         self.wait_for_log([['ignored', 'finite']], since, timeout=10)
         since = len(self.log)
         self.send(self.goal(103))
-        self.wait_for_log([['reached'], ['not reached']], since, timeout=60)
+        self.wait_for_log([['reached'], ['not reached']], since, timeout=120)
         stray.unregister()
 
     def test_4_stop_stops_within_the_limits_and_enable_goes_on(self):
@@ -226,7 +226,7 @@ class TestReachSafety(unittest.TestCase):
         self.assertFalse([t for t in self.commands if t > quiet_since], 'commands went on after the stop')
         answer = rospy.ServiceProxy(f'{NODE}/enable', SetBool)(True)
         self.assertTrue(answer.success, answer.message)
-        self.wait_for_log([['reached'], ['not reached']], since, timeout=60)
+        self.wait_for_log([['reached'], ['not reached']], since, timeout=120)
         self.assert_motion_safe(since_state)
         stop.unregister()
 

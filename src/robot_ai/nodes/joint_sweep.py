@@ -20,7 +20,7 @@ import math
 import rospy
 from sensor_msgs.msg import JointState
 
-from robot_ai.nodes.params import init_node, number_param, quiet_on_shutdown
+from robot_ai.nodes.params import init_node, number_param, publish, quiet_on_shutdown
 from robot_ai.nodes.robot_description import wait_for_tree
 
 
@@ -76,7 +76,7 @@ def main():
         t = (now - t0).to_sec()
         msg.header.stamp = now
         msg.position = positions(ranges, t, period)
-        pub.publish(msg)
+        publish(pub, msg)            # a sweep in flight at Ctrl-C is dropped quietly
         try:
             r.sleep()
         except rospy.ROSInterruptException:

@@ -66,8 +66,8 @@ ROS Subscribers
     /clicked_point (geometry_msgs/PointStamped): a goal, from rviz's Publish Point tool.
     ~goal (geometry_msgs/PointStamped): a goal (pose goals: at the tip's orientation now).
     ~goal_pose (geometry_msgs/PoseStamped): a goal pose, in any frame tf knows (position goals: its position).
-    ~pose_marker/feedback (visualization_msgs/InteractiveMarkerFeedback): the interactive marker server ~pose_marker;
-        a marker released in rviz is the next goal.
+    ~pose_marker/feedback (visualization_msgs/InteractiveMarkerFeedback): the interactive marker server ~pose_marker
+        (pose goals); a marker released in rviz is the next goal.
     ~stop (std_msgs/Empty): the arm stops at once, within its limits, and holds until ~enable true.
 
 ROS Publishers
@@ -75,8 +75,8 @@ ROS Publishers
         commands, for ~command_joints.
     ~goal_marker (visualization_msgs/Marker, latched): the goal, a sphere of the threshold's size, in the base frame
         (pose goals: and an arrow along the goal's x axis).
-    ~pose_marker/update, ~pose_marker/update_full: the interactive marker `goal` (6-DoF for pose goals, 3 arrows
-        for position goals), for rviz's InteractiveMarkers display.
+    ~pose_marker/update, ~pose_marker/update_full: the interactive marker `goal` (pose goals only: position goals
+        have rviz's Publish Point), for rviz's InteractiveMarkers display.
     ~distance (std_msgs/Float64): the tip's distance to the goal, every step.
     ~obstacle_markers (visualization_msgs/MarkerArray, latched): the obstacles, in the base frame.
 
@@ -236,8 +236,9 @@ class ReachController:
         self.distance_pub = rospy.Publisher('~distance', Float64, queue_size=1)
         self.obstacles_pub = rospy.Publisher('~obstacle_markers', MarkerArray, queue_size=1, latch=True)
         self._draw_obstacles()
-        self.markers = InteractiveMarkerServer(rospy.resolve_name('~pose_marker'))
-        self.marker_placed = False                # at the tip once /tf has it (at home until then)
+        # pose goals: an interactive marker to drag (position goals have rviz's Publish Point)
+        self.markers = InteractiveMarkerServer(rospy.resolve_name('~pose_marker')) if self.setup.pose else None
+        self.marker_placed = not self.setup.pose  # at the tip once /tf has it (at home until then)
         self._offer_marker(self.setup.goals_of(self.setup.home[:, None])[:, 0].tolist())
         self.subs = [rospy.Subscriber('joint_states', JointState, self._on_joints, queue_size=1, tcp_nodelay=True),
                      rospy.Subscriber('/clicked_point', PointStamped, self._on_goal, queue_size=1),
@@ -458,25 +459,24 @@ class ReachController:
         publish(self.marker_pub, arrow)
 
     def _offer_marker(self, goal: list[float]) -> None:
-        """The interactive marker (~pose_marker) at goal (at start: where the tip is): arrows and rings to drag
-        (rings only for pose goals); released, it is the next goal."""
-        marker = InteractiveMarker(name='goal', description=f'{self.setup.task.goal} goal: drag, then release')
+        """The interactive marker (~pose_marker, pose goals only) at goal (at start: where the tip is): arrows and
+        rings to drag; released, it is the next goal."""
+        if self.markers is None or len(goal) != 7:
+            return
+        marker = InteractiveMarker(name='goal', description='pose goal: drag, then release')
         marker.header.frame_id = self.base
         marker.pose.position.x, marker.pose.position.y, marker.pose.position.z = goal[:3]
         o = marker.pose.orientation
-        o.x, o.y, o.z, o.w = goal[3:] if len(goal) == 7 else (0.0, 0.0, 0.0, 1.0)
+        o.x, o.y, o.z, o.w = goal[3:]
         marker.scale = max(0.15, 4 * self.setup.task.distance_threshold)
-        modes = (InteractiveMarkerControl.MOVE_AXIS,) + ((InteractiveMarkerControl.ROTATE_AXIS,)
-                                                          if self.setup.pose else ())
         for axis, (x, y, z) in (('x', (1, 0, 0)), ('y', (0, 1, 0)), ('z', (0, 0, 1))):
-            for mode in modes:
-                control = InteractiveMarkerControl(name=f'{"move" if mode == modes[0] else "rotate"}_{axis}',
-                                                   interaction_mode=mode)
-                # a control's axis is the x axis of its orientation: the quaternion turning x onto the axis
-                q = _unit((x, z, y, 1.0))         # the interactive_markers tutorial's: x (1, 0, 0, 1), ...
+            for kind, mode in (('move', InteractiveMarkerControl.MOVE_AXIS),
+                               ('rotate', InteractiveMarkerControl.ROTATE_AXIS)):
+                control = InteractiveMarkerControl(name=f'{kind}_{axis}', interaction_mode=mode)
+                # a control's axis is the x axis of its orientation: the interactive_markers tutorial's (1, 0, 0, 1)
+                # for x, (0, 0, 1, 1) for y, (0, 1, 0, 1) for z
+                q = _unit((x, z, y, 1.0))
                 control.orientation.x, control.orientation.y, control.orientation.z, control.orientation.w = q
-                control.orientation_mode = InteractiveMarkerControl.FIXED if not self.setup.pose else \
-                    InteractiveMarkerControl.INHERIT
                 marker.controls.append(control)
         self.markers.insert(marker, self._on_marker, InteractiveMarkerFeedback.MOUSE_UP)
         self.markers.applyChanges()
