@@ -164,7 +164,7 @@ class TestReachSafety(unittest.TestCase):
             for g in range(3):
                 since = len(self.log)
                 self.send(self.goal(10 * k + g))
-                said = self.wait_for_log([['reached'], ['not reached']], since, timeout=120)   # stalls: 4 s at 0.5
+                said = self.wait_for_log([['reached'], ['not reached']], since, timeout=120)   # a stall: 2 s at 0.5
                 reached += k == 0 and said.startswith('reached')
         self.assertGreaterEqual(reached, 2, 'the learned policy reached fewer than 2 of 3 goals')
         found = self.assert_motion_safe(since_state)
