@@ -343,17 +343,24 @@ class ReachController:
                 self.speeds.update(zip(msg.name, msg.velocity))
 
     def _in_base(self, point: PointStamped) -> list[float] | None:
-        frame = point.header.frame_id.lstrip('/') or self.base
-        p = [point.point.x, point.point.y, point.point.z]
+        p = self._to_base(point.header.frame_id, point.point)
+        return None if p is None else p[0]
+
+    def _to_base(self, frame: str, position) -> tuple[list[float], tuple] | None:
+        """(position in the base frame, the rotation (x, y, z, w) from frame to the base) of a geometry_msgs Point in
+        frame, by one tf lookup; None (said) when tf has no transform."""
+        frame = frame.lstrip('/') or self.base
+        p = [position.x, position.y, position.z]
         if frame == self.base:
-            return p
+            return p, (0.0, 0.0, 0.0, 1.0)
         try:
             t = self.tf_buffer.lookup_transform(self.base, frame, rospy.Time(0), rospy.Duration(1.0)).transform
         except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as e:
             rospy.logwarn(f'goal in {frame} ignored: no transform from {frame} to {self.base} ({e})')
             return None
-        r = _rotate((t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w), p)
-        return [r[0] + t.translation.x, r[1] + t.translation.y, r[2] + t.translation.z]
+        q = (t.rotation.x, t.rotation.y, t.rotation.z, t.rotation.w)
+        r = _rotate(q, p)
+        return [r[0] + t.translation.x, r[1] + t.translation.y, r[2] + t.translation.z], q
 
     def _on_goal(self, point: PointStamped) -> None:
         """A point: the goal's position; for pose goals the tip keeps the orientation it has."""
@@ -365,8 +372,12 @@ class ReachController:
         self._set_goal(goal)
 
     def _on_goal_pose(self, msg: PoseStamped) -> None:
-        """A pose (any frame tf knows): the goal; for position goals its position only."""
-        goal = self._pose_in_base(msg.header.frame_id, msg.pose)
+        self._on_pose(msg.header.frame_id, msg.pose)
+
+    def _on_pose(self, frame: str, pose) -> None:
+        """A pose (~goal_pose, the released marker; any frame tf knows): the goal; for position goals its position
+        only."""
+        goal = self._pose_in_base(frame, pose)
         if goal is not None:
             self._set_goal(goal if self.setup.pose else goal[:3])
 
@@ -379,21 +390,11 @@ class ReachController:
             rospy.logwarn(f'goal pose ignored: its orientation ({o.x:g}, {o.y:g}, {o.z:g}, {o.w:g}) is not a '
                           f'quaternion (0, 0, 0, 1 is its frame\'s own orientation)')
             return None
-        point = PointStamped()
-        point.header.frame_id, point.point = frame, pose.position
-        p = self._in_base(point)
-        if p is None:
+        placed = self._to_base(frame, pose.position)
+        if placed is None:
             return None
-        frame = frame.lstrip('/') or self.base
-        if frame != self.base:
-            try:
-                r = self.tf_buffer.lookup_transform(self.base, frame, rospy.Time(0),
-                                                    rospy.Duration(1.0)).transform.rotation
-            except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as e:
-                rospy.logwarn(f'goal in {frame} ignored: no transform from {frame} to {self.base} ({e})')
-                return None
-            q = _unit(_multiply((r.x, r.y, r.z, r.w), q))
-        return p + q
+        p, r = placed
+        return p + _unit(_multiply(r, q))
 
     def _orientation_now(self) -> list[float]:
         """The tip's orientation now (from /tf), or at home when /tf has none yet."""
@@ -492,9 +493,7 @@ class ReachController:
 
     def _on_marker(self, feedback) -> None:
         """The marker released: its pose is the goal."""
-        goal = self._pose_in_base(feedback.header.frame_id, feedback.pose)
-        if goal is not None:
-            self._set_goal(goal if self.setup.pose else goal[:3])
+        self._on_pose(feedback.header.frame_id, feedback.pose)
 
     def _on_load_policy(self, req) -> LoadPolicyResponse:
         try:
