@@ -10,7 +10,7 @@ import pytest
 
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import ReachSetup
-from robot_ai.reach.safety import Limits, SafetyLayer, read_joint_limits, stop_from, violations
+from robot_ai.reach.safety import Limits, SafetyLayer, read_joint_limits, step_end, stop_from, violations
 from robot_ai.reach.trajectory import Follower, TrajectoryError
 
 ROBOTS = os.path.realpath(os.path.join(os.path.dirname(__file__), '..', '..', '..', 'shared', 'robots'))
@@ -90,18 +90,21 @@ def test_a_scale_outside_0_to_1_is_refused(scale):
 
 
 # ------------------------------------------------------------------------------------------------------- plans
-def run(setup: ReachSetup, targets, steps: int, seed: int = 0, body=None, late: float = 0.03):
+def run(setup: ReachSetup, targets, steps: int, seed: int = 0, body=None, late: float = 0.03,
+        stale: tuple[float, float] = (0.0, 0.0), scale: float = 1.0):
     """The layer driven by targets(k, q) every period (ticks late by up to `late` s, and some later than a whole
-    period), each plan taken by a Follower when it arrives (up to 30 ms after it is made): the arm's motion sampled
-    every 5 ms, the plans."""
-    limits = Limits.of(setup.arm)
+    period), each plan taken by a Follower when it arrives (up to 30 ms after it is made), the arm's state measured
+    stale[0] to stale[1] s before the tick (as joint_states come on a loaded machine, stamped with the time they
+    describe): the arm's motion sampled every 5 ms, the plans."""
+    limits = Limits.of(setup.arm, velocity_scale=scale)
     layer = SafetyLayer(limits, PERIOD, body=body)
     arm = Follower(setup.home)
     rng = np.random.default_rng(seed)
     now, times, positions, plans = 0.0, [], [], []
     for k in range(steps):
-        q, v = arm.state_at(now)
-        plan = layer.plan(now, targets(k, q, rng), q, v)
+        at = now - rng.uniform(*stale)
+        q, v = arm.state_at(at)
+        plan = layer.plan(now, targets(k, q, rng), q, v, measured_at=at)
         plans.append(plan)
         arrive = now + rng.uniform(0.0, late)
         after = now + PERIOD * (rng.uniform(1.0, 1.4) if rng.random() > 0.05 else rng.uniform(1.5, 4.0))
@@ -154,6 +157,52 @@ def test_no_target_makes_the_executed_motion_pass_a_limit(robot, kind):
             assert found.worst['velocity'][0] > 0.5, 'never near its speed: the layer is slower than it need be'
     if kind == 'NaN now and then':
         assert any('NaN' in p.held for p in plans)
+
+
+@pytest.mark.parametrize('robot', ['ur5', 'kuka_lwr_arm'])
+@pytest.mark.parametrize('kind', ['random goals', 'always +1', 'random'])
+def test_late_joint_states_are_compared_with_the_commands_of_their_time(robot, kind):
+    """joint_states 0.13-0.19 s late at every step, the arm at up to half its speed: by their stamps the arm is
+    where its commands put it, so nothing holds and nothing is planned from the stale state (which, at the
+    plans' start, was up to 0.2 rad behind: replanning from there made a 17x acceleration limit)."""
+    setup = setup_of(robot)
+    limits, times, positions, plans = run(setup, targets_of(kind, setup), 300, seed=3, stale=(0.13, 0.19),
+                                          scale=0.5)
+    found = violations(times, positions, limits)
+    assert found.total == 0, (found, kind)
+    assert not [p.held for p in plans if p.held], 'held while the arm followed its commands'
+    assert found.worst['velocity'][0] > 0.5, 'never near its speed'
+
+
+@pytest.mark.parametrize('robot', ['ur5', 'panda'])
+def test_step_end_is_the_layer_s_plan_one_period_on_for_one_arm_and_a_batch(robot):
+    """What an env models (step_end, element-wise, batched) is the plan the layer sends, at its step's end: from
+    random states (at rest, moving, near the limits) toward random targets (inside, beyond the limits, held)."""
+    setup = setup_of(robot)
+    limits = Limits.of(setup.arm, velocity_scale=0.5)
+    layer = SafetyLayer(limits, PERIOD)
+    rng = np.random.default_rng(7)
+    lower, upper = limits.lower, limits.upper
+    cases = []
+    for k in range(300):
+        p0 = rng.uniform(lower, upper) if k % 3 else np.where(rng.random(len(lower)) < 0.5, lower, upper)
+        v0 = rng.uniform(-limits.velocity, limits.velocity) * (k % 4 != 0)
+        target = [rng.uniform(lower, upper), p0 + 0.001 * rng.normal(size=len(p0)), lower - 1.0, p0][k % 4]
+        cases.append((p0, v0, np.clip(target, lower, upper)))
+    kinds = set()
+    for p0, v0, target in cases:
+        plan = layer._step(0.0, p0, v0, target)
+        p, v = step_end(p0, v0, target, limits, PERIOD)
+        at = list(plan.times).index(PERIOD)                  # the step's end is one of the plan's points
+        np.testing.assert_array_equal(p, plan.positions[at])
+        np.testing.assert_array_equal(v, plan.velocities[at])
+        kinds.add((bool(np.any(v == 0)), bool(np.any(v != 0))))
+    p_t, v_t = step_end(*(np.array(x).T for x in zip(*cases)), limits, PERIOD)       # (n, N): the same numbers
+    for i, (p0, v0, target) in enumerate(cases):
+        p, v = step_end(p0, v0, target, limits, PERIOD)
+        np.testing.assert_array_equal(p_t[:, i], p)
+        np.testing.assert_array_equal(v_t[:, i], v)
+    assert kinds >= {(True, True)}
 
 
 def test_in_a_world_the_arm_touches_nothing_and_the_holds_name_the_contact(kuka_world):

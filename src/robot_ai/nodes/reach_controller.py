@@ -205,6 +205,8 @@ class ReachController:
         self.joints: dict[str, float] = {}
         self.speeds: dict[str, float] = {}
         self.received: dict[str, float] = {}     # ROS time each joint's state last came
+        self.measured: dict[str, float] = {}     # and the time it describes (its stamp; the time it came when the
+                                                  # stamp is zero or not within ~state_timeout before that)
         self.enabled = bool_param('~enabled', True)
         self.going_home = False                   # ~home: the arm on its way home, no goal
         self.version = 0                          # one more at every goal and ~home: a step of an older one changes
@@ -336,9 +338,13 @@ class ReachController:
             rospy.logwarn_throttle(5.0, 'joint_states without as many names as positions skipped')
             return
         now = self._now()
+        stamp = (msg.header.stamp - self.epoch).to_sec() if not msg.header.stamp.is_zero() else now
+        if not now - self.state_timeout <= stamp <= now:   # another clock, or old: the time it came
+            stamp = now
         with self.lock:
             self.joints.update(zip(msg.name, msg.position))
             self.received.update(dict.fromkeys(msg.name, now))
+            self.measured.update(dict.fromkeys(msg.name, stamp))
             if len(msg.velocity) == len(msg.name):
                 self.speeds.update(zip(msg.name, msg.velocity))
 
@@ -547,15 +553,14 @@ class ReachController:
         return (rospy.Time.now() - self.epoch).to_sec()
 
     def _plan_and_send(self, target, measured, velocity, joints: dict, why_not: str = '',
-                       final: bool = False) -> Plan:
+                       final: bool = False, measured_at: float | None = None) -> Plan:
         """The safety layer's plan, sent: every plan made is sent (the next one starts where it leaves the arm),
         one at a time (the control step, a hold, the shutdown). The plan starts two periods from now, now taken
-        here, after the policy's and the tf's time, so that the command reaches the arm before its start."""
+        here, after the policy's and the tf's time, so that the command reaches the arm before its start.
+        measured: the arm's state at measured_at (None, a hold: the plans sent go on)."""
         with self.output_lock:
             now = self._now()
-            if measured is None:            # a hold: where the last plan puts the arm now
-                measured = self.layer.last.state_at(now)[0]
-            plan = self.layer.plan(now, target, measured, velocity, why_not=why_not)
+            plan = self.layer.plan(now, target, measured, velocity, why_not=why_not, measured_at=measured_at)
             self._send(plan, joints, final)
             return plan
 
@@ -648,7 +653,7 @@ class ReachController:
         with self.lock:
             goal, joints, speeds, policy = self.goal, dict(self.joints), dict(self.speeds), self.policy
             holding, homing, enabled, going_home = self.holding, self.homing, self.enabled, self.going_home
-            received, version = dict(self.received), self.version
+            received, measured_at, version = dict(self.received), dict(self.measured), self.version
         arm = self.setup.arm
         if not self.marker_placed and goal is None:
             self._place_marker()
@@ -695,7 +700,8 @@ class ReachController:
                 target = self._policy_target(policy, q, tip, goal)
                 if target is None:
                     return self._hold(now, 'the policy gave no action', joints)
-        plan = self._plan_and_send(target, measured, velocity, joints)
+        plan = self._plan_and_send(target, measured, velocity, joints,
+                                   measured_at=min(measured_at[n] for n in arm.joints))
         if self.layer.resynced:
             rospy.logwarn_throttle(5.0, self.layer.resynced)
         blocked = ''

@@ -16,6 +16,11 @@ its limit, by construction: within a segment between two points each joint's acc
 Hermite interpolation of the points (what joint_trajectory_controller does with positions and velocities) is the
 plan itself.
 
+The measured state is compared with where the plans sent put the arm at the time it was measured (its stamp), not
+at now: joint_states come tens of milliseconds late on a loaded machine, and a moving arm is then "behind" its
+commands by its speed times the delay. Only an arm that stays RESYNC from its commands for RESYNC_AFTER (someone
+else moved it, a controller that does not follow) is planned from where it was measured, its stop from that moment.
+
 Limits come from the URDF (position, velocity) and MoveIt's ``joint_limits.yaml`` (``joint_limits: {name:
 {has_velocity_limits, max_velocity, has_acceleration_limits, max_acceleration, has_position_limits, min_position,
 max_position}}``), which can only narrow the URDF's; velocities and accelerations are scaled by velocity_scale (and
@@ -39,6 +44,8 @@ SAMPLE_STEP = 0.005                # rad (or m) of any joint between two configu
 MAX_SAMPLES = 200                  # configurations checked per plan at most
 RESYNC = 0.1                       # rad (or m): an arm this far from where its plan puts it holds, and
 RESYNC_AFTER = 0.3                 # s: if it stays that far this long, is planned from where it stands
+HISTORY = 2.0                      # s of plans kept: a state measured up to this long ago is compared with what
+                                   # was commanded at its time
 POSITION_TOLERANCE = 1e-9
 LEAD_PERIODS = 2                   # a plan starts this many control periods after it is made: a command that reaches
                                    # the arm later than that is spliced in from where the arm is, with a jolt
@@ -227,7 +234,11 @@ def step_velocity(p0: np.ndarray, v0: np.ndarray, target: np.ndarray, limits: Li
     """Each joint's velocity at the end of a step of dt at constant acceleration from (p0, v0): as fast toward the
     target as the velocity and acceleration limits let it and still able to stop at the target (and so within the
     position limits, where the target is)."""
-    a, vmax = limits.acceleration, limits.velocity
+    return _step_velocity(p0, v0, target, limits.velocity, limits.acceleration, dt)
+
+
+def _step_velocity(p0, v0, target, vmax, a, dt: float) -> np.ndarray:
+    """step_velocity's numbers, element-wise (the limits broadcast against p0: (n,) or (n, 1) for a batch)."""
     e = target - p0
     sign = np.where(e >= 0.0, 1.0, -1.0)
     e, w0 = np.abs(e), v0 * sign                 # toward the target is positive
@@ -242,6 +253,63 @@ def step_velocity(p0: np.ndarray, v0: np.ndarray, target: np.ndarray, limits: Li
     return w1 * sign
 
 
+@dataclass
+class StepKinds:
+    """How each joint moves within one step toward its target (SafetyLayer._step), element-wise: joints (n,) or a
+    batch (n, N), the limits (n,) or (n, 1). brake: it would pass a position limit, so it brakes; arrive: it comes
+    to rest at the target at the step's end (from v0 to vm over the first half at a1, to rest at a2); else steady:
+    a constant acceleration to v1."""
+    v1: np.ndarray
+    steady: np.ndarray
+    brake: np.ndarray
+    arrive: np.ndarray
+    vm: np.ndarray
+    a1: np.ndarray
+    a2: np.ndarray
+
+    @classmethod
+    def of(cls, p0, v0, target, lower, upper, velocity, a, dt: float) -> StepKinds:
+        half = dt / 2.0
+        out = lambda x: (x < lower - POSITION_TOLERANCE) | (x > upper + POSITION_TOLERANCE)   # noqa: E731
+        v1 = _step_velocity(p0, v0, target, velocity, a, dt)
+        p1 = p0 + 0.5 * (v0 + v1) * dt
+        steady = (v1 - v0) / dt
+        with np.errstate(divide='ignore', invalid='ignore'):
+            turn = np.where(v0 * v1 < 0.0, p0 - 0.5 * v0 * v0 / steady, p1)        # the turning point, if any
+        rest = p1 + v1 * np.abs(v1) / (2.0 * a)
+        brake = out(turn) | out(p1) | out(rest)
+        # to rest at the target: from v0 to vm over the first half, from vm to 0 over the second
+        vm = (4.0 * (target - p0) / dt - v0) / 2.0
+        a1, a2 = (vm - v0) / half, -vm / half
+        with np.errstate(divide='ignore', invalid='ignore'):
+            turn1 = np.where(v0 * vm < 0.0, p0 - 0.5 * v0 * v0 / a1, p0)
+        tol = 1 + 1e-9
+        arrive = ((np.abs(a1) <= a * tol) & (np.abs(a2) <= a * tol) & (np.abs(vm) <= velocity) & ~out(turn1)
+                  & ~brake)
+        return cls(v1, steady, brake, arrive, vm, a1, a2)
+
+
+def step_end(p0: np.ndarray, v0: np.ndarray, target: np.ndarray, limits: Limits,
+             dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """(positions, velocities) one step of dt on, each joint moving as the safety layer plans it (SafetyLayer._step,
+    whose plan is this at its step's end), element-wise: p0, v0, target (n,) or a batch (n, N). What an arm driven
+    through reach_controller does in one control period, for an env to model (ReachSetup velocity_scale)."""
+    shape = (-1,) + (1,) * (np.ndim(p0) - 1)
+    lower, upper = limits.lower.reshape(shape), limits.upper.reshape(shape)
+    velocity, a = limits.velocity.reshape(shape), limits.acceleration.reshape(shape)
+    k = StepKinds.of(p0, v0, target, lower, upper, velocity, a, dt)
+    sign = np.sign(v0)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        stops = np.where(k.brake, np.abs(v0) / a, np.inf)
+    tb = np.minimum(dt, stops)
+    pb, vb = p0 + v0 * tb - 0.5 * sign * a * tb * tb, np.where(dt >= stops, 0.0, v0 - sign * a * tb)
+    ps = p0 + v0 * dt + 0.5 * k.steady * dt * dt
+    vs = v0 + k.steady * dt
+    positions = np.where(k.brake, pb, np.where(k.arrive, target, ps))
+    velocities = np.where(k.brake, vb, np.where(k.arrive, 0.0, vs))
+    return positions, velocities
+
+
 class SafetyLayer:
     """Plans every command (see the module); body: a CollisionModel (reach.collision) or None (limits only)."""
 
@@ -254,18 +322,40 @@ class SafetyLayer:
         self.limits, self.period, self.body, self.margin = limits, float(period), body, float(margin)
         self.lead = LEAD_PERIODS * self.period if lead is None else float(lead)
         self.last: Plan | None = None
+        self.history: list[Plan] = []           # the plans sent, each followed from its start until the next's
         self.resynced = ''       # why the last plan started from the measured state rather than the previous plan
         self.off_since: float | None = None    # since when the arm is RESYNC from where its plan puts it
 
-    def start_state(self, now: float, measured: np.ndarray,
-                    measured_velocity: np.ndarray | None = None) -> tuple[float, np.ndarray, np.ndarray, str]:
+    def _commit(self, plan: Plan) -> None:
+        """plan is sent: the arm follows it from its start on (until the next one's)."""
+        self.last = plan
+        self.history.append(plan)
+        while len(self.history) > 1 and self.history[1].start <= plan.start - HISTORY:
+            del self.history[0]
+
+    def commanded_at(self, t: float) -> np.ndarray:
+        """Where the plans sent put the arm at time t (the one followed then: the last that started by t)."""
+        for plan in reversed(self.history):
+            if plan.start <= t:
+                return plan.state_at(t)[0]
+        return self.history[0].positions[0].copy()
+
+    def start_state(self, now: float, measured: np.ndarray | None,
+                    measured_velocity: np.ndarray | None = None,
+                    measured_at: float | None = None) -> tuple[float, np.ndarray, np.ndarray, str]:
         """(the next plan's start, positions and velocities there, '' or why the arm is planned from anew, or
         'off: ...' while it is far from where its commands put it but not yet for RESYNC_AFTER: a state that came
-        late, say, whose next message puts it right; a trajectory that started from it would jump)."""
+        late, say, whose next message puts it right; a trajectory that started from it would jump). measured is
+        the arm's state at time measured_at (now when None), compared with where the plans sent put it then;
+        None: not measured (a hold), from the plans."""
         start = now + self.lead
+        at = now if measured_at is None else min(float(measured_at), now)
+        if self.last is not None and measured is None:
+            p, v = self.last.state_at(start)
+            return start, p, v, ''
         measured = np.asarray(measured, dtype=float)
         if self.last is not None:
-            here, _ = self.last.state_at(now)
+            here = self.commanded_at(at)
             off = np.abs(here - measured)
             if off.max() <= RESYNC:
                 self.off_since = None
@@ -285,19 +375,24 @@ class SafetyLayer:
         v = np.zeros(len(measured)) if measured_velocity is None else np.clip(
             np.nan_to_num(np.asarray(measured_velocity, dtype=float)), -self.limits.velocity, self.limits.velocity)
         p = np.clip(measured, self.limits.lower, self.limits.upper)
-        self.last = stop_from(now, p, v, self.limits.acceleration)
+        self._commit(stop_from(at, p, v, self.limits.acceleration))     # its stop from when it was measured
         p, v = self.last.state_at(start)
         return start, p, v, why
 
-    def plan(self, now: float, target, measured, measured_velocity=None, why_not: str = '') -> Plan:
+    def plan(self, now: float, target, measured, measured_velocity=None, why_not: str = '',
+             measured_at: float | None = None) -> Plan:
         """The plan to send at time now toward target (joint positions; None, or why_not given: stop and hold),
-        the arm measured at `measured`. Never raises on numbers: a NaN anywhere stops the arm."""
-        measured = np.asarray(measured, dtype=float)
-        if not np.isfinite(measured).all():
-            if self.last is None:
-                raise ReachError('the arm\'s state is not finite and there is no plan to hold: nothing to send')
-            return self._hold(now + self.lead, 'the arm\'s state has a NaN or infinite position')
-        start, p0, v0, self.resynced = self.start_state(now, measured, measured_velocity)
+        the arm measured at `measured` at time measured_at (now when None; measured None: not measured, from the
+        plans sent). Never raises on numbers: a NaN anywhere stops the arm."""
+        if measured is None and self.last is None:
+            raise ReachError('the arm has not been measured and there is no plan to hold: nothing to send')
+        if measured is not None:
+            measured = np.asarray(measured, dtype=float)
+            if not np.isfinite(measured).all():
+                if self.last is None:
+                    raise ReachError('the arm\'s state is not finite and there is no plan to hold: nothing to send')
+                return self._hold(now + self.lead, 'the arm\'s state has a NaN or infinite position')
+        start, p0, v0, self.resynced = self.start_state(now, measured, measured_velocity, measured_at)
         if self.resynced.startswith('off: '):
             why, self.resynced = self.resynced[5:], ''
             return self._hold(start, why)
@@ -322,33 +417,19 @@ class SafetyLayer:
             held = self._hold(start, refused)
             held.contacts = contacts
             return held
-        self.last = plan
+        self._commit(plan)
         return plan
 
     def _step(self, start: float, p0: np.ndarray, v0: np.ndarray, target: np.ndarray) -> Plan:
-        """One step of period toward target, then the stop. Each joint moves in one of three ways within the step:
-        at a constant acceleration (step_velocity's); to rest at the target at the step's end, in two halves, where
-        the limits allow it (so that a target held still is reached, not circled); or, where the first would pass
-        a position limit (a target that moved, a float's last bit), braking as the previous plan's stop has it do,
-        to rest within the step if it can (a point at its stop time)."""
+        """One step of period toward target, then the stop. Each joint moves in one of three ways within the step
+        (StepKinds): at a constant acceleration (step_velocity's); to rest at the target at the step's end, in two
+        halves, where the limits allow it (so that a target held still is reached, not circled); or, where the
+        first would pass a position limit (a target that moved, a float's last bit), braking as the previous plan's
+        stop has it do, to rest within the step if it can (a point at its stop time)."""
         lim, dt = self.limits, self.period
         a, half = lim.acceleration, dt / 2.0
-        out = lambda x: (x < lim.lower - POSITION_TOLERANCE) | (x > lim.upper + POSITION_TOLERANCE)   # noqa: E731
-        v1 = step_velocity(p0, v0, target, lim, dt)
-        p1 = p0 + 0.5 * (v0 + v1) * dt
-        steady = (v1 - v0) / dt
-        with np.errstate(divide='ignore', invalid='ignore'):
-            turn = np.where(v0 * v1 < 0.0, p0 - 0.5 * v0 * v0 / steady, p1)        # the turning point, if any
-        rest = p1 + v1 * np.abs(v1) / (2.0 * a)
-        brake = out(turn) | out(p1) | out(rest)
-        # to rest at the target: from v0 to vm over the first half, from vm to 0 over the second
-        vm = (4.0 * (target - p0) / dt - v0) / 2.0
-        a1, a2 = (vm - v0) / half, -vm / half
-        with np.errstate(divide='ignore', invalid='ignore'):
-            turn1 = np.where(v0 * vm < 0.0, p0 - 0.5 * v0 * v0 / a1, p0)
-        tol = 1 + 1e-9
-        arrive = ((np.abs(a1) <= a * tol) & (np.abs(a2) <= a * tol) & (np.abs(vm) <= lim.velocity) & ~out(turn1)
-                  & ~brake)
+        k = StepKinds.of(p0, v0, target, lim.lower, lim.upper, lim.velocity, a, dt)
+        brake, arrive, steady, a1, a2, vm = k.brake, k.arrive, k.steady, k.a1, k.a2, k.vm
         stops = np.where(brake, np.abs(v0) / a, np.inf)
         times = sorted({0.0, dt, *([half] if arrive.any() else []),
                         *(float(t) for t in stops if 1e-6 < t < dt - 1e-6)})
@@ -410,7 +491,7 @@ class SafetyLayer:
             raise ReachError(f'{why}, and there is no plan to hold')
         plan = self.last.after(start)
         plan.held, plan.contacts = why, []
-        self.last = plan
+        self._commit(plan)
         return plan
 
 
