@@ -13,6 +13,10 @@ Where stable-baselines3 and sb3-contrib are installed (a venv of their own: torc
 learning rate 1e-3, tau 0.05, batch 256, two layers of 64) on the UR5's Reach-v0, steps and seconds.
 Pose goals (goal='pose', within 0.05 m and 0.1 rad): ARS from home on its feature layer beside the P-controller on
 the pose error, from home, random starts and chained.
+Through the safety layer (Reach-v0 velocity_scale: the arm moved as reach_controller's layer and a trajectory
+controller move it, one 0.05 s control period per step, episodes of 200 steps / scale): ARS trained as reach_controller
+trains it at start (at once, from home) and the P-controller, from home and chained, at scales 1, 0.5 and 0.25; and
+ARS trained through the layer at 0.5.
 CartPole-v1: ARS (the course's policy) over several seeds: episodes, steps and the 100-episode average, beside the
 course's random search (100 x 100).
 
@@ -100,6 +104,32 @@ def pose_section(names):
               f'{100 * rates[2]:8.1f}% {100 * rates[3]:6.1f}%', flush=True)
 
 
+def layer_section(names):
+    print('through the safety layer (velocity_scale): ARS as reach_controller trains it at start (joints reached at '
+          'once, from home) / the P-controller,')
+    print('  1000 held-out goals within 0.05 m in 200 / scale steps of 0.05 s; "at once": the env without the layer '
+          '(50 steps); "ARS@0.5": ARS trained through the layer at 0.5 (its wall time)')
+    print(f'  {"robot":16s} {"at once":>13s} {"1.0 home":>13s} {"1.0 chain":>13s} {"0.5 home":>13s} {"0.5 chain":>13s} '
+          f'{"0.25 home":>13s} {"0.25 chain":>13s} {"ARS@0.5 home":>13s} {"chain":>7s} {"wall":>7s}')
+    pair = lambda a, b: f'{100 * a:5.1f}/{100 * b:5.1f}%'     # noqa: E731
+    for name in names:
+        model, args = ROBOTS[name]
+        kwargs = dict(model=model, xacro_args=args)
+        instant = learn.train(kwargs, seed=0)
+        cells = [pair(instant.held_out.success_rate, instant.p_controller.success_rate)]
+        for scale in (1.0, 0.5, 0.25):
+            setup = ReachSetup(**kwargs, velocity_scale=scale)
+            for start in ('home', 'chained'):
+                cells.append(pair(learn.evaluate(instant.policy, setup, start=start).success_rate,
+                                  learn.evaluate(learn.p_controller(setup), setup, start=start).success_rate))
+        t0 = time.monotonic()
+        layered = learn.train(dict(kwargs, velocity_scale=0.5), seed=0)
+        wall = time.monotonic() - t0
+        chained = learn.evaluate(layered.policy, layered.setup, start='chained').success_rate
+        print(f'  {name:16s} {" ".join(f"{c:>13s}" for c in cells)} {100 * layered.held_out.success_rate:12.1f}% '
+              f'{100 * chained:6.1f}% {wall:5.1f} s', flush=True)
+
+
 def sb3_section(sb3_steps, sac_steps):
     try:
         import gymnasium
@@ -185,7 +215,7 @@ def main() -> int:
     p.add_argument('--seeds', type=int, default=10, help='CartPole seeds')
     p.add_argument('--sb3-steps', type=int, default=200000, help='sb3-contrib ARS steps')
     p.add_argument('--sac-steps', type=int, default=20000, help='SAC + HER steps')
-    p.add_argument('--skip', default='', help='sections to skip: reach, pose, sb3, cartpole')
+    p.add_argument('--skip', default='', help='sections to skip: reach, pose, layer, sb3, cartpole')
     a = p.parse_args()
     load = open('/proc/loadavg').read().split()[0]
     print(f'reach and ARS, {os.cpu_count()} cores (load average {load})   [bench/reach_ars.py, '
@@ -194,6 +224,8 @@ def main() -> int:
         reach_section([n for n in a.robots.split(',') if n], a.model)
     if 'pose' not in a.skip:
         pose_section([n for n in a.robots.split(',') if n in POSE_ROBOTS])
+    if 'layer' not in a.skip:
+        layer_section([n for n in a.robots.split(',') if n in POSE_ROBOTS])
     if 'cartpole' not in a.skip:
         cartpole_section(a.seeds)
     if 'sb3' not in a.skip:

@@ -55,6 +55,7 @@ def train_parser(sub) -> None:
     p.add_argument('--angle-threshold', type=positive_number, default=ANGLE_THRESHOLD,
                    help='pose goals: radians within which the orientation is reached')
     add_world(p)
+    add_layer(p)
     p.add_argument('--seed', type=int, default=0, help='random seed; the same seed gives the same policy')
     p.add_argument('--iterations', type=whole_number(1, 100000), default=None,
                    help=f'ARS iterations; default {d.iterations} x (ee_step / 0.05 m) ** 0.3, at least {d.iterations} '
@@ -86,6 +87,38 @@ def add_world(p: argparse.ArgumentParser, default: str = '') -> None:
                    'them and itself' + default)
     p.add_argument('--collision', action='store_true', default=None,
                    help='check the arm\'s body (its URDF <collision> geometry) against itself, without obstacles too')
+
+
+def add_layer(p: argparse.ArgumentParser, default: str = '') -> None:
+    p.add_argument('--velocity-scale', type=fraction_above_0, default=None, metavar='SCALE',
+                   help='the arm moves as reach_controller\'s safety layer moves it at this ~velocity_scale, one '
+                   'control period (0.05 s) per step, and episodes are as long in time (200 steps / SCALE); '
+                   'without it, each step\'s joints are reached at once' + default)
+    p.add_argument('--joint-limits', default=None, metavar='FILE',
+                   help='with --velocity-scale: a MoveIt joint_limits.yaml that narrows the URDF\'s velocities and '
+                   'gives the accelerations, as reach_controller\'s ~joint_limits')
+
+
+def fraction_above_0(text: str) -> float:
+    value = float(text)
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f'a number in (0, 1], got {text}')
+    return value
+
+
+def layer(a) -> dict:
+    """--velocity-scale and --joint-limits as env kwargs (none given: none, so that a policy file's own stand)."""
+    out = {}
+    if a.velocity_scale is not None:
+        out['velocity_scale'] = a.velocity_scale
+    if a.joint_limits is not None:
+        out['joint_limits'] = a.joint_limits
+    return out
+
+
+def describe_layer(setup: ReachSetup) -> str:
+    return (f'through reach_controller\'s safety layer: {setup.limits.describe()}, a step of '
+            f'{setup.control_period:g} s, {setup.episode_steps} steps an episode')
 
 
 def describe_world(setup: ReachSetup) -> str:
@@ -124,7 +157,7 @@ def run_train(a, parser) -> int:
         parser.error(f'--top-directions ({a.top_directions}) must be at most --directions ({a.directions})')
     connect_ray(parser, a.ray)
     kwargs = dict(model=a.model, xacro_args=a.xacro_args or None, tip=a.tip, control=a.control, start=a.start,
-                  **world(a))
+                  **world(a), **layer(a))
     if a.goal == 'pose':          # position goals: no such settings (a file as before)
         kwargs.update(goal='pose', angle_threshold=a.angle_threshold)
     try:
@@ -142,8 +175,10 @@ def run_train(a, parser) -> int:
     if setup.body is not None:
         print(f'world             {describe_world(setup)}')
     where = dict(home='home', random='random starts', chained='where the last goal left the arm')[a.start]
-    print(f'task              reach within {within(setup)} in 50 steps from {where}, control '
+    print(f'task              reach within {within(setup)} in {setup.episode_steps} steps from {where}, control '
           f'{a.control} (ee_step {setup.ee_step:.3f} m)')
+    if setup.limits is not None:
+        print(f'motion            {describe_layer(setup)}')
     print(f'ARS               {settings.directions} directions, top {settings.top_directions}, step '
           f'{settings.step_size:g}, noise {settings.noise:g}, {settings.episodes} goals each, seed {a.seed}')
     stop = {'asked': False}
@@ -220,13 +255,14 @@ def evaluate_parser(sub) -> None:
     p.add_argument('--video', action='store_true', help='also write an mp4 of the arm reaching 3 of the goals')
     p.add_argument('--output-dir', default=artifacts.default_output_dir(), help='where the video goes')
     add_world(p, ' (default: the world the policy learned in)')
+    add_layer(p, ' (default: as the policy learned)')
     p.set_defaults(run=run_evaluate)
 
 
 def run_evaluate(a, parser) -> int:
     try:
         policy, setup, note = policy_files.load(a.policy, model=a.model or None, xacro_args=a.xacro_args or None,
-                                                **world(a))
+                                                **world(a), **layer(a))
     except (policies.PolicyError, ReachError) as e:
         refuse(parser, str(e))
     if note:
@@ -237,7 +273,9 @@ def run_evaluate(a, parser) -> int:
     print(f'robot             {setup.arm.describe()}')
     if setup.body is not None:
         print(f'world             {describe_world(setup)}')
-    print(f'goals             {a.episodes} fresh goals within {within(setup)} in 50 steps (seed '
+    if setup.limits is not None:
+        print(f'motion            {describe_layer(setup)}')
+    print(f'goals             {a.episodes} fresh goals within {within(setup)} in {setup.episode_steps} steps (seed '
           f'{a.seed}); the policy learned from {setup.start}')
     for start in starts:
         try:

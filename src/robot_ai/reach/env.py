@@ -36,6 +36,7 @@ bit for bit (autoreset next-step, reset(seed=s) seeds env i with s + i).
 """
 from __future__ import annotations
 
+import copy
 import json
 import math
 import os
@@ -52,6 +53,7 @@ from gymnasium.vector.utils import batch_space
 from robot_ai.reach.arm import Arm, ReachError
 from robot_ai.reach.collision import CollisionModel, parse_obstacles
 from robot_ai.reach.model import Model, load_model
+from robot_ai.reach.safety import LEAD_PERIODS, Limits, read_joint_limits, step_end
 from robot_ai.reach.task import ANGLE_THRESHOLD, DISTANCE_THRESHOLD, ReachTask, goal_distance_one, quaternions_t
 
 CONTROLS = ('ee', 'joints')
@@ -64,6 +66,17 @@ ANGLE_STEP = 0.2             # rad per unit of a pose goal's rotation action: pi
 LIMIT_AVOIDANCE = 4.0        # ee control: the null-space step away from a joint limit, at the limit, in ee_step's turn
 RENDER_FPS = 10
 MAX_DRAWS = 1000             # draws of a goal or a start clear of collisions before the world is called too full
+CONTROL_PERIOD = 0.05        # s: reach_controller's step (its ~rate, 20 Hz), an env step with velocity_scale
+LAYER_EPISODE = 4            # with velocity_scale: episodes this many times as long, over the scale (10 s at 1.0)
+
+
+def episode_steps(limits: Limits | None) -> int:
+    """Steps an episode: 50, or through a safety layer of these limits as long in time. There a step covers about a
+    quarter of an instant one at full speed (each step's target is followed two periods on, and each plan can stop
+    at it), and velocity_scale of that when scaled."""
+    if limits is None:
+        return EPISODE_STEPS
+    return math.ceil(EPISODE_STEPS * LAYER_EPISODE / limits.velocity_scale - 1e-9)
 
 
 class ReachSetup:
@@ -74,7 +87,9 @@ class ReachSetup:
                  start: str = 'home', reward_type: str = 'sparse', distance_threshold: float = DISTANCE_THRESHOLD,
                  ee_step: float | None = None, damping: float | None = None, home=None, urdf: str | None = None,
                  limit_avoidance: float = LIMIT_AVOIDANCE, obstacles=None, collision: bool | None = None,
-                 goal: str = 'position', angle_threshold: float = ANGLE_THRESHOLD, angle_step: float | None = None):
+                 goal: str = 'position', angle_threshold: float = ANGLE_THRESHOLD, angle_step: float | None = None,
+                 velocity_scale: float | None = None, acceleration_scale: float | None = None, joint_limits=None,
+                 control_period: float = CONTROL_PERIOD):
         if control not in CONTROLS:
             raise ReachError(f'control must be one of {", ".join(CONTROLS)}, got {control!r}')
         if start not in STARTS:
@@ -98,6 +113,16 @@ class ReachSetup:
         # at 1, a joint at its limit steps back as far as a joint turns in a full ee_step (ee_step / the chain)
         self.limit_gain = self.limit_avoidance * self.ee_step / self.arm.length
         self.home = self._home(home)
+        self.limits: Limits | None = None        # the safety layer's, when the env models it (velocity_scale)
+        self.joint_limits = read_joint_limits(joint_limits)
+        self.control_period = self._positive('control_period', control_period, CONTROL_PERIOD)
+        if velocity_scale is not None:
+            self.limits = Limits.of(self.arm, {'joint_limits': self.joint_limits} if self.joint_limits else None,
+                                    velocity_scale, acceleration_scale)
+        elif self.joint_limits or acceleration_scale is not None:
+            raise ReachError('joint_limits and acceleration_scale are the safety layer\'s: give velocity_scale too '
+                             '(1.0: the limits unscaled)')
+        self.episode_steps = episode_steps(self.limits)
         self.obstacles = parse_obstacles(obstacles)
         if collision is None:
             collision = bool(self.obstacles)
@@ -208,7 +233,37 @@ class ReachSetup:
             out.update(collision=True, obstacles=[json.dumps(o.spec) for o in self.obstacles])
         if self.pose:                     # files without these: position goals
             out.update(goal='pose', angle_threshold=self.task.angle_threshold, angle_step=self.angle_step)
+        if self.limits is not None:       # files without these: joints moved at once
+            out.update(velocity_scale=self.limits.velocity_scale, acceleration_scale=self.limits.acceleration_scale,
+                       control_period=self.control_period)
+            if self.joint_limits:
+                out['joint_limits'] = {'joint_limits': self.joint_limits}
         return out
+
+    # ---------------------------------------------------------------------------- the safety layer's motion
+    def through(self, limits: Limits, control_period: float = CONTROL_PERIOD) -> ReachSetup:
+        """This setup with the arm moved through a safety layer of these limits (what velocity_scale and
+        joint_limits make), without loading the model again: a node's prediction of its own arm."""
+        out = copy.copy(self)
+        out.limits = limits
+        out.control_period = self._positive('control_period', control_period, CONTROL_PERIOD)
+        out.episode_steps = episode_steps(limits)
+        return out
+
+    def motion_start(self, q_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(velocities (n, N), the targets already sent (LEAD_PERIODS, n, N)) of arms at rest at q_t."""
+        return np.zeros_like(q_t), np.repeat(q_t[None], LEAD_PERIODS, axis=0)
+
+    def advance(self, q_t: np.ndarray, v_t: np.ndarray, sent_t: np.ndarray,
+                target_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One control period of arms (n, N) driven through reach_controller's safety layer: each step's target
+        (the joints the action asks for) is planned LEAD_PERIODS periods on, as the layer plans it (a command
+        reaches the arm before it starts), so that this period the arm moves toward the target of LEAD_PERIODS
+        steps ago, within the velocity, acceleration and position limits (safety.step_end). (positions,
+        velocities, the targets sent)."""
+        target_t = np.minimum(np.maximum(target_t, self.limits.lower[:, None]), self.limits.upper[:, None])
+        q_t, v_t = step_end(q_t, v_t, sent_t[0], self.limits, self.control_period)
+        return q_t, v_t, np.concatenate((sent_t[1:], target_t[None]))
 
     # -------------------------------------------------------------------------------- batched steps
     def check_actions(self, actions: np.ndarray) -> np.ndarray:
@@ -365,18 +420,20 @@ class ReachEnv(gymnasium.Env):
                  ee_step: float | None = None, damping: float | None = None, home=None, urdf: str | None = None,
                  render_mode: str | None = None, limit_avoidance: float = LIMIT_AVOIDANCE, obstacles=None,
                  collision: bool | None = None, goal: str = 'position', angle_threshold: float = ANGLE_THRESHOLD,
-                 angle_step: float | None = None):
+                 angle_step: float | None = None, velocity_scale: float | None = None,
+                 acceleration_scale: float | None = None, joint_limits=None, control_period: float = CONTROL_PERIOD):
         if render_mode not in (None, *self.metadata['render_modes']):
             raise ReachError(f'render_mode must be one of {self.metadata["render_modes"]} or None, got {render_mode!r}')
         self.setup = ReachSetup(model, xacro_args, tip, control, start, reward_type, distance_threshold, ee_step,
                                 damping, home, urdf, limit_avoidance, obstacles, collision, goal, angle_threshold,
-                                angle_step)
+                                angle_step, velocity_scale, acceleration_scale, joint_limits, control_period)
         self.arm = self.setup.arm
         self.task = self.setup.task
         self.observation_space = self.setup.observation_space
         self.action_space = self.setup.action_space
         self.render_mode = render_mode
         self._q = self._tip = self._goal = self._jac = None
+        self._v = self._sent = None             # with velocity_scale: the joints' velocities, the targets sent
         self._renderer = None
 
     def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:
@@ -396,6 +453,9 @@ class ReachEnv(gymnasium.Env):
         q = start_q[:, 0].tolist()
         if options:
             goal, q = self.setup.reset_options(options, goal, q)
+        if self.setup.limits is not None and (self.setup.start != 'chained' or self._v is None
+                                              or q != self._q):   # chained: the arm goes on as it was going
+            self._v, self._sent = self.setup.motion_start(np.array(q)[:, None])
         self._goal, self._q = goal, q
         self._tip, self._jac = self.setup.place_one(self._q)
         if self._renderer is not None:
@@ -406,7 +466,14 @@ class ReachEnv(gymnasium.Env):
         if self._q is None:
             raise ResetNeeded('Cannot call env.step() before calling env.reset()')
         a = self.setup.check_action_one(action)
-        self._q, hit = self.setup.guard_one(self._q, self.setup.move_one(self._q, self._jac, a))
+        target = self.setup.move_one(self._q, self._jac, a)
+        if self.setup.limits is not None:           # through the safety layer: one control period toward it
+            q, v, self._sent = self.setup.advance(np.array(self._q)[:, None], self._v, self._sent,
+                                                   np.array(target)[:, None])
+            self._q, hit = self.setup.guard_one(self._q, q[:, 0].tolist())
+            self._v = np.zeros_like(v) if hit else v
+        else:
+            self._q, hit = self.setup.guard_one(self._q, target)
         info = {} if hit is None else {'collision': hit}
         self._tip, self._jac = self.setup.place_one(self._q)
         if self.setup.pose:
@@ -451,16 +518,18 @@ class ReachVectorEnv(VectorEnv):
 
     metadata = {'render_modes': ['rgb_array'], 'render_fps': RENDER_FPS, 'autoreset_mode': AutoresetMode.NEXT_STEP}
 
-    def __init__(self, num_envs: int = 1, max_episode_steps: int = EPISODE_STEPS, render_mode: str | None = None,
+    def __init__(self, num_envs: int = 1, max_episode_steps: int | None = None, render_mode: str | None = None,
                  setup: ReachSetup | None = None, **kwargs: Any):
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ReachError(f'num_envs must be a whole number of at least 1, got {num_envs!r}')
-        if isinstance(max_episode_steps, bool) or not isinstance(max_episode_steps, (int, np.integer)) \
-                or max_episode_steps < 1:
+        if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(
+                max_episode_steps, (int, np.integer)) or max_episode_steps < 1):
             raise ReachError(f'max_episode_steps must be a whole number of at least 1, got {max_episode_steps!r}')
         if setup is not None and kwargs:
             raise ReachError(f'give a setup or its settings, not both: {sorted(kwargs)}')
         self.setup = setup or ReachSetup(**kwargs)
+        if max_episode_steps is None:        # 50, or as long in time with velocity_scale
+            max_episode_steps = self.setup.episode_steps
         self.arm = self.setup.arm
         self.task = self.setup.task
         self.num_envs = int(num_envs)
@@ -477,6 +546,7 @@ class ReachVectorEnv(VectorEnv):
         self._tip = np.zeros((size, n))
         self._goal = np.zeros((size, n))
         self._jac = np.zeros((6 if self.setup.pose else 3, self.arm.n, n)) if self.setup.control == 'ee' else None
+        self._v, self._sent = self.setup.motion_start(self._q)
         self._elapsed = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=np.bool_)
         self._started = np.zeros(n, dtype=np.bool_)
@@ -496,6 +566,9 @@ class ReachVectorEnv(VectorEnv):
                                                    for i in chosen])
         goal = self.setup.goals_of(goal_q)
         tip, jac = self.setup.place(q)
+        if self.setup.limits is not None:        # at rest, but chained: the arm goes on as it was going
+            fresh = chosen if self.setup.start != 'chained' else chosen[~self._started[chosen]]
+            self._v[:, fresh], self._sent[:, :, fresh] = self.setup.motion_start(q[:, np.isin(chosen, fresh)])
         self._q[:, chosen], self._goal[:, chosen], self._tip[:, chosen] = q, goal, tip
         if jac is not None:
             self._jac[:, :, chosen] = jac
@@ -546,15 +619,18 @@ class ReachVectorEnv(VectorEnv):
         rows = np.flatnonzero(stepping)
         collision = np.zeros(self.num_envs, dtype=np.bool_)
         if len(rows) == self.num_envs:
-            q, hit = self.setup.guard(self._q, self.setup.move(self._q, self._jac, np.ascontiguousarray(a.T)))
+            q, hit = self.setup.guard(self._q, self._moved(slice(None), self._jac, a))
+            if hit is not None and self.setup.limits is not None:
+                self._v[:, hit] = 0.0
             self._q = q
             self._tip, self._jac = self.setup.place(self._q)
             if hit is not None:
                 collision[:] = hit
         elif len(rows):
             jac = self._jac[:, :, rows] if self._jac is not None else None
-            q, hit = self.setup.guard(self._q[:, rows], self.setup.move(self._q[:, rows], jac,
-                                                                          np.ascontiguousarray(a.T)))
+            q, hit = self.setup.guard(self._q[:, rows], self._moved(rows, jac, a))
+            if hit is not None and self.setup.limits is not None:
+                self._v[:, rows[hit]] = 0.0
             tip, jac = self.setup.place(q)
             self._q[:, rows], self._tip[:, rows] = q, tip
             if jac is not None:
@@ -571,9 +647,20 @@ class ReachVectorEnv(VectorEnv):
         truncations = stepping & (self._elapsed >= self.max_episode_steps)
         self._autoreset = truncations.copy()
         infos = {'is_success': success, '_is_success': np.ones(self.num_envs, dtype=np.bool_)}
-        if self.setup.body is not None:         # as SyncVectorEnv gathers the envs' info['collision']
+        if self.setup.body is not None and stepping.any():   # as SyncVectorEnv gathers the envs' info['collision']
             infos = {'collision': collision, '_collision': stepping.copy(), **infos}
         return ReachSetup.observations(self._q, self._tip, self._goal), rewards, terminations, truncations, infos
+
+    def _moved(self, rows, jac: np.ndarray | None, a: np.ndarray) -> np.ndarray:
+        """The joints (n, len(rows)) the actions a (len(rows), size) move the arms of rows to: at once, or one
+        control period through the safety layer (velocity_scale), whose state (velocities, targets sent) moves on
+        here (an arm whose motion would touch stops where it was: step zeroes its velocities)."""
+        target = self.setup.move(self._q[:, rows], jac, np.ascontiguousarray(a.T))
+        if self.setup.limits is None:
+            return target
+        q, self._v[:, rows], self._sent[:, :, rows] = self.setup.advance(self._q[:, rows], self._v[:, rows],
+                                                                         self._sent[:, :, rows], target)
+        return q
 
     def render(self):
         if self.render_mode != 'rgb_array':

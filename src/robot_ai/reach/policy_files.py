@@ -26,7 +26,8 @@ from robot_ai.reach.learn import with_features
 ENV_ID = 'robot_ai/Reach-v0'
 REACH_ENVS = (ENV_ID, 'robot_ai/RosReach-v0')
 ENV_SETTINGS = ('model', 'xacro_args', 'tip', 'control', 'start', 'distance_threshold', 'ee_step', 'damping', 'home',
-                'limit_avoidance', 'obstacles', 'collision', 'goal', 'angle_threshold', 'angle_step')
+                'limit_avoidance', 'obstacles', 'collision', 'goal', 'angle_threshold', 'angle_step', 'velocity_scale',
+                'acceleration_scale', 'joint_limits', 'control_period')
 
 
 def save(training, path: str) -> str:
