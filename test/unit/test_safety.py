@@ -174,6 +174,22 @@ def test_late_joint_states_are_compared_with_the_commands_of_their_time(robot, k
     assert found.worst['velocity'][0] > 0.5, 'never near its speed'
 
 
+def test_an_arm_on_position_commands_is_compared_with_the_last_command_it_was_sent():
+    """A position controller goes to each plan's first point (two periods ahead) as it comes: at full speed that is
+    0.3 rad ahead of the plans followed in time, and not a reason to hold."""
+    setup = setup_of('ur5')
+    limits = Limits.of(setup.arm, velocity_scale=1.0)
+    for follows, holds in ((False, False), (True, True)):
+        layer = SafetyLayer(limits, PERIOD, follows_plans=follows)
+        q, held = setup.home.copy(), []
+        for k in range(40):
+            t = k * PERIOD
+            plan = layer.plan(t, setup.arm.upper, q, measured_at=t)
+            held.append(bool(plan.held))
+            q = plan.positions[0].copy()          # the command, reached before the next tick
+        assert any(held) == holds, (follows, held)
+
+
 @pytest.mark.parametrize('robot', ['ur5', 'panda'])
 def test_step_end_is_the_layer_s_plan_one_period_on_for_one_arm_and_a_batch(robot):
     """What an env models (step_end, element-wise, batched) is the plan the layer sends, at its step's end: from

@@ -92,8 +92,8 @@ class ArmSim:
                                              tcp_nodelay=True, latch=self.lockstep)
         self.command_sub = rospy.Subscriber(COMMAND_TOPIC, RawCommand, self._on_command, queue_size=10,
                                             tcp_nodelay=True)
-        self.trajectory_sub = rospy.Subscriber(TRAJECTORY_TOPIC, JointTrajectory, self._on_trajectory, queue_size=10,
-                                               tcp_nodelay=True)
+        self.trajectory_sub = rospy.Subscriber(TRAJECTORY_TOPIC, JointTrajectory, self._on_trajectory,
+                                               queue_size=100, tcp_nodelay=True)   # none dropped, late ones said
         self.services = [rospy.Service('~set_state', numpy_service(SetJointPositions), self._on_set_state),
                          rospy.Service('~lease', LeaseService, self.lease.handle)]
         mode = ('lockstep: one step per command, reached at once' if self.lockstep else

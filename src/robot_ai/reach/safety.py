@@ -314,13 +314,16 @@ class SafetyLayer:
     """Plans every command (see the module); body: a CollisionModel (reach.collision) or None (limits only)."""
 
     def __init__(self, limits: Limits, period: float, body=None, margin: float = DEFAULT_MARGIN,
-                 lead: float | None = None):
+                 lead: float | None = None, follows_plans: bool = True):
         if not 0 < period < math.inf:
             raise ReachError(f'period must be a positive number of seconds, got {period!r}')
         if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin <= 1:
             raise ReachError(f'margin must be a number of metres from 0 to 1, got {margin!r}')
         self.limits, self.period, self.body, self.margin = limits, float(period), body, float(margin)
         self.lead = LEAD_PERIODS * self.period if lead is None else float(lead)
+        # True: the arm follows each plan in time (a trajectory controller); False: it goes to each plan's first
+        # point as it comes (a position controller, sent that point), so it is where the last plan sent starts
+        self.follows_plans = bool(follows_plans)
         self.last: Plan | None = None
         self.history: list[Plan] = []           # the plans sent, each followed from its start until the next's
         self.resynced = ''       # why the last plan started from the measured state rather than the previous plan
@@ -334,10 +337,14 @@ class SafetyLayer:
             del self.history[0]
 
     def commanded_at(self, t: float) -> np.ndarray:
-        """Where the plans sent put the arm at time t (the one followed then: the last that started by t)."""
+        """Where the plans sent put the arm at time t: following them in time, the state at t of the last that
+        started by t; else (follows_plans False) the first point of the last sent by t (made lead before its
+        start)."""
         for plan in reversed(self.history):
-            if plan.start <= t:
+            if self.follows_plans and plan.start <= t:
                 return plan.state_at(t)[0]
+            if not self.follows_plans and plan.start - self.lead <= t + 1e-9:
+                return plan.positions[0].copy()
         return self.history[0].positions[0].copy()
 
     def start_state(self, now: float, measured: np.ndarray | None,
