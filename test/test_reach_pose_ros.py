@@ -107,8 +107,10 @@ class TestReachPose(unittest.TestCase):
         return True
 
     def test_1_pose_goals_in_any_frame_are_reached_as_in_process(self):
-        rate = rospy.get_param(f'{NODE}/success_rate')
-        self.assertGreater(rate, 0.8)           # its in-process evaluation over 1000 held-out pose goals
+        trained = rospy.get_param(f'{NODE}/success_rate')      # in-process, joints reached at once (1000 goals)
+        rate = rospy.get_param(f'{NODE}/predicted_success_rate')   # through the node's own layer (200 goals)
+        self.assertGreater(trained, 0.8)
+        self.assertGreater(rate, 0.8, f'predicted through the layer: {rate}')
         rng = np.random.default_rng(11)
         reached = []
         # first, the goal a user's stalled on: from the straight-up (singular) home the arm turns first, its distance
@@ -126,8 +128,8 @@ class TestReachPose(unittest.TestCase):
             shown = [float(v) for v in said.split('(')[1].split(')')[0].split(',')]
             np.testing.assert_allclose(shown, goal[:3], atol=2e-3, err_msg=said)    # the frame converted
             reached.append(self.outcome(goal, since))
-        print(f'reached {sum(reached[:GOALS])} of {GOALS} pose goals through ROS; in-process: {rate:.3f}; the '
-              f'user\'s goal: {reached[GOALS]}')
+        print(f'reached {sum(reached[:GOALS])} of {GOALS} pose goals through ROS; in-process: {trained:.3f}, through '
+              f'the layer {rate:.3f}; the user\'s goal: {reached[GOALS]}')
         # 8 goals at the in-process rate p >= 0.8: fewer than 5 has a chance below 1 % (binomial)
         self.assertGreaterEqual(sum(reached[:GOALS]), 5, (reached, rate))
         self.assertTrue(reached[GOALS], 'the goal from the singular home was not reached')
