@@ -136,17 +136,29 @@ def closed_loop(ns: str, policy_path: str, balance_steps: int, push: float) -> t
         return [f'  the controller refused the policy: {loaded.message}'], ['the controller refused the policy']
     tau = 0.02
     rtf = rospy.get_param(f'{ns}/cartpole_sim/real_time_factor', 1.0)
-    states, episodes = queue.Queue(), []
-    sub = rospy.Subscriber(f'{ns}/joint_states', JointState, lambda m: states.put((m.position[0], m.position[1])),
-                           queue_size=10000)
-    ep_sub = rospy.Subscriber(f'{ns}/cartpole_sim/episodes', CartPoleEpisode, episodes.append, queue_size=100)
+    states, episodes, arrived = queue.Queue(), [], [0]
+
+    def on_state(m: JointState) -> None:
+        arrived[0] += 1
+        states.put((m.position[0], m.position[1]))
+
+    def on_episode(m: CartPoleEpisode) -> None:
+        # an episode longer than the states that came since the reset ended before it (its message came late,
+        # under load): not the policy's
+        if m.steps <= arrived[0] + 5:
+            episodes.append(m)
+
+    sub = rospy.Subscriber(f'{ns}/joint_states', JointState, on_state, queue_size=10000)
+    ep_sub = rospy.Subscriber(f'{ns}/cartpole_sim/episodes', CartPoleEpisode, on_episode, queue_size=100)
     try:
         deadline = time.time() + 10
         while (sub.get_num_connections() < 1 or ep_sub.get_num_connections() < 1) and time.time() < deadline:
             time.sleep(0.05)                                  # the subscriptions connect
+        arrived[0] = -10 ** 9                                 # until the reset: every episode is an old one
         rospy.ServiceProxy(f'{ns}/cartpole_sim/reset', Trigger)()
         while not states.empty():
             states.get()
+        arrived[0] = 0
         seen, ended, seconds = watch(states, episodes, balance_steps)
         fell = [e for e in ended if e.reason == 'pole fell']
         up = (fell[0].steps if fell else len(seen)) * tau
