@@ -230,8 +230,9 @@ def plot_job(training: learn.Training) -> dict:
         hlines.append(dict(y=100 * training.held_out.success_rate, color='tab:red', ls='--',
                            label=f'ARS, held-out ({percent(training.held_out.success_rate)} of '
                                  f'{len(training.held_out.distances)} goals)'))
+    layer = '' if setup.limits is None else f' through the safety layer x{setup.limits.velocity_scale:g}'
     return dict(title=f'Reach with ARS: {setup.model.tree.name} ({setup.model.name}), tip {setup.arm.tip}, '
-                      f'{setup.control} control, seed {result.seed}: {result.elapsed:.1f} s',
+                      f'{setup.control} control{layer}, seed {result.seed}: {result.elapsed:.1f} s',
                 xlabel='training steps (millions)', ylabel='goals reached within '
                 f'{within(setup)} (%)',
                 series=[dict(x=x, y=[100 * h.success_rate for h in result.history], style='line', color='tab:blue',
