@@ -52,6 +52,17 @@ def fraction(text: str) -> float:
     return value
 
 
+def fraction_above_0(text: str) -> float:
+    """An argparse type: a number in (0, 1] (a discount, a velocity scale)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'must be a number in (0, 1], got {text!r}')
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f'must be in (0, 1], got {value:g}')
+    return value
+
+
 def output_folder(a, parser) -> str:
     """The output folder, created and checked before any work: a run never ends in a traceback over its files."""
     folder = os.path.abspath(os.path.expanduser(a.output_dir))

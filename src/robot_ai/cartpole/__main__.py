@@ -21,20 +21,9 @@ from robot_ai import policies
 from robot_ai.cartpole import linear_search, outputs, policy_kinds, q_learning
 from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
-from robot_ai.cli import (add_ray, connect_ray, output_folder, positive_number, refuse, run_command, show_policy,
-                          whole_number, write_or_say)
+from robot_ai.cli import (add_ray, connect_ray, fraction_above_0, output_folder, positive_number, refuse, run_command,
+                          show_policy, whole_number, write_or_say)
 from robot_ai.text import counted
-
-
-def discount(text: str) -> float:
-    """An argparse type: a number in (0, 1]."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'must be a number in (0, 1], got {text!r}')
-    if not 0 < value <= 1:
-        raise argparse.ArgumentTypeError(f'must be in (0, 1], got {value:g}')
-    return value
 
 
 def progress_bar(total: int, unit: str):
@@ -187,7 +176,7 @@ def q_learning_parser(sub) -> None:
     add_common(p, d['env_id'])
     p.add_argument('--episodes', type=whole_number(1, q_learning.MAX_EPISODES), default=d['episodes'],
                    help=f'episodes per learner (1 to {q_learning.MAX_EPISODES})')
-    p.add_argument('--gamma', type=discount, default=d['gamma'], help='discount, in (0, 1]')
+    p.add_argument('--gamma', type=fraction_above_0, default=d['gamma'], help='discount, in (0, 1]')
     p.add_argument('--regressor', default=None, choices=sorted(q_learning.REGRESSORS),
                    help='tf: the warm-up\'s (w ~ N(0, 1), w += 0.2 (G - x.w) x); sgd: q_learning.py\'s '
                    f'(w ~ N(0, 1)/sqrt(D), w += 0.1 (G - x.w) x); default {d["regressor"]}, or the initial '

@@ -20,8 +20,8 @@ from dataclasses import replace
 
 from robot_ai import ars, artifacts
 from robot_ai import policies
-from robot_ai.cli import (add_ray, connect_ray, fraction, output_folder, positive_number, refuse, run_command,
-                          show_policy, whole_number, write_or_say)
+from robot_ai.cli import (add_ray, connect_ray, fraction, fraction_above_0, output_folder, positive_number, refuse,
+                          run_command, show_policy, whole_number, write_or_say)
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import CONTROLS, STARTS, ReachSetup
@@ -97,13 +97,6 @@ def add_layer(p: argparse.ArgumentParser, default: str = '') -> None:
     p.add_argument('--joint-limits', default=None, metavar='FILE',
                    help='with --velocity-scale: a MoveIt joint_limits.yaml that narrows the URDF\'s velocities and '
                    'gives the accelerations, as reach_controller\'s ~joint_limits')
-
-
-def fraction_above_0(text: str) -> float:
-    value = float(text)
-    if not 0 < value <= 1:
-        raise argparse.ArgumentTypeError(f'a number in (0, 1], got {text}')
-    return value
 
 
 def layer(a) -> dict:
