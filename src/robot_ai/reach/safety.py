@@ -256,9 +256,11 @@ def _step_velocity(p0, v0, target, vmax, a, dt: float) -> np.ndarray:
 @dataclass
 class StepKinds:
     """How each joint moves within one step toward its target (SafetyLayer._step), element-wise: joints (n,) or a
-    batch (n, N), the limits (n,) or (n, 1). brake: it would pass a position limit, so it brakes; arrive: it comes
-    to rest at the target at the step's end (from v0 to vm over the first half at a1, to rest at a2); else steady:
-    a constant acceleration to v1."""
+    batch (n, N), the limits (n,) or (n, 1). brake: it would pass a position limit, so it brakes (at the
+    acceleration limit a, to rest at its stop time); arrive: it comes to rest at the target at the step's end (from
+    v0 to vm over the first half at a1, to rest at a2); else steady: a constant acceleration to v1."""
+    dt: float
+    a: np.ndarray
     v1: np.ndarray
     steady: np.ndarray
     brake: np.ndarray
@@ -266,6 +268,7 @@ class StepKinds:
     vm: np.ndarray
     a1: np.ndarray
     a2: np.ndarray
+    stops: np.ndarray           # a braking joint's stop time (inf for the others)
 
     @classmethod
     def of(cls, p0, v0, target, lower, upper, velocity, a, dt: float) -> StepKinds:
@@ -286,7 +289,22 @@ class StepKinds:
         tol = 1 + 1e-9
         arrive = ((np.abs(a1) <= a * tol) & (np.abs(a2) <= a * tol) & (np.abs(vm) <= velocity) & ~out(turn1)
                   & ~brake)
-        return cls(v1, steady, brake, arrive, vm, a1, a2)
+        return cls(dt, a, v1, steady, brake, arrive, vm, a1, a2, np.where(brake, np.abs(v0) / a, np.inf))
+
+    def at(self, t: float, p0: np.ndarray, v0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(positions, velocities) t seconds into the step (0 to dt), each joint the way its kind moves."""
+        a, half = self.a, self.dt / 2.0
+        tb = np.minimum(t, self.stops)
+        sign = np.sign(v0)
+        pb, vb = p0 + v0 * tb - 0.5 * sign * a * tb * tb, np.where(t >= self.stops, 0.0, v0 - sign * a * tb)
+        if t <= half:
+            pa, va = p0 + v0 * t + 0.5 * self.a1 * t * t, v0 + self.a1 * t
+        else:
+            pm = p0 + v0 * half + 0.5 * self.a1 * half * half
+            pa, va = pm + self.vm * (t - half) + 0.5 * self.a2 * (t - half) ** 2, self.vm + self.a2 * (t - half)
+        ps, vs = p0 + v0 * t + 0.5 * self.steady * t * t, v0 + self.steady * t
+        return (np.where(self.brake, pb, np.where(self.arrive, pa, ps)),
+                np.where(self.brake, vb, np.where(self.arrive, va, vs)))
 
 
 def step_end(p0: np.ndarray, v0: np.ndarray, target: np.ndarray, limits: Limits,
@@ -298,16 +316,8 @@ def step_end(p0: np.ndarray, v0: np.ndarray, target: np.ndarray, limits: Limits,
     lower, upper = limits.lower.reshape(shape), limits.upper.reshape(shape)
     velocity, a = limits.velocity.reshape(shape), limits.acceleration.reshape(shape)
     k = StepKinds.of(p0, v0, target, lower, upper, velocity, a, dt)
-    sign = np.sign(v0)
-    with np.errstate(divide='ignore', invalid='ignore'):
-        stops = np.where(k.brake, np.abs(v0) / a, np.inf)
-    tb = np.minimum(dt, stops)
-    pb, vb = p0 + v0 * tb - 0.5 * sign * a * tb * tb, np.where(dt >= stops, 0.0, v0 - sign * a * tb)
-    ps = p0 + v0 * dt + 0.5 * k.steady * dt * dt
-    vs = v0 + k.steady * dt
-    positions = np.where(k.brake, pb, np.where(k.arrive, target, ps))
-    velocities = np.where(k.brake, vb, np.where(k.arrive, 0.0, vs))
-    return positions, velocities
+    positions, velocities = k.at(dt, p0, v0)
+    return np.where(k.arrive, target, positions), np.where(k.arrive, 0.0, velocities)   # at rest there exactly
 
 
 class SafetyLayer:
@@ -434,29 +444,14 @@ class SafetyLayer:
         first would pass a position limit (a target that moved, a float's last bit), braking as the previous plan's
         stop has it do, to rest within the step if it can (a point at its stop time)."""
         lim, dt = self.limits, self.period
-        a, half = lim.acceleration, dt / 2.0
-        k = StepKinds.of(p0, v0, target, lim.lower, lim.upper, lim.velocity, a, dt)
-        brake, arrive, steady, a1, a2, vm = k.brake, k.arrive, k.steady, k.a1, k.a2, k.vm
-        stops = np.where(brake, np.abs(v0) / a, np.inf)
-        times = sorted({0.0, dt, *([half] if arrive.any() else []),
-                        *(float(t) for t in stops if 1e-6 < t < dt - 1e-6)})
-        sign = np.sign(v0)
-        pm = p0 + v0 * half + 0.5 * a1 * half * half
-        positions, velocities = [], []
-        for t in times:
-            tb = np.minimum(t, stops)
-            pb, vb = p0 + v0 * tb - 0.5 * sign * a * tb * tb, np.where(t >= stops, 0.0, v0 - sign * a * tb)
-            if t <= half:
-                pa, va = p0 + v0 * t + 0.5 * a1 * t * t, v0 + a1 * t
-            else:
-                pa, va = pm + vm * (t - half) + 0.5 * a2 * (t - half) ** 2, vm + a2 * (t - half)
-            ps, vs = p0 + v0 * t + 0.5 * steady * t * t, v0 + steady * t
-            positions.append(np.where(brake, pb, np.where(arrive, pa, ps)))
-            velocities.append(np.where(brake, vb, np.where(arrive, va, vs)))
-        positions, velocities = np.array(positions), np.array(velocities)
-        velocities[-1, arrive] = 0.0
-        positions[-1, arrive] = target[arrive]
-        tail = stop_from(start + dt, positions[-1], velocities[-1], a)
+        k = StepKinds.of(p0, v0, target, lim.lower, lim.upper, lim.velocity, lim.acceleration, dt)
+        times = sorted({0.0, dt, *([dt / 2.0] if k.arrive.any() else []),
+                        *(float(t) for t in k.stops if 1e-6 < t < dt - 1e-6)})
+        states = [k.at(t, p0, v0) for t in times]
+        positions, velocities = np.array([p for p, _ in states]), np.array([v for _, v in states])
+        velocities[-1, k.arrive] = 0.0
+        positions[-1, k.arrive] = target[k.arrive]
+        tail = stop_from(start + dt, positions[-1], velocities[-1], lim.acceleration)
         return Plan(start, np.concatenate((times, dt + tail.times[1:])), np.vstack((positions, tail.positions[1:])),
                     np.vstack((velocities, tail.velocities[1:])))
 
