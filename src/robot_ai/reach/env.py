@@ -619,18 +619,14 @@ class ReachVectorEnv(VectorEnv):
         rows = np.flatnonzero(stepping)
         collision = np.zeros(self.num_envs, dtype=np.bool_)
         if len(rows) == self.num_envs:
-            q, hit = self.setup.guard(self._q, self._moved(slice(None), self._jac, a))
-            if hit is not None and self.setup.limits is not None:
-                self._v[:, hit] = 0.0
+            q, hit = self._moved(slice(None), self._jac, a)
             self._q = q
             self._tip, self._jac = self.setup.place(self._q)
             if hit is not None:
                 collision[:] = hit
         elif len(rows):
             jac = self._jac[:, :, rows] if self._jac is not None else None
-            q, hit = self.setup.guard(self._q[:, rows], self._moved(rows, jac, a))
-            if hit is not None and self.setup.limits is not None:
-                self._v[:, rows[hit]] = 0.0
+            q, hit = self._moved(rows, jac, a)
             tip, jac = self.setup.place(q)
             self._q[:, rows], self._tip[:, rows] = q, tip
             if jac is not None:
@@ -651,16 +647,20 @@ class ReachVectorEnv(VectorEnv):
             infos = {'collision': collision, '_collision': stepping.copy(), **infos}
         return ReachSetup.observations(self._q, self._tip, self._goal), rewards, terminations, truncations, infos
 
-    def _moved(self, rows, jac: np.ndarray | None, a: np.ndarray) -> np.ndarray:
-        """The joints (n, len(rows)) the actions a (len(rows), size) move the arms of rows to: at once, or one
-        control period through the safety layer (velocity_scale), whose state (velocities, targets sent) moves on
-        here (an arm whose motion would touch stops where it was: step zeroes its velocities)."""
-        target = self.setup.move(self._q[:, rows], jac, np.ascontiguousarray(a.T))
+    def _moved(self, rows, jac: np.ndarray | None, a: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """guard's (joints (n, len(rows)), collision or None) of the arms of rows after the actions a (len(rows),
+        size): moved at once, or one control period through the safety layer (velocity_scale), whose state
+        (velocities, targets sent) moves on here; an arm whose motion would touch stops where it was, at rest."""
+        before = self._q[:, rows]
+        target = self.setup.move(before, jac, np.ascontiguousarray(a.T))
         if self.setup.limits is None:
-            return target
-        q, self._v[:, rows], self._sent[:, :, rows] = self.setup.advance(self._q[:, rows], self._v[:, rows],
-                                                                         self._sent[:, :, rows], target)
-        return q
+            return self.setup.guard(before, target)
+        q, v, self._sent[:, :, rows] = self.setup.advance(before, self._v[:, rows], self._sent[:, :, rows], target)
+        q, hit = self.setup.guard(before, q)
+        if hit is not None:
+            v[:, hit] = 0.0
+        self._v[:, rows] = v
+        return q, hit
 
     def render(self):
         if self.render_mode != 'rgb_array':
