@@ -5,9 +5,9 @@ run; and ARS on CartPole beside the course's random search.
 Per robot (control 'ee', 1000 held-out goals, seed 0):
 - ARS from home (python -m robot_ai.reach train's defaults): wall time (model loading included), the seconds until
   an iteration's evaluation first reached 95 % and 99 %, steps, the held-out success rate;
-- the plain P-controller on the tip error from home, from random starts and chained (each goal from where the last
-  left the arm, as rviz clicks come), and chained without the null-space term that keeps joints off their limits;
-- ARS from random starts (the same defaults), and ARS from home evaluated chained.
+- that policy and the plain P-controller on the tip error from random starts and chained (each goal from where
+  the last left the arm, as rviz clicks come), and the P-controller from both without the limit recovery
+  (ReachSetup.recover: what it adds).
 Where stable-baselines3 and sb3-contrib are installed (a venv of their own: torch is gigabytes): sb3-contrib's ARS
 (LinearPolicy, its defaults, 8 envs) and SAC with HER (rl-baselines3-zoo's settings for PandaReach: gamma 0.95,
 learning rate 1e-3, tau 0.05, batch 256, two layers of 64) on the UR5's Reach-v0, steps and seconds.
@@ -55,13 +55,13 @@ def first_reached(history, rate):
 
 
 def reach_section(names, extra_models):
-    print('reach: ARS (robot_ai.reach train, seed 0) beside the P-controller on the tip error, 1000 held-out goals; '
-          'from home, from random starts,')
-    print('  and chained (each goal from where the last left the arm); "no null": the P-controller chained without the '
-          'null-space term (limit_avoidance 0)')
+    print('reach: ARS (robot_ai.reach train, seed 0, from home) beside the P-controller on the tip error, 1000 '
+          'held-out goals from home, from random starts')
+    print('  and chained (each goal from where the last left the arm, as rviz clicks come); "no recovery": the '
+          'P-controller without the limit recovery (limit_recovery=False)')
     print(f'  {"robot":16s} {"joints":>6s} {"ee_step":>7s} {"ARS wall":>8s} {"to 95%":>7s} {"to 99%":>7s} '
-          f'{"steps":>10s} {"ARS":>6s} {"P home":>6s} {"P rand":>6s} {"P chain":>7s} {"no null":>7s} '
-          f'{"ARS rand":>8s} {"ARS chain":>9s}')
+          f'{"steps":>10s} {"ARS home":>8s} {"ARS rand":>8s} {"ARS chain":>9s} {"P home":>6s} {"P rand":>6s} '
+          f'{"P chain":>7s}  no recovery: {"P rand":>6s} {"P chain":>7s}')
     models = [(n, *ROBOTS[n]) for n in names] + [(os.path.basename(m), m, None) for m in extra_models]
     for name, model, args in models:
         t0 = time.monotonic()
@@ -69,17 +69,17 @@ def reach_section(names, extra_models):
         wall = time.monotonic() - t0
         setup = home.setup
         p = learn.p_controller(setup)
-        p_random = learn.evaluate(p, setup, start='random').success_rate
-        p_chained = learn.evaluate(p, setup, start='chained').success_rate
-        plain = ReachSetup(model=model, xacro_args=args, limit_avoidance=0.0)
-        p_plain = learn.evaluate(learn.p_controller(plain), plain, start='chained').success_rate
-        ars_chained = learn.evaluate(home.policy, setup, start='chained').success_rate
-        rand = learn.train(dict(model=model, xacro_args=args, start='random'), seed=0)
+        rates = [learn.evaluate(policy, setup, start=start).success_rate
+                 for policy in (home.policy, p) for start in ('random', 'chained')]
+        plain = ReachSetup(model=model, xacro_args=args, limit_recovery=False)
+        plain_rates = [learn.evaluate(learn.p_controller(plain), plain, start=start).success_rate
+                       for start in ('random', 'chained')]
         print(f'  {name:16s} {setup.arm.n:6d} {setup.ee_step:7.3f} {wall:6.1f} s '
               f'{first_reached(home.result.history, 0.95):>7s} {first_reached(home.result.history, 0.99):>7s} '
-              f'{home.result.steps:10,d} {100 * home.held_out.success_rate:5.1f}% '
-              f'{100 * home.p_controller.success_rate:5.1f}% {100 * p_random:5.1f}% {100 * p_chained:6.1f}% '
-              f'{100 * p_plain:6.1f}% {100 * rand.held_out.success_rate:7.1f}% {100 * ars_chained:8.1f}%', flush=True)
+              f'{home.result.steps:10,d} {100 * home.held_out.success_rate:7.1f}% {100 * rates[0]:7.1f}% '
+              f'{100 * rates[1]:8.1f}% {100 * home.p_controller.success_rate:5.1f}% {100 * rates[2]:5.1f}% '
+              f'{100 * rates[3]:6.1f}%               {100 * plain_rates[0]:5.1f}% {100 * plain_rates[1]:6.1f}%',
+              flush=True)
 
 
 POSE_ROBOTS = ('ur5_package', 'kuka_lwr', 'panda', 'pr2')

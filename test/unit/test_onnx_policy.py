@@ -82,7 +82,9 @@ def test_a_reach_model_of_the_p_controller_reaches_as_the_p_controller(tmp_path)
     assert note == '' and loaded.arm.joints == setup.arm.joints and loaded.control == 'ee'
     x = np.random.default_rng(1).uniform(-1, 1, (2000, 9 + setup.arm.n))
     np.testing.assert_allclose(policy.act_batch(x), p.act_batch(x), atol=1e-5)
-    ours, theirs = learn.evaluate(policy, loaded, 300), learn.evaluate(p, setup, 300)
+    # on the setup the file makes (its metadata predate the limit recovery: without it, as a .npz file of then)
+    assert not loaded.limit_recovery and setup.limit_recovery
+    ours, theirs = learn.evaluate(policy, loaded, 300), learn.evaluate(p, loaded, 300)
     np.testing.assert_allclose(ours.distances, theirs.distances, atol=1e-4)
     assert abs(ours.success_rate - theirs.success_rate) <= 0.01 and ours.success_rate > 0.9
 
@@ -292,8 +294,8 @@ def test_both_command_lines_evaluate_and_show_an_onnx_file_and_the_searches_refu
     reach = reach_model(setup, learn.p_controller(setup).weights.T, tmp_path)
     r = run('robot_ai.reach', 'evaluate', reach, '--episodes', '200', '--start', 'random')
     assert r.returncode == 0, r.stderr
-    # its metadata names no limit_avoidance: it acts as files from before the term did, with none
-    old = ReachSetup(model=PACKAGE_UR5, limit_avoidance=0.0)
+    # its metadata names no limit_avoidance nor limit_recovery: it acts as files from before them did, with neither
+    old = ReachSetup(model=PACKAGE_UR5, limit_avoidance=0.0, limit_recovery=False)
     rate = learn.evaluate(learn.p_controller(old), old, 200, start='random').success_rate
     lines = {line.split()[0]: line for line in r.stdout.splitlines() if line.strip()}
     assert '200 fresh goals' in r.stdout and lines['from'].split()[:3] == ['from', 'random', f'{100 * rate:.1f}']

@@ -10,7 +10,7 @@ import robot_ai.reach  # noqa: F401 (registers robot_ai/Reach-v0)
 from fk_helpers import robot_path
 from robot_ai import ars
 from robot_ai.reach import ReachError, ReachSetup, ReachVectorEnv, learn, policy_files
-from robot_ai.reach.env import ReachEnv
+from robot_ai.reach.env import READY, ReachEnv
 from robot_ai.reach.safety import SafetyLayer, violations
 from robot_ai.reach.trajectory import Follower
 from test_reach import assert_same, make_sync
@@ -21,9 +21,9 @@ UR5 = robot_path('ur5.urdf')
 
 def through_the_layer(setup: ReachSetup, env: ReachEnv, policy, seed: int, steps: int):
     """The env's episode beside reach_controller's loop run in-process on the same goal: every control period the
-    policy acts on where the arm is, the safety layer plans (two periods ahead), the plan goes to a Follower (what
-    arm_sim and a joint_trajectory_controller run). (the env's joints, the loop's joints, the loop's times) per
-    step."""
+    policy acts on where the arm is (its target after the limit recovery, as the node's), the safety layer plans
+    (two periods ahead), the plan goes to a Follower (what arm_sim and a joint_trajectory_controller run). (the
+    env's joints, the loop's joints, the loop's times) per step."""
     act = lambda o: policy.act_batch(ars.flatten_batch(setup.observation_space,     # noqa: E731
                                                        {k: np.asarray(v)[None] for k, v in o.items()}))[0]
     obs, _ = env.reset(seed=seed)
@@ -32,6 +32,7 @@ def through_the_layer(setup: ReachSetup, env: ReachEnv, policy, seed: int, steps
     layer = SafetyLayer(setup.limits, period)
     arm = Follower(np.array(env.joint_positions))
     env_q, loop_q, times = [], [], []
+    recovery = READY                       # the goal's limit recovery, as reach_controller keeps it
     for k in range(steps):
         t = k * period
         q = arm.state_at(t)[0]
@@ -40,7 +41,8 @@ def through_the_layer(setup: ReachSetup, env: ReachEnv, policy, seed: int, steps
         times.append(t)
         tip, jac = setup.place_one(q.tolist())
         a = setup.check_action_one(act(setup.observation_one(q.tolist(), tip, goal)))
-        plan = layer.plan(t, setup.move_one(q.tolist(), jac, a), q, measured_at=t)
+        target, recovery = setup.recover_one(q.tolist(), setup.move_one(q.tolist(), jac, a), a, recovery)
+        plan = layer.plan(t, target, q, measured_at=t)
         assert not plan.held, plan.held
         arm.take(t, plan.start, *plan.points(period))
         obs = env.step(np.asarray(act(obs), dtype=np.float32))[0]

@@ -36,7 +36,7 @@ from tf2_msgs.msg import TFMessage
 
 from robot_ai.envs.link import (DEFAULT_TIMEOUT, RosEnvError, claim, ensure_node, lease, master_answers, new_token,
                                 release, resolve)
-from robot_ai.reach.env import LIMIT_AVOIDANCE, RENDER_FPS, ReachSetup
+from robot_ai.reach.env import LIMIT_AVOIDANCE, READY, RENDER_FPS, ReachSetup
 from robot_ai.reach.task import goal_distance_one
 from robot_ai.srv import SetJointPositions
 from robot_ai.tf_wire import JointStateDecoder, TFDecoder, WireError, decode_tf, header_of, raw_message_class
@@ -360,19 +360,20 @@ class RosReachEnv(gymnasium.Env):
                  xacro_args=None, tip: str | None = None, control: str = 'ee', start: str = 'home',
                  reward_type: str = 'sparse', distance_threshold: float = 0.05, ee_step: float | None = None,
                  damping: float | None = None, home=None, urdf: str | None = None, render_mode: str | None = None,
-                 limit_avoidance: float = LIMIT_AVOIDANCE):
+                 limit_avoidance: float = LIMIT_AVOIDANCE, limit_recovery: bool = True):
         if not (isinstance(timeout, (int, float)) and 0 < timeout <= 3600):
             raise ValueError(f'timeout must be a number of seconds in (0, 3600], got {timeout!r}')
         if model is None and urdf is None:
             urdf = description_of(robot_ns, float(timeout))
         self.setup = ReachSetup(model, xacro_args, tip, control, start, reward_type, distance_threshold, ee_step,
-                                damping, home, urdf, limit_avoidance)
+                                damping, home, urdf, limit_avoidance, limit_recovery=limit_recovery)
         self.arm, self.task = self.setup.arm, self.setup.task
         self.observation_space = self.setup.observation_space
         self.action_space = self.setup.action_space
         self.robot_ns, self.timeout, self.render_mode = robot_ns, float(timeout), render_mode
         self.link: ArmLink | None = None
         self._q = self._all = self._tip = self._goal = self._jac = None
+        self._recovery = READY                  # limit recovery's state in the episode (ReachSetup.recover)
         self._failure = ''
         self._renderer = None
 
@@ -394,7 +395,7 @@ class RosReachEnv(gymnasium.Env):
         super().reset(seed=seed)
         goal_q, start_q = self.setup.first_states([self.np_random], [self._q])    # chained: from where it stands
         self._goal = self.arm.forward_one(goal_q[:, 0].tolist())[0]
-        self._failure = ''
+        self._failure, self._recovery = '', READY
         try:
             if self.link is None:
                 self.link = ArmLink(self.robot_ns, self.timeout, self.setup)
@@ -428,6 +429,7 @@ class RosReachEnv(gymnasium.Env):
             raise gymnasium.error.ResetNeeded('Cannot call env.step() before calling env.reset()')
         a = self.setup.check_action_one(action)
         commanded = self.setup.move_one(self._q, self._jac, a)
+        commanded, self._recovery = self.setup.recover_one(self._q, commanded, a, self._recovery)
         positions = list(self._all)
         for k, value in zip(self.link.index, commanded):
             positions[k] = value

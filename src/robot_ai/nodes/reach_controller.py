@@ -118,7 +118,7 @@ from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.collision import CollisionModel
-from robot_ai.reach.env import ReachSetup
+from robot_ai.reach.env import READY, RECOVERING, ReachSetup
 from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, Limits, Plan, SafetyLayer
 from robot_ai.reach.task import GOALS, goal_angle, goal_distance_one, why_unreached
 from robot_ai.text import percent
@@ -228,6 +228,7 @@ class ReachController:
         self.holding = False                      # a goal said not reached: the arm holds at its closest
         self.homing = False                       # stalled at joint limits: going home to try again from there
         self.retried = False                      # the goal's one retry from home was made
+        self.recovery = READY                     # the goal's limit recovery (ReachSetup.recover), as the env's
         self.homing_since = 0.0
         self.blocked = ''                         # the contacts that refused the last motion ('' when it was sent)
         self.trail: list[list[float]] = []        # with a body: the configurations the arm came by, clear of contacts
@@ -445,6 +446,7 @@ class ReachController:
             self.goal, self.goal_since, self.best, self.said = goal, time.monotonic(), float('inf'), False
             self.blocked = ''
             self.best_q, self.holding, self.homing, self.retried = None, False, False, False
+            self.recovery = READY
             self.improved_at = self.goal_since
             self.going_home = False
             self.version += 1
@@ -676,6 +678,7 @@ class ReachController:
             goal, joints, speeds, policy = self.goal, dict(self.joints), dict(self.speeds), self.policy
             holding, homing, enabled, going_home = self.holding, self.homing, self.enabled, self.going_home
             received, measured_at, version = dict(self.received), dict(self.measured), self.version
+            recovery = self.recovery
         arm = self.setup.arm
         if not self.marker_placed and goal is None:
             self._place_marker()
@@ -719,13 +722,16 @@ class ReachController:
             elif homing:
                 target = self._home_target(goal, q)
             else:
-                target = self._policy_target(policy, q, tip, goal)
+                target = self._policy_target(policy, q, tip, goal, recovery, version)
                 if target is None:
                     return self._hold(now, 'the policy gave no action', joints)
         plan = self._plan_and_send(target, measured, velocity, joints,
                                    measured_at=min(measured_at[n] for n in arm.joints))
         if self.layer.resynced:
             rospy.logwarn_throttle(5.0, self.layer.resynced)
+            with self.lock:              # held until now: the policy's stall clock starts from where the arm stands
+                if version == self.version:
+                    self.improved_at, self.progress_mark = time.monotonic(), float('inf')
         blocked = ''
         if plan.held and target is not None:
             blocked = ', '.join(plan.contacts) or plan.held
@@ -742,8 +748,10 @@ class ReachController:
             # load, and the configuration held after `not reached` must be the one whose distance was said
             self._judge(goal, self.setup.place_one(q)[0], q)
 
-    def _policy_target(self, policy, q: list[float], tip: list[float], goal: list[float]) -> list[float] | None:
-        """The joints the policy's action asks for from q (the env's move), or None when it gives no action."""
+    def _policy_target(self, policy, q: list[float], tip: list[float], goal: list[float], recovery: int,
+                       version: int) -> list[float] | None:
+        """The joints the policy's action asks for from q (the env's move and limit recovery: recovery is the
+        goal's state, of goal version `version`), or None when it gives no action."""
         observation = self.setup.observation_one(q, tip, goal)
         try:
             action = policy.act_batch(ars.flatten_batch(self.setup.observation_space,
@@ -752,7 +760,20 @@ class ReachController:
         except (policies.PolicyError, ValueError) as e:      # a model that answers no action here (NaN): none
             rospy.logerr_throttle(10.0, f'the policy gave no action for this state, so the arm holds: {e}')
             return None
-        return self.setup.move_one(q, self.setup.place_one(q)[1], a)
+        moved = self.setup.move_one(q, self.setup.place_one(q)[1], a)
+        target, after = self.setup.recover_one(q, moved, a, recovery)
+        with self.lock:
+            if version != self.version:
+                return target
+            self.recovery = after
+            if after == RECOVERING:          # on purpose away from the goal: no stall, the clock starts after it
+                self.improved_at, self.progress_mark = time.monotonic(), float('inf')
+        if after == RECOVERING and recovery == READY:
+            stuck = ', '.join(self.setup.arm.at_limits(moved))
+            rospy.loginfo(f'the goal lies beyond a joint limit the way the arm stands ({stuck} at '
+                          f'{"its limit" if "," not in stuck else "their limits"}): going toward home first, then '
+                          f'on to the goal')
+        return target
 
     def _judge(self, goal: list[float], achieved: list[float], q: list[float]) -> None:
         """Says reached or not reached once per goal; after not reached, the arm holds at its closest configuration

@@ -50,11 +50,12 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from robot_ai.reach.arm import Arm, ReachError
+from robot_ai.reach.arm import LIMIT_TOLERANCE, Arm, ReachError
 from robot_ai.reach.collision import CollisionModel, parse_obstacles
 from robot_ai.reach.model import Model, load_model
 from robot_ai.reach.safety import LEAD_PERIODS, Limits, read_joint_limits, step_end
-from robot_ai.reach.task import ANGLE_THRESHOLD, DISTANCE_THRESHOLD, ReachTask, goal_distance_one, quaternions_t
+from robot_ai.reach.task import (ANGLE_THRESHOLD, DISTANCE_THRESHOLD, ReachTask, goal_distance_one, quaternions_t,
+                                 rotation_error)
 
 CONTROLS = ('ee', 'joints')
 STARTS = ('home', 'random', 'chained')
@@ -68,6 +69,15 @@ RENDER_FPS = 10
 MAX_DRAWS = 1000             # draws of a goal or a start clear of collisions before the world is called too full
 CONTROL_PERIOD = 0.05        # s: reach_controller's step (its ~rate, 20 Hz), an env step with velocity_scale
 LAYER_EPISODE = 4            # with velocity_scale: episodes this many times as long, over the scale (10 s at 1.0)
+# ee control's limit recovery (ReachSetup.recover): a step is blocked when the action asks for at least RECOVERY_ASK
+# of a full step, a joint of its answer is at a limit, and the tip moves less than RECOVERY_PROGRESS of the way asked;
+# the arm then goes toward home, each joint at most RECOVERY_STEP of its half range a step, until every joint is
+# within RECOVERY_RESUME of its half range from home, and the policy has the arm again
+RECOVERY_ASK = 0.15
+RECOVERY_PROGRESS = 0.3
+RECOVERY_STEP = 0.15
+RECOVERY_RESUME = 0.3
+READY, RECOVERING, RECOVERED = 0, 1, 2      # an arm's limit recovery in its episode
 
 
 def episode_steps(limits: Limits | None) -> int:
@@ -89,7 +99,7 @@ class ReachSetup:
                  limit_avoidance: float = LIMIT_AVOIDANCE, obstacles=None, collision: bool | None = None,
                  goal: str = 'position', angle_threshold: float = ANGLE_THRESHOLD, angle_step: float | None = None,
                  velocity_scale: float | None = None, acceleration_scale: float | None = None, joint_limits=None,
-                 control_period: float = CONTROL_PERIOD):
+                 control_period: float = CONTROL_PERIOD, limit_recovery: bool = True):
         if control not in CONTROLS:
             raise ReachError(f'control must be one of {", ".join(CONTROLS)}, got {control!r}')
         if start not in STARTS:
@@ -112,6 +122,9 @@ class ReachSetup:
         self.limit_avoidance = float(limit_avoidance)
         # at 1, a joint at its limit steps back as far as a joint turns in a full ee_step (ee_step / the chain)
         self.limit_gain = self.limit_avoidance * self.ee_step / self.arm.length
+        if not isinstance(limit_recovery, (bool, np.bool_)):
+            raise ReachError(f'limit_recovery must be true or false, got {limit_recovery!r}')
+        self.limit_recovery = bool(limit_recovery) and control == 'ee'
         self.home = self._home(home)
         self.limits: Limits | None = None        # the safety layer's, when the env models it (velocity_scale)
         self.joint_limits = read_joint_limits(joint_limits)
@@ -228,7 +241,8 @@ class ReachSetup:
         """The env's kwargs as plain values (a policy file keeps them)."""
         out = dict(tip=self.arm.tip, control=self.control, start=self.start, reward_type=self.task.reward_type,
                    distance_threshold=self.task.distance_threshold, ee_step=self.ee_step, damping=self.damping,
-                   home=[float(v) for v in self.home], limit_avoidance=self.limit_avoidance)
+                   home=[float(v) for v in self.home], limit_avoidance=self.limit_avoidance,
+                   limit_recovery=self.limit_recovery)
         if self.body is not None:         # the world a policy learned in (files without these: none)
             out.update(collision=True, obstacles=[json.dumps(o.spec) for o in self.obstacles])
         if self.pose:                     # files without these: position goals
@@ -366,6 +380,67 @@ class ReachSetup:
             return self.arm.move_t(q_t, jac_t, actions_t * self.ee_step, self.damping, limit_gain=self.limit_gain)
         return self.arm.clip(q_t + actions_t * JOINT_STEP)
 
+    def recover(self, q_t: np.ndarray, target_t: np.ndarray, actions_t: np.ndarray,
+                recovery: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """ee control's limit recovery: (targets (n, N), recovery (N,)) of arms at q_t (n, N) whose actions_t
+        (a, N) moved gave target_t (move's); recovery (N, int8) is each arm's state in its episode: READY, RECOVERING
+        (on its way home) or RECOVERED (once an episode: from home a goal that still blocks is not a matter of
+        which side of the limits the arm came from).
+
+        Damped least squares is local: from a start whose joints lie on the wrong side of the goal (a base turned
+        to its limit the short way round, a wrist folded against its stop) it pushes a joint onto its limit and the
+        tip stalls there, however the policy acts. Such a step is blocked (the action asks for at least
+        RECOVERY_ASK of a full step, a joint of its answer is at a limit, and the tip moves less than
+        RECOVERY_PROGRESS of the way asked, along it); the arm then unwinds toward home instead, each joint at
+        most RECOVERY_STEP of its half range a step, until every joint is within RECOVERY_RESUME of its half range
+        from home, where the policy has it again: from home every goal lies the right side of the limits. An
+        arm's result does not depend on its batch."""
+        if not self.limit_recovery:
+            return target_t, recovery
+        arm = self.arm
+        asked = actions_t * self.ee_step
+        asked2 = (asked * asked).sum(axis=0)
+        at_limit = ((target_t <= arm.lower[:, None] + LIMIT_TOLERANCE)
+                    | (target_t >= arm.upper[:, None] - LIMIT_TOLERANCE)).any(axis=0)
+        check = np.flatnonzero(at_limit & (recovery == READY) & (asked2 >= (RECOVERY_ASK * self.ee_step) ** 2))
+        if len(check):
+            moved = self._tip_motion(q_t[:, check], target_t[:, check])
+            blocked = (moved * asked[:, check]).sum(axis=0) < RECOVERY_PROGRESS * asked2[check]
+            if blocked.any():
+                recovery = recovery.copy()
+                recovery[check[blocked]] = RECOVERING
+        recovering = recovery == RECOVERING
+        if not recovering.any():
+            return target_t, recovery
+        home, half = self.home[:, None], arm._half[:, None]
+        back = q_t + np.minimum(np.maximum(home - q_t, -RECOVERY_STEP * half), RECOVERY_STEP * half)
+        done = recovering & (np.abs(home - back) <= RECOVERY_RESUME * half).all(axis=0)
+        return np.where(recovering, back, target_t), np.where(done, RECOVERED, recovery).astype(np.int8)
+
+    def _tip_motion(self, q_t: np.ndarray, target_t: np.ndarray) -> np.ndarray:
+        """(3 or 6, N): how the tip moves from q_t to target_t, in the action's units times ee_step (pose goals:
+        the turn as a rotation vector, weighted by angular_weight)."""
+        if not self.pose:
+            return self.arm.forward(target_t, with_axes=False)[0] - self.arm.forward(q_t, with_axes=False)[0]
+        before, after = self.goals_of(q_t), self.goals_of(target_t)
+        turn = rotation_error(before.T, after.T).T * self.angular_weight
+        return np.concatenate((after[:3] - before[:3], turn))
+
+    def recover_one(self, q: list, target: list, a: list, recovery: int) -> tuple[list, int]:
+        """recover's numbers for one arm (a: the action's floats, clipped; recovery: its state, an int)."""
+        if not self.limit_recovery or recovery == RECOVERED:
+            return target, recovery
+        if recovery == READY:
+            if sum(v * v for v in a) < RECOVERY_ASK * RECOVERY_ASK * (1 - 1e-9):
+                return target, recovery
+            lower, upper = self.arm._lower, self.arm._upper
+            if not any(t <= lo + LIMIT_TOLERANCE or t >= hi - LIMIT_TOLERANCE
+                       for t, lo, hi in zip(target, lower, upper)):
+                return target, recovery
+        out, state = self.recover(np.array(q, dtype=np.float64)[:, None], np.array(target, dtype=np.float64)[:, None],
+                                  np.array(a, dtype=np.float64)[:, None], np.array([recovery], dtype=np.int8))
+        return out[:, 0].tolist(), int(state[0])
+
     # ------------------------------------------------------------------------------- one arm (plain floats)
     def place_one(self, q: list) -> tuple[list, list | None]:
         """(tip, Jacobian rows for ee control, else None) of one arm: place's numbers for a batch of one (pose
@@ -421,12 +496,14 @@ class ReachEnv(gymnasium.Env):
                  render_mode: str | None = None, limit_avoidance: float = LIMIT_AVOIDANCE, obstacles=None,
                  collision: bool | None = None, goal: str = 'position', angle_threshold: float = ANGLE_THRESHOLD,
                  angle_step: float | None = None, velocity_scale: float | None = None,
-                 acceleration_scale: float | None = None, joint_limits=None, control_period: float = CONTROL_PERIOD):
+                 acceleration_scale: float | None = None, joint_limits=None, control_period: float = CONTROL_PERIOD,
+                 limit_recovery: bool = True):
         if render_mode not in (None, *self.metadata['render_modes']):
             raise ReachError(f'render_mode must be one of {self.metadata["render_modes"]} or None, got {render_mode!r}')
         self.setup = ReachSetup(model, xacro_args, tip, control, start, reward_type, distance_threshold, ee_step,
                                 damping, home, urdf, limit_avoidance, obstacles, collision, goal, angle_threshold,
-                                angle_step, velocity_scale, acceleration_scale, joint_limits, control_period)
+                                angle_step, velocity_scale, acceleration_scale, joint_limits, control_period,
+                                limit_recovery)
         self.arm = self.setup.arm
         self.task = self.setup.task
         self.observation_space = self.setup.observation_space
@@ -434,6 +511,7 @@ class ReachEnv(gymnasium.Env):
         self.render_mode = render_mode
         self._q = self._tip = self._goal = self._jac = None
         self._v = self._sent = None             # with velocity_scale: the joints' velocities, the targets sent
+        self._recovery = READY                  # limit recovery's state in the episode (ReachSetup.recover)
         self._renderer = None
 
     def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:
@@ -456,7 +534,7 @@ class ReachEnv(gymnasium.Env):
         if self.setup.limits is not None and (self.setup.start != 'chained' or self._v is None
                                               or q != self._q):   # chained: the arm goes on as it was going
             self._v, self._sent = self.setup.motion_start(np.array(q)[:, None])
-        self._goal, self._q = goal, q
+        self._goal, self._q, self._recovery = goal, q, READY
         self._tip, self._jac = self.setup.place_one(self._q)
         if self._renderer is not None:
             self._renderer.new_episode()
@@ -467,6 +545,7 @@ class ReachEnv(gymnasium.Env):
             raise ResetNeeded('Cannot call env.step() before calling env.reset()')
         a = self.setup.check_action_one(action)
         target = self.setup.move_one(self._q, self._jac, a)
+        target, self._recovery = self.setup.recover_one(self._q, target, a, self._recovery)
         if self.setup.limits is not None:           # through the safety layer: one control period toward it
             q, v, self._sent = self.setup.advance(np.array(self._q)[:, None], self._v, self._sent,
                                                    np.array(target)[:, None])
@@ -547,6 +626,7 @@ class ReachVectorEnv(VectorEnv):
         self._goal = np.zeros((size, n))
         self._jac = np.zeros((6 if self.setup.pose else 3, self.arm.n, n)) if self.setup.control == 'ee' else None
         self._v, self._sent = self.setup.motion_start(self._q)
+        self._recovery = np.full(n, READY, dtype=np.int8)
         self._elapsed = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=np.bool_)
         self._started = np.zeros(n, dtype=np.bool_)
@@ -573,6 +653,7 @@ class ReachVectorEnv(VectorEnv):
         if jac is not None:
             self._jac[:, :, chosen] = jac
         self._elapsed[chosen] = 0
+        self._recovery[chosen] = READY
         self._started[chosen] = True
         if self._renderers is not None:
             for i in chosen:
@@ -652,7 +733,9 @@ class ReachVectorEnv(VectorEnv):
         size): moved at once, or one control period through the safety layer (velocity_scale), whose state
         (velocities, targets sent) moves on here; an arm whose motion would touch stops where it was, at rest."""
         before = self._q[:, rows]
-        target = self.setup.move(before, jac, np.ascontiguousarray(a.T))
+        a_t = np.ascontiguousarray(a.T)
+        target = self.setup.move(before, jac, a_t)
+        target, self._recovery[rows] = self.setup.recover(before, target, a_t, self._recovery[rows])
         if self.setup.limits is None:
             return self.setup.guard(before, target)
         q, v, self._sent[:, :, rows] = self.setup.advance(before, self._v[:, rows], self._sent[:, :, rows], target)

@@ -203,7 +203,12 @@ def train(env_kwargs: dict | None = None, settings: ars.ARSSettings | None = Non
     Ends with the held-out evaluation of the
     best policy and of the P-controller (ee control) over evaluate_episodes fresh goals (0: none). chunks, ray_address:
     the rollouts in that many envs, kept by actors on a Ray cluster (ars.train): from home or random starts the same
-    numbers as one env here."""
+    numbers as one env here.
+
+    The rollouts run without the limit recovery (ReachSetup.recover), the policy's own steps only: an episode the
+    recovery takes over from a perturbed policy says nothing of its weights, and ARS learned worse through it (the
+    KUKA's pose goals: 85.9 % from home where it learns 95.0 % without). The held-out evaluations, the policy file
+    and the arm have the recovery around the policy, as the setup asks."""
     kwargs = {k: v for k, v in (env_kwargs or {}).items() if k != 'reward_type'}
     t0 = time.monotonic()
     setup = ReachSetup(**kwargs)
@@ -221,10 +226,11 @@ def train(env_kwargs: dict | None = None, settings: ars.ARSSettings | None = Non
         return reached['done'] or (should_stop is not None and should_stop())
 
     features = features_of(setup)
+    rollouts = {**kwargs, 'limit_recovery': False}
     if features is None:
-        make_env, metric = (lambda k: ReachVectorEnv(k, reward_type='dense', **kwargs)), final_distance
+        make_env, metric = (lambda k: ReachVectorEnv(k, reward_type='dense', **rollouts)), final_distance
     else:
-        make_env = lambda k: _feature_env(ReachVectorEnv(k, reward_type='dense', **kwargs), features)  # noqa: E731
+        make_env = lambda k: _feature_env(ReachVectorEnv(k, reward_type='dense', **rollouts), features)  # noqa: E731
         metric = _feature_distance
     result = ars.train(make_env, settings, seed, progress=on_iteration, should_stop=stop, shared_statistics=groups,
                        final_metric=metric, prior_states=prior, fixed_statistics=fixed, chunks=chunks,

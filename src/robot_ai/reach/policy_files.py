@@ -27,7 +27,7 @@ ENV_ID = 'robot_ai/Reach-v0'
 REACH_ENVS = (ENV_ID, 'robot_ai/RosReach-v0')
 ENV_SETTINGS = ('model', 'xacro_args', 'tip', 'control', 'start', 'distance_threshold', 'ee_step', 'damping', 'home',
                 'limit_avoidance', 'obstacles', 'collision', 'goal', 'angle_threshold', 'angle_step', 'velocity_scale',
-                'acceleration_scale', 'joint_limits', 'control_period')
+                'acceleration_scale', 'joint_limits', 'control_period', 'limit_recovery')
 
 
 def save(training, path: str) -> str:
@@ -182,6 +182,7 @@ def _setup_of_kwargs(env_kwargs: dict, given: dict, learned_on: str = '') -> Rea
     PolicyError naming the robot the policy learned on (learned_on)."""
     kwargs = {k: v for k, v in env_kwargs.items() if k in ENV_SETTINGS}
     kwargs.setdefault('limit_avoidance', 0.0)     # a file from before the term learned without it
+    kwargs.setdefault('limit_recovery', False)    # a file from before the recovery learned without it
     other_file = 'model' in given or 'urdf' in given
     if other_file:      # another robot file (or text): its own limits and sizes
         kwargs = {k: v for k, v in kwargs.items() if k not in ('model', 'xacro_args', 'home', 'ee_step', 'damping')}

@@ -1,0 +1,124 @@
+"""ee control's limit recovery (issue 38, reach from wherever the arm stands): a step that a joint limit blocks sends
+the arm toward home, once an episode, and the policy goes on from there. No roscore."""
+from dataclasses import replace
+
+import gymnasium
+import numpy as np
+import pytest
+
+import robot_ai.reach  # noqa: F401 (registers robot_ai/Reach-v0)
+from fk_helpers import robot_path
+from robot_ai import ars
+from robot_ai.reach import ReachEnv, ReachError, ReachSetup, learn, policy_files
+from robot_ai.reach.env import READY, RECOVERED, RECOVERING, RECOVERY_RESUME
+from test_reach import assert_same, make_sync
+
+UR5 = robot_path('ur5.urdf')
+ARMS = [UR5, robot_path('kuka_lwr_arm.urdf'), robot_path('panda.urdf'), robot_path('pr2.urdf')]
+
+
+@pytest.mark.parametrize('path', ARMS)
+def test_the_p_controller_reaches_from_anywhere_with_the_recovery_and_not_without(path):
+    """From random starts and chained, 500 goals each: at least 99 % with the recovery; without it the same
+    controller stalls at joint limits (from random starts on more than 3 %: the reference the recovery is measured
+    against)."""
+    for start in ('random', 'chained'):
+        setup = ReachSetup(model=path)
+        plain = ReachSetup(model=path, limit_recovery=False)
+        with_it = learn.evaluate(learn.p_controller(setup), setup, 500, start=start)
+        without = learn.evaluate(learn.p_controller(plain), plain, 500, start=start)
+        assert with_it.success_rate >= 0.99, (start, with_it)
+        assert without.success_rate < with_it.success_rate and without.misses['limits'] > 0, (start, without)
+        if start == 'random':
+            assert without.success_rate < 0.97, without
+
+
+def episode(env: ReachEnv, seed: int, steps: int = 50):
+    """The P-controller's episode of seed in env: (info of the last step, the recovery's state and the joints after
+    each step)."""
+    obs, _ = env.reset(seed=seed)
+    p = learn.p_controller(env.setup)
+    states, joints = [], []
+    for _ in range(steps):
+        a = p.act_batch(ars.flatten_batch(env.observation_space, {k: v[None] for k, v in obs.items()}))[0]
+        obs, _, _, _, info = env.step(a)
+        states.append(env._recovery)
+        joints.append(env.joint_positions)
+    return info, states, joints
+
+
+def test_a_base_turned_to_its_limit_the_short_way_round_unwinds_through_home_and_reaches():
+    """A random start of the UR5's (seed 24: its base at 4.70 rad of its +-2 pi) whose goal lies beyond +2 pi the
+    short way round: damped least squares turns the base onto its limit, where the tip stalls. With the recovery the
+    arm goes toward home once (every joint to within RECOVERY_RESUME of its half range), then reaches the goal."""
+    plain = ReachEnv(model=UR5, start='random', limit_recovery=False)
+    info, states, _ = episode(plain, 24)
+    assert not info['is_success'] and plain.arm.at_limits(plain.joint_positions) == ['shoulder_pan_joint']
+    assert set(states) == {READY}
+    env = ReachEnv(model=UR5, start='random')
+    info, states, joints = episode(env, 24)
+    assert info['is_success'] and not env.arm.at_limits(env.joint_positions)
+    first, last = states.index(RECOVERING), len(states) - states[::-1].index(RECOVERING)
+    assert set(states[:first]) == {READY} and set(states[last:]) == {RECOVERED}       # once, then the policy again
+    half = (env.arm.upper - env.arm.lower) / 2
+    assert (np.abs(joints[last] - env.setup.home) <= RECOVERY_RESUME * half + 1e-12).all()
+    assert abs(joints[first - 1][0] - env.arm.upper[0]) < 1e-3          # it began with the base at its limit
+
+
+def test_the_recovery_of_one_arm_equals_the_batchs_and_envs_equal_sync_vector_env_bit_for_bit():
+    """recover_one's numbers are recover's on a batch bit for bit, and ReachVectorEnv equals SyncVectorEnv from random
+    starts and chained while arms recover (position and pose goals)."""
+    setup = ReachSetup(model=UR5)
+    rng = np.random.default_rng(3)
+    q = rng.uniform(setup.arm.lower, setup.arm.upper, (200, setup.arm.n)).T
+    q[0, :100] = setup.arm.upper[0] - 1e-4                 # half of them with the base at its limit
+    tip, jac = setup.place(q)
+    a = rng.uniform(-1, 1, (3, 200))
+    target = setup.move(q, jac, a)
+    state = rng.choice([READY, RECOVERING, RECOVERED], 200).astype(np.int8)
+    batch, after = setup.recover(q, target, a, state)
+    assert (after == RECOVERING).sum() > (state == RECOVERING).sum()        # some steps were blocked
+    for i in range(200):
+        one, s = setup.recover_one(q[:, i].tolist(), target[:, i].tolist(), a[:, i].tolist(), int(state[i]))
+        assert one == batch[:, i].tolist() and s == after[i]
+    for kwargs in (dict(start='random'), dict(start='chained', goal='pose')):
+        n = 4
+        kwargs = dict(model=UR5, reward_type='dense', **kwargs)
+        sync, vec = make_sync(n, **kwargs), gymnasium.make_vec('robot_ai/Reach-v0', num_envs=n, **kwargs)
+        o1, _ = sync.reset(seed=20)
+        assert_same(o1, vec.reset(seed=20)[0])
+        step = vec.unwrapped.setup.ee_step
+        recovered = 0
+        for _ in range(160):
+            a = np.zeros(vec.action_space.shape, np.float32)
+            a[:, :3] = np.clip((o1['desired_goal'][:, :3] - o1['achieved_goal'][:, :3]) / step, -1, 1)
+            r1, r2 = sync.step(a), vec.step(a)
+            for x, y in zip(r1, r2):
+                assert_same(x, y)
+            o1 = r1[0]
+            recovered += int((vec.unwrapped._recovery == RECOVERING).sum())
+        assert recovered > 0, kwargs
+
+
+def test_the_setting_is_kept_by_policy_files_and_older_files_learned_without_it(tmp_path):
+    """A new file keeps limit_recovery (true); a file from before the recovery has none and acts without it, as it
+    learned; joints control has none; a setting that is not a bool is one line."""
+    training = learn.train(dict(model=UR5), replace(learn.SETTINGS, iterations=3), seed=0, evaluate_episodes=50)
+    path = policy_files.save(training, str(tmp_path / 'reach.npz'))
+    _, setup, _ = policy_files.load(path)
+    assert setup.limit_recovery and training.env_kwargs['limit_recovery'] is True
+    old = dict(training.env_kwargs)
+    del old['limit_recovery']
+    assert not policy_files._setup_of_kwargs(old, {}).limit_recovery
+    assert not ReachSetup(model=UR5, control='joints').limit_recovery
+    with pytest.raises(ReachError, match='limit_recovery must be true or false'):
+        ReachSetup(model=UR5, limit_recovery='yes')
+
+
+def test_ars_trained_from_home_reaches_from_random_starts_and_chained():
+    """ARS as train makes it (its rollouts without the recovery), evaluated with it: at least 99 % from home, from
+    random starts and chained on the UR5 (300 goals each)."""
+    training = learn.train(dict(model=UR5), seed=0, evaluate_episodes=300)
+    for start in ('home', 'random', 'chained'):
+        e = learn.evaluate(training.policy, training.setup, 300, start=start)
+        assert e.success_rate >= 0.99, (start, e)
