@@ -11,7 +11,9 @@ desired_goal, info)`` is vectorised, so stable-baselines3's HER relabels goals o
 
 Action: control='ee' (default): ``Box(-1, 1, (3,))``, a tip displacement of ``ee_step`` x action, turned into joint
 motion by damped least squares on the analytic Jacobian, the joints then clipped to their limits; ``ee_step``
-defaults to a twentieth of the chain's length, so that 50 steps cross any arm's workspace. control='joints':
+defaults to a twentieth of the chain's length, so that 50 steps cross any arm's workspace; limit_recovery (default
+on): a step that a joint limit blocks sends the arm toward home instead, once an episode (ReachSetup.recover), so
+that a goal beyond a limit the way the arm stands is reached from wherever it starts. control='joints':
 ``Box(-1, 1, (n,))``, joint displacements of 0.05 rad (or m) x action. Actions are clipped to [-1, 1]; NaN or
 infinite ones are refused (ValueError).
 
@@ -486,7 +488,8 @@ class ReachEnv(gymnasium.Env):
     and the obstacles; default: on when obstacles are given). With a body, goals and random starts are drawn clear
     of collisions, and a step whose motion would touch is not made: the arm holds, info['collision'] is True, the
     episode goes on. goal ('position' or 'pose'), angle_threshold (0.1 rad) and angle_step (0.2 rad): pose goals,
-    see the module's docstring."""
+    see the module's docstring. velocity_scale, acceleration_scale, joint_limits, control_period: the arm moved as
+    reach_controller's safety layer moves it. limit_recovery (ee control, default True): ReachSetup.recover."""
 
     metadata = {'render_modes': ['rgb_array'], 'render_fps': RENDER_FPS}
 
