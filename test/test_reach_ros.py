@@ -288,8 +288,8 @@ class TestReachRos(unittest.TestCase):
         """Issue 38: clicked one after another, goals fell where the last one had left a joint at its limit. The
         UR5's shoulder_pan at its +2 pi limit and a goal 0.6 rad further round: no policy gets there that way (the
         other joints cannot turn the tip about the base's axis). The env's limit recovery, in the controller as
-        in-process: the first blocked command sends the arm toward home, the log names the joint, and the goal is
-        reached from there without waiting for a stall."""
+        in-process: the first blocked command sends the arm, in joint space, to a configuration that reaches the
+        goal; the log names the joint, and the goal is reached without waiting for a stall."""
         from robot_ai.srv import SetJointPositions
         setup = ReachSetup()
         start = setup.home.copy()
@@ -305,7 +305,7 @@ class TestReachRos(unittest.TestCase):
         since = len(self.log)
         rospy.Publisher('/controlled/reach_controller/goal', PointStamped, queue_size=1, latch=True).publish(
             PointStamped(header=rospy.Header(frame_id='base_link'), point=type(PointStamped().point)(*goal)))
-        said = self.wait_for_log(['going toward home first'], since, timeout=60.0)
+        said = self.wait_for_log(['going round in joint space'], since, timeout=60.0)
         self.assertIn('(shoulder_pan_joint at its limit)', said)
         said = self.wait_for_log(['reached'], since, timeout=120.0)       # reached, or not reached
         self.assertTrue(said.startswith('reached ('), said)

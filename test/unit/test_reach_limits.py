@@ -10,7 +10,7 @@ import robot_ai.reach  # noqa: F401 (registers robot_ai/Reach-v0)
 from fk_helpers import robot_path
 from robot_ai import ars
 from robot_ai.reach import ReachError, ReachSetup, ReachVectorEnv, learn, policy_files
-from robot_ai.reach.env import READY, ReachEnv
+from robot_ai.reach.env import ReachEnv, Recovery
 from robot_ai.reach.safety import SafetyLayer, violations
 from robot_ai.reach.trajectory import Follower
 from test_reach import assert_same, make_sync
@@ -32,7 +32,7 @@ def through_the_layer(setup: ReachSetup, env: ReachEnv, policy, seed: int, steps
     layer = SafetyLayer(setup.limits, period)
     arm = Follower(np.array(env.joint_positions))
     env_q, loop_q, times = [], [], []
-    recovery = READY                       # the goal's limit recovery, as reach_controller keeps it
+    recovery = Recovery()                  # the goal's limit recovery, as reach_controller keeps it
     for k in range(steps):
         t = k * period
         q = arm.state_at(t)[0]
@@ -41,7 +41,7 @@ def through_the_layer(setup: ReachSetup, env: ReachEnv, policy, seed: int, steps
         times.append(t)
         tip, jac = setup.place_one(q.tolist())
         a = setup.check_action_one(act(setup.observation_one(q.tolist(), tip, goal)))
-        target, recovery = setup.recover_one(q.tolist(), setup.move_one(q.tolist(), jac, a), a, recovery)
+        target, recovery = setup.recover_one(q.tolist(), setup.move_one(q.tolist(), jac, a), a, goal, recovery)
         plan = layer.plan(t, target, q, measured_at=t)
         assert not plan.held, plan.held
         arm.take(t, plan.start, *plan.points(period))

@@ -36,7 +36,7 @@ from tf2_msgs.msg import TFMessage
 
 from robot_ai.envs.link import (DEFAULT_TIMEOUT, RosEnvError, claim, ensure_node, lease, master_answers, new_token,
                                 release, resolve)
-from robot_ai.reach.env import LIMIT_AVOIDANCE, READY, RENDER_FPS, ReachSetup
+from robot_ai.reach.env import LIMIT_AVOIDANCE, RENDER_FPS, ReachSetup, Recovery
 from robot_ai.reach.task import goal_distance_one
 from robot_ai.srv import SetJointPositions
 from robot_ai.tf_wire import JointStateDecoder, TFDecoder, WireError, decode_tf, header_of, raw_message_class
@@ -373,7 +373,7 @@ class RosReachEnv(gymnasium.Env):
         self.robot_ns, self.timeout, self.render_mode = robot_ns, float(timeout), render_mode
         self.link: ArmLink | None = None
         self._q = self._all = self._tip = self._goal = self._jac = None
-        self._recovery = READY                  # limit recovery's state in the episode (ReachSetup.recover)
+        self._recovery = Recovery()             # limit recovery's state in the episode (ReachSetup.recover)
         self._failure = ''
         self._renderer = None
 
@@ -395,7 +395,7 @@ class RosReachEnv(gymnasium.Env):
         super().reset(seed=seed)
         goal_q, start_q = self.setup.first_states([self.np_random], [self._q])    # chained: from where it stands
         self._goal = self.arm.forward_one(goal_q[:, 0].tolist())[0]
-        self._failure, self._recovery = '', READY
+        self._failure, self._recovery = '', Recovery()
         try:
             if self.link is None:
                 self.link = ArmLink(self.robot_ns, self.timeout, self.setup)
@@ -429,7 +429,7 @@ class RosReachEnv(gymnasium.Env):
             raise gymnasium.error.ResetNeeded('Cannot call env.step() before calling env.reset()')
         a = self.setup.check_action_one(action)
         commanded = self.setup.move_one(self._q, self._jac, a)
-        commanded, self._recovery = self.setup.recover_one(self._q, commanded, a, self._recovery)
+        commanded, self._recovery = self.setup.recover_one(self._q, commanded, a, self._goal, self._recovery)
         positions = list(self._all)
         for k, value in zip(self.link.index, commanded):
             positions[k] = value

@@ -118,7 +118,7 @@ from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.collision import CollisionModel
-from robot_ai.reach.env import READY, RECOVERING, ReachSetup
+from robot_ai.reach.env import RECOVERING, READY, ReachSetup, Recovery
 from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, Limits, Plan, SafetyLayer
 from robot_ai.reach.task import GOALS, goal_angle, goal_distance_one, why_unreached
 from robot_ai.text import percent
@@ -228,7 +228,7 @@ class ReachController:
         self.holding = False                      # a goal said not reached: the arm holds at its closest
         self.homing = False                       # stalled at joint limits: going home to try again from there
         self.retried = False                      # the goal's one retry from home was made
-        self.recovery = READY                     # the goal's limit recovery (ReachSetup.recover), as the env's
+        self.recovery = Recovery()                # the goal's limit recovery (ReachSetup.recover), as the env's
         self.homing_since = 0.0
         self.blocked = ''                         # the contacts that refused the last motion ('' when it was sent)
         self.trail: list[list[float]] = []        # with a body: the configurations the arm came by, clear of contacts
@@ -446,7 +446,7 @@ class ReachController:
             self.goal, self.goal_since, self.best, self.said = goal, time.monotonic(), float('inf'), False
             self.blocked = ''
             self.best_q, self.holding, self.homing, self.retried = None, False, False, False
-            self.recovery = READY
+            self.recovery = Recovery()
             self.improved_at = self.goal_since
             self.going_home = False
             self.version += 1
@@ -748,7 +748,7 @@ class ReachController:
             # load, and the configuration held after `not reached` must be the one whose distance was said
             self._judge(goal, self.setup.place_one(q)[0], q)
 
-    def _policy_target(self, policy, q: list[float], tip: list[float], goal: list[float], recovery: int,
+    def _policy_target(self, policy, q: list[float], tip: list[float], goal: list[float], recovery: Recovery,
                        version: int) -> list[float] | None:
         """The joints the policy's action asks for from q (the env's move and limit recovery: recovery is the
         goal's state, of goal version `version`), or None when it gives no action."""
@@ -761,18 +761,18 @@ class ReachController:
             rospy.logerr_throttle(10.0, f'the policy gave no action for this state, so the arm holds: {e}')
             return None
         moved = self.setup.move_one(q, self.setup.place_one(q)[1], a)
-        target, after = self.setup.recover_one(q, moved, a, recovery)
+        target, after = self.setup.recover_one(q, moved, a, goal, recovery)
         with self.lock:
             if version != self.version:
                 return target
             self.recovery = after
-            if after == RECOVERING:          # on purpose away from the goal: no stall, the clock starts after it
+            if after.state == RECOVERING:    # on purpose away from the goal: no stall, the clock starts after it
                 self.improved_at, self.progress_mark = time.monotonic(), float('inf')
-        if after == RECOVERING and recovery == READY:
+        if after.state == RECOVERING and recovery.state == READY:
             stuck = ', '.join(self.setup.arm.at_limits(moved))
             rospy.loginfo(f'the goal lies beyond a joint limit the way the arm stands ({stuck} at '
-                          f'{"its limit" if "," not in stuck else "their limits"}): going toward home first, then '
-                          f'on to the goal')
+                          f'{"its limit" if "," not in stuck else "their limits"}): going round in joint space, to '
+                          f'a configuration that reaches it')
         return target
 
     def _judge(self, goal: list[float], achieved: list[float], q: list[float]) -> None:

@@ -12,8 +12,9 @@ desired_goal, info)`` is vectorised, so stable-baselines3's HER relabels goals o
 Action: control='ee' (default): ``Box(-1, 1, (3,))``, a tip displacement of ``ee_step`` x action, turned into joint
 motion by damped least squares on the analytic Jacobian, the joints then clipped to their limits; ``ee_step``
 defaults to a twentieth of the chain's length, so that 50 steps cross any arm's workspace; limit_recovery (default
-on): a step that a joint limit blocks sends the arm toward home instead, once an episode (ReachSetup.recover), so
-that a goal beyond a limit the way the arm stands is reached from wherever it starts. control='joints':
+on): a step that a joint limit blocks sends the arm, in joint space, to a configuration that reaches the goal, once
+an episode (ReachSetup.recover), so that a goal beyond a limit the way the arm stands is reached from wherever it
+starts. control='joints':
 ``Box(-1, 1, (n,))``, joint displacements of 0.05 rad (or m) x action. Actions are clipped to [-1, 1]; NaN or
 infinite ones are refused (ValueError).
 
@@ -42,6 +43,7 @@ import copy
 import json
 import math
 import os
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium
@@ -56,8 +58,8 @@ from robot_ai.reach.arm import LIMIT_TOLERANCE, Arm, ReachError
 from robot_ai.reach.collision import CollisionModel, parse_obstacles
 from robot_ai.reach.model import Model, load_model
 from robot_ai.reach.safety import LEAD_PERIODS, Limits, read_joint_limits, step_end
-from robot_ai.reach.task import (ANGLE_THRESHOLD, DISTANCE_THRESHOLD, ReachTask, goal_distance_one, quaternions_t,
-                                 rotation_error)
+from robot_ai.reach.task import (ANGLE_THRESHOLD, DISTANCE_THRESHOLD, ReachTask, goal_angle, goal_distance,
+                                 goal_distance_one, quaternions_t, rotation_error)
 
 CONTROLS = ('ee', 'joints')
 STARTS = ('home', 'random', 'chained')
@@ -73,13 +75,24 @@ CONTROL_PERIOD = 0.05        # s: reach_controller's step (its ~rate, 20 Hz), an
 LAYER_EPISODE = 4            # with velocity_scale: episodes this many times as long, over the scale (10 s at 1.0)
 # ee control's limit recovery (ReachSetup.recover): a step is blocked when the action asks for at least RECOVERY_ASK
 # of a full step, a joint of its answer is at a limit, and the tip moves less than RECOVERY_PROGRESS of the way asked;
-# the arm then goes toward home, each joint at most RECOVERY_STEP of its half range a step, until every joint is
-# within RECOVERY_RESUME of its half range from home, and the policy has the arm again
+# the arm then goes in joint space to a configuration that reaches the goal (the P-controller's steps for
+# RECOVERY_ITERATIONS from home and RECOVERY_SEEDS - 1 fixed postures), each joint at most RECOVERY_STEP of its half
+# range a step, and the policy has the arm again once every joint is within RECOVERY_ARRIVED of its half range of it
 RECOVERY_ASK = 0.15
 RECOVERY_PROGRESS = 0.3
 RECOVERY_STEP = 0.15
-RECOVERY_RESUME = 0.3
+RECOVERY_ARRIVED = 0.05
+RECOVERY_SEEDS = 8
+RECOVERY_ITERATIONS = 60
 READY, RECOVERING, RECOVERED = 0, 1, 2      # an arm's limit recovery in its episode
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """One arm's limit recovery in its episode (ReachSetup.recover_one): its state (READY, RECOVERING or
+    RECOVERED) and the configuration it goes to."""
+    state: int = READY
+    q: tuple[float, ...] | None = None
 
 
 def episode_steps(limits: Limits | None) -> int:
@@ -128,6 +141,9 @@ class ReachSetup:
             raise ReachError(f'limit_recovery must be true or false, got {limit_recovery!r}')
         self.limit_recovery = bool(limit_recovery) and control == 'ee'
         self.home = self._home(home)
+        # the postures the recovery seeks a goal's configuration from: home, then fixed draws within the limits
+        draws = np.random.default_rng(0).uniform(self.arm.lower, self.arm.upper, (RECOVERY_SEEDS - 1, self.arm.n))
+        self.recovery_seeds = np.ascontiguousarray(np.vstack((self.home[None], draws)).T)
         self.limits: Limits | None = None        # the safety layer's, when the env models it (velocity_scale)
         self.joint_limits = read_joint_limits(joint_limits)
         self.control_period = self._positive('control_period', control_period, CONTROL_PERIOD)
@@ -382,42 +398,74 @@ class ReachSetup:
             return self.arm.move_t(q_t, jac_t, actions_t * self.ee_step, self.damping, limit_gain=self.limit_gain)
         return self.arm.clip(q_t + actions_t * JOINT_STEP)
 
-    def recover(self, q_t: np.ndarray, target_t: np.ndarray, actions_t: np.ndarray,
-                recovery: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """ee control's limit recovery: (targets (n, N), recovery (N,)) of arms at q_t (n, N) whose actions_t
-        (a, N) moved gave target_t (move's); recovery (N, int8) is each arm's state in its episode: READY, RECOVERING
-        (on its way home) or RECOVERED (once an episode: from home a goal that still blocks is not a matter of
-        which side of the limits the arm came from).
+    def recover(self, q_t: np.ndarray, target_t: np.ndarray, actions_t: np.ndarray, goal_t: np.ndarray,
+                state: np.ndarray, to_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """ee control's limit recovery: (targets (n, N), states (N,), configurations gone to (n, N)) of arms at q_t
+        (n, N) whose actions_t (a, N) moved gave target_t (move's), their goals goal_t (size, N); state (N, int8) is
+        each arm's in its episode (READY, RECOVERING, or RECOVERED: once an episode) and to_t the configurations
+        the recovering ones go to.
 
         Damped least squares is local: from a start whose joints lie on the wrong side of the goal (a base turned
-        to its limit the short way round, a wrist folded against its stop) it pushes a joint onto its limit and the
-        tip stalls there, however the policy acts. Such a step is blocked (the action asks for at least
-        RECOVERY_ASK of a full step, a joint of its answer is at a limit, and the tip moves less than
-        RECOVERY_PROGRESS of the way asked, along it); the arm then unwinds toward home instead, each joint at
-        most RECOVERY_STEP of its half range a step, until every joint is within RECOVERY_RESUME of its half range
-        from home, where the policy has it again: from home every goal lies the right side of the limits. An
-        arm's result does not depend on its batch."""
+        toward its limit the short way round, a shoulder against its stop under a goal overhead) it pushes a joint
+        onto its limit and the tip stalls there, however the policy acts. Such a step is blocked: the action asks
+        for at least RECOVERY_ASK of a full step, a joint of its answer is at a limit, and the tip moves less than
+        RECOVERY_PROGRESS of the way asked, along it. The arm then goes in joint space (a straight line within the
+        limits' box, which no limit blocks) to goal_configuration's answer, each joint at most RECOVERY_STEP of its
+        half range a step, and the policy has it again there. An arm's result does not depend on its batch."""
         if not self.limit_recovery:
-            return target_t, recovery
+            return target_t, state, to_t
         arm = self.arm
         asked = actions_t * self.ee_step
         asked2 = (asked * asked).sum(axis=0)
         at_limit = ((target_t <= arm.lower[:, None] + LIMIT_TOLERANCE)
                     | (target_t >= arm.upper[:, None] - LIMIT_TOLERANCE)).any(axis=0)
-        check = np.flatnonzero(at_limit & (recovery == READY) & (asked2 >= (RECOVERY_ASK * self.ee_step) ** 2))
+        check = np.flatnonzero(at_limit & (state == READY) & (asked2 >= (RECOVERY_ASK * self.ee_step) ** 2))
         if len(check):
             moved = self._tip_motion(q_t[:, check], target_t[:, check])
-            blocked = (moved * asked[:, check]).sum(axis=0) < RECOVERY_PROGRESS * asked2[check]
-            if blocked.any():
-                recovery = recovery.copy()
-                recovery[check[blocked]] = RECOVERING
-        recovering = recovery == RECOVERING
+            blocked = check[(moved * asked[:, check]).sum(axis=0) < RECOVERY_PROGRESS * asked2[check]]
+            if len(blocked):
+                state, to_t = state.copy(), to_t.copy()
+                state[blocked] = RECOVERING
+                to_t[:, blocked] = self.goal_configuration(goal_t[:, blocked], q_t[:, blocked])
+        recovering = state == RECOVERING
         if not recovering.any():
-            return target_t, recovery
-        home, half = self.home[:, None], arm._half[:, None]
-        back = q_t + np.minimum(np.maximum(home - q_t, -RECOVERY_STEP * half), RECOVERY_STEP * half)
-        done = recovering & (np.abs(home - back) <= RECOVERY_RESUME * half).all(axis=0)
-        return np.where(recovering, back, target_t), np.where(done, RECOVERED, recovery).astype(np.int8)
+            return target_t, state, to_t
+        half = arm._half[:, None]
+        step = np.minimum(np.maximum(to_t - q_t, -RECOVERY_STEP * half), RECOVERY_STEP * half)
+        back = q_t + step
+        done = recovering & (np.abs(to_t - back) <= RECOVERY_ARRIVED * half).all(axis=0)
+        return np.where(recovering, back, target_t), np.where(done, RECOVERED, state).astype(np.int8), to_t
+
+    def goal_configuration(self, goal_t: np.ndarray, q_t: np.ndarray) -> np.ndarray:
+        """(n, M): for each goal (size, M), a configuration within the limits that reaches it, the nearest to q_t
+        (n, M) of the P-controller's answers after RECOVERY_ITERATIONS of this action space's steps from each of
+        recovery_seeds (home, then fixed postures): from one of several starts the local steps find a way round the
+        limits that they cannot find from where the arm stands. Where none reaches, the answer that comes nearest."""
+        seeds = self.recovery_seeds
+        n, k, m = self.arm.n, seeds.shape[1], goal_t.shape[1]
+        q = np.repeat(seeds, m, axis=1)                 # column i * m + j: seed i, goal j
+        goal = np.tile(goal_t, (1, k))
+        for _ in range(RECOVERY_ITERATIONS):
+            tip, jac = self.place(q)
+            q = self.move(q, jac, self._p_action(tip, goal))
+        achieved = self.goals_of(q)
+        _, reached = self.task.outcome(achieved.T, goal.T)
+        error = goal_distance(achieved[:3].T, goal[:3].T)
+        if self.pose:
+            error = error + goal_angle(achieved.T, goal.T) * (self.task.distance_threshold / self.task.angle_threshold)
+        q = q.reshape(n, k, m)
+        far = (((q - q_t[:, None, :]) / self.arm._half[:, None, None]) ** 2).sum(axis=0)
+        reached, error = reached.reshape(k, m), error.reshape(k, m)
+        best = np.where(reached.any(axis=0), np.where(reached, far, np.inf).argmin(axis=0), error.argmin(axis=0))
+        return np.ascontiguousarray(q[:, best, np.arange(m)])
+
+    def _p_action(self, tip_t: np.ndarray, goal_t: np.ndarray) -> np.ndarray:
+        """(a, N): learn.p_controller's action, the tip error over ee_step (and the turn over angle_step), clipped."""
+        move = np.minimum(np.maximum((goal_t[:3] - tip_t[:3]) / self.ee_step, -1.0), 1.0)
+        if not self.pose:
+            return move
+        turn = rotation_error(tip_t.T, goal_t.T).T / self.angle_step
+        return np.concatenate((move, np.minimum(np.maximum(turn, -1.0), 1.0)))
 
     def _tip_motion(self, q_t: np.ndarray, target_t: np.ndarray) -> np.ndarray:
         """(3 or 6, N): how the tip moves from q_t to target_t, in the action's units times ee_step (pose goals:
@@ -428,20 +476,23 @@ class ReachSetup:
         turn = rotation_error(before.T, after.T).T * self.angular_weight
         return np.concatenate((after[:3] - before[:3], turn))
 
-    def recover_one(self, q: list, target: list, a: list, recovery: int) -> tuple[list, int]:
-        """recover's numbers for one arm (a: the action's floats, clipped; recovery: its state, an int)."""
-        if not self.limit_recovery or recovery == RECOVERED:
+    def recover_one(self, q: list, target: list, a: list, goal: list,
+                    recovery: Recovery) -> tuple[list, Recovery]:
+        """recover's numbers for one arm (a: the action's floats, clipped)."""
+        if not self.limit_recovery or recovery.state == RECOVERED:
             return target, recovery
-        if recovery == READY:
+        if recovery.state == READY:
             if sum(v * v for v in a) < RECOVERY_ASK * RECOVERY_ASK * (1 - 1e-9):
                 return target, recovery
             lower, upper = self.arm._lower, self.arm._upper
             if not any(t <= lo + LIMIT_TOLERANCE or t >= hi - LIMIT_TOLERANCE
                        for t, lo, hi in zip(target, lower, upper)):
                 return target, recovery
-        out, state = self.recover(np.array(q, dtype=np.float64)[:, None], np.array(target, dtype=np.float64)[:, None],
-                                  np.array(a, dtype=np.float64)[:, None], np.array([recovery], dtype=np.int8))
-        return out[:, 0].tolist(), int(state[0])
+        column = lambda v: np.array(v, dtype=np.float64)[:, None]     # noqa: E731
+        to = column(recovery.q) if recovery.q is not None else np.zeros((self.arm.n, 1))
+        out, state, to = self.recover(column(q), column(target), column(a), column(goal),
+                                      np.array([recovery.state], dtype=np.int8), to)
+        return out[:, 0].tolist(), Recovery(int(state[0]), tuple(to[:, 0].tolist()))
 
     # ------------------------------------------------------------------------------- one arm (plain floats)
     def place_one(self, q: list) -> tuple[list, list | None]:
@@ -514,7 +565,7 @@ class ReachEnv(gymnasium.Env):
         self.render_mode = render_mode
         self._q = self._tip = self._goal = self._jac = None
         self._v = self._sent = None             # with velocity_scale: the joints' velocities, the targets sent
-        self._recovery = READY                  # limit recovery's state in the episode (ReachSetup.recover)
+        self._recovery = Recovery()             # limit recovery's state in the episode (ReachSetup.recover)
         self._renderer = None
 
     def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:
@@ -537,7 +588,7 @@ class ReachEnv(gymnasium.Env):
         if self.setup.limits is not None and (self.setup.start != 'chained' or self._v is None
                                               or q != self._q):   # chained: the arm goes on as it was going
             self._v, self._sent = self.setup.motion_start(np.array(q)[:, None])
-        self._goal, self._q, self._recovery = goal, q, READY
+        self._goal, self._q, self._recovery = goal, q, Recovery()
         self._tip, self._jac = self.setup.place_one(self._q)
         if self._renderer is not None:
             self._renderer.new_episode()
@@ -548,7 +599,7 @@ class ReachEnv(gymnasium.Env):
             raise ResetNeeded('Cannot call env.step() before calling env.reset()')
         a = self.setup.check_action_one(action)
         target = self.setup.move_one(self._q, self._jac, a)
-        target, self._recovery = self.setup.recover_one(self._q, target, a, self._recovery)
+        target, self._recovery = self.setup.recover_one(self._q, target, a, self._goal, self._recovery)
         if self.setup.limits is not None:           # through the safety layer: one control period toward it
             q, v, self._sent = self.setup.advance(np.array(self._q)[:, None], self._v, self._sent,
                                                    np.array(target)[:, None])
@@ -629,7 +680,8 @@ class ReachVectorEnv(VectorEnv):
         self._goal = np.zeros((size, n))
         self._jac = np.zeros((6 if self.setup.pose else 3, self.arm.n, n)) if self.setup.control == 'ee' else None
         self._v, self._sent = self.setup.motion_start(self._q)
-        self._recovery = np.full(n, READY, dtype=np.int8)
+        self._recovery = np.full(n, READY, dtype=np.int8)       # limit recovery's states (ReachSetup.recover)
+        self._recovery_q = np.zeros((self.arm.n, n))              # and the configurations the arms go to
         self._elapsed = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=np.bool_)
         self._started = np.zeros(n, dtype=np.bool_)
@@ -738,7 +790,8 @@ class ReachVectorEnv(VectorEnv):
         before = self._q[:, rows]
         a_t = np.ascontiguousarray(a.T)
         target = self.setup.move(before, jac, a_t)
-        target, self._recovery[rows] = self.setup.recover(before, target, a_t, self._recovery[rows])
+        target, self._recovery[rows], self._recovery_q[:, rows] = self.setup.recover(
+            before, target, a_t, self._goal[:, rows], self._recovery[rows], self._recovery_q[:, rows])
         if self.setup.limits is None:
             return self.setup.guard(before, target)
         q, v, self._sent[:, :, rows] = self.setup.advance(before, self._v[:, rows], self._sent[:, :, rows], target)
