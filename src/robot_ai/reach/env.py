@@ -83,7 +83,9 @@ RECOVERY_PROGRESS = 0.3
 RECOVERY_STEP = 0.15
 RECOVERY_ARRIVED = 0.05
 RECOVERY_SEEDS = 8
-RECOVERY_ITERATIONS = 60
+RECOVERY_ITERATIONS = 30
+RECOVERY_STRIDE = 2.0        # ... in steps of up to this many full steps (a search, not a motion: the arm goes there
+                             # in joint space, at RECOVERY_STEP)
 READY, RECOVERING, RECOVERED = 0, 1, 2      # an arm's limit recovery in its episode
 
 
@@ -445,9 +447,15 @@ class ReachSetup:
         n, k, m = self.arm.n, seeds.shape[1], goal_t.shape[1]
         q = np.repeat(seeds, m, axis=1)                 # column i * m + j: seed i, goal j
         goal = np.tile(goal_t, (1, k))
+        going = np.arange(k * m)      # a column stops once well within the thresholds (its own rule: batch-free)
         for _ in range(RECOVERY_ITERATIONS):
-            tip, jac = self.place(q)
-            q = self.move(q, jac, self._p_action(tip, goal))
+            tip, jac = self.place(q[:, going])
+            there = self._well_within(tip, goal[:, going])
+            if there.any():
+                going, tip, jac = going[~there], tip[:, ~there], jac[..., ~there]
+                if not len(going):
+                    break
+            q[:, going] = self.move(q[:, going], jac, self._p_action(tip, goal[:, going], RECOVERY_STRIDE))
         achieved = self.goals_of(q)
         _, reached = self.task.outcome(achieved.T, goal.T)
         error = goal_distance(achieved[:3].T, goal[:3].T)
@@ -459,13 +467,22 @@ class ReachSetup:
         best = np.where(reached.any(axis=0), np.where(reached, far, np.inf).argmin(axis=0), error.argmin(axis=0))
         return np.ascontiguousarray(q[:, best, np.arange(m)])
 
-    def _p_action(self, tip_t: np.ndarray, goal_t: np.ndarray) -> np.ndarray:
-        """(a, N): learn.p_controller's action, the tip error over ee_step (and the turn over angle_step), clipped."""
-        move = np.minimum(np.maximum((goal_t[:3] - tip_t[:3]) / self.ee_step, -1.0), 1.0)
+    def _well_within(self, achieved_t: np.ndarray, goal_t: np.ndarray) -> np.ndarray:
+        """(N,): achieved goals (size, N) within half the task's thresholds of goal_t."""
+        task = self.task
+        close = goal_distance(achieved_t[:3].T, goal_t[:3].T) < 0.5 * task.distance_threshold
+        if self.pose:
+            close &= goal_angle(achieved_t.T, goal_t.T) < 0.5 * task.angle_threshold
+        return close
+
+    def _p_action(self, tip_t: np.ndarray, goal_t: np.ndarray, most: float = 1.0) -> np.ndarray:
+        """(a, N): learn.p_controller's action, the tip error over ee_step (and the turn over angle_step), clipped to
+        +-most."""
+        move = np.minimum(np.maximum((goal_t[:3] - tip_t[:3]) / self.ee_step, -most), most)
         if not self.pose:
             return move
         turn = rotation_error(tip_t.T, goal_t.T).T / self.angle_step
-        return np.concatenate((move, np.minimum(np.maximum(turn, -1.0), 1.0)))
+        return np.concatenate((move, np.minimum(np.maximum(turn, -most), most)))
 
     def _tip_motion(self, q_t: np.ndarray, target_t: np.ndarray) -> np.ndarray:
         """(3 or 6, N): how the tip moves from q_t to target_t, in the action's units times ee_step (pose goals:
