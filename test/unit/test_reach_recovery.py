@@ -51,7 +51,7 @@ def episode(env: ReachEnv, seed: int, steps: int = 50):
 def test_a_base_turned_to_its_limit_the_short_way_round_goes_round_in_joint_space_and_reaches():
     """A random start of the UR5's (seed 24: its base at 4.70 rad of its +-2 pi) whose goal lies beyond +2 pi the
     short way round: damped least squares turns the base onto its limit, where the tip stalls. With the recovery the
-    arm goes once, in joint space, to a configuration whose tip is at the goal (goal_configuration), then the
+    arm goes once, in joint space, to a configuration whose tip is at the goal (reaching_configuration), then the
     policy has it again and the goal is reached."""
     plain = ReachEnv(model=UR5, start='random', limit_recovery=False)
     info, recoveries, _ = episode(plain, 24)
@@ -73,8 +73,8 @@ def test_a_base_turned_to_its_limit_the_short_way_round_goes_round_in_joint_spac
     assert (steps <= 0.15 * half + 1e-12).all()       # in steps of at most RECOVERY_STEP of a half range
 
 
-def test_goal_configurations_reach_goals_the_local_steps_miss_from_where_the_arm_stands():
-    """goal_configuration against the P-controller from the arm's own start (no recovery), 300 random starts and
+def test_reaching_configurations_reach_goals_the_local_steps_miss_from_where_the_arm_stands():
+    """reaching_configuration against the P-controller from the arm's own start (no recovery), 300 random starts and
     goals on the KUKA LWR: every answer within the limits, and it reaches at least 99 % of the goals, more than the
     local steps from where the arm stood; for pose goals too, and the answer does not depend on the batch."""
     for goal in ('position', 'pose'):
@@ -83,11 +83,11 @@ def test_goal_configurations_reach_goals_the_local_steps_miss_from_where_the_arm
         rng = np.random.default_rng(5)
         q = rng.uniform(setup.arm.lower, setup.arm.upper, (300, setup.arm.n)).T
         goals = setup.goals_of(rng.uniform(setup.arm.lower, setup.arm.upper, (300, setup.arm.n)).T)
-        to = setup.goal_configuration(goals, q)
+        to = setup.reaching_configuration(goals, q)
         assert ((to >= setup.arm.lower[:, None]) & (to <= setup.arm.upper[:, None])).all()
         reached = setup.task.outcome(setup.goals_of(to).T, goals.T)[1].mean()
         assert reached >= 0.99 and reached > local.success_rate, (goal, reached, local.success_rate)
-        np.testing.assert_array_equal(setup.goal_configuration(goals[:, 7:8], q[:, 7:8])[:, 0], to[:, 7])
+        np.testing.assert_array_equal(setup.reaching_configuration(goals[:, 7:8], q[:, 7:8])[:, 0], to[:, 7])
 
 
 def test_the_recovery_of_one_arm_equals_the_batchs_and_envs_equal_sync_vector_env_bit_for_bit():

@@ -412,7 +412,7 @@ class ReachSetup:
         onto its limit and the tip stalls there, however the policy acts. Such a step is blocked: the action asks
         for at least RECOVERY_ASK of a full step, a joint of its answer is at a limit, and the tip moves less than
         RECOVERY_PROGRESS of the way asked, along it. The arm then goes in joint space (a straight line within the
-        limits' box, which no limit blocks) to goal_configuration's answer, each joint at most RECOVERY_STEP of its
+        limits' box, which no limit blocks) to reaching_configuration's answer, each joint at most RECOVERY_STEP of its
         half range a step, and the policy has it again there. An arm's result does not depend on its batch."""
         if not self.limit_recovery:
             return target_t, state, to_t
@@ -428,7 +428,7 @@ class ReachSetup:
             if len(blocked):
                 state, to_t = state.copy(), to_t.copy()
                 state[blocked] = RECOVERING
-                to_t[:, blocked] = self.goal_configuration(goal_t[:, blocked], q_t[:, blocked])
+                to_t[:, blocked] = self.reaching_configuration(goal_t[:, blocked], q_t[:, blocked])
         recovering = state == RECOVERING
         if not recovering.any():
             return target_t, state, to_t
@@ -438,7 +438,7 @@ class ReachSetup:
         done = recovering & (np.abs(to_t - back) <= RECOVERY_ARRIVED * half).all(axis=0)
         return np.where(recovering, back, target_t), np.where(done, RECOVERED, state).astype(np.int8), to_t
 
-    def goal_configuration(self, goal_t: np.ndarray, q_t: np.ndarray) -> np.ndarray:
+    def reaching_configuration(self, goal_t: np.ndarray, q_t: np.ndarray) -> np.ndarray:
         """(n, M): for each goal (size, M), a configuration within the limits that reaches it, the nearest to q_t
         (n, M) of the P-controller's answers after RECOVERY_ITERATIONS of this action space's steps from each of
         recovery_seeds (home, then fixed postures): from one of several starts the local steps find a way round the
