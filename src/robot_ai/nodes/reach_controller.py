@@ -731,7 +731,7 @@ class ReachController:
             rospy.logwarn_throttle(5.0, self.layer.resynced)
             with self.lock:              # held until now: the policy's stall clock starts from where the arm stands
                 if version == self.version:
-                    self.improved_at, self.progress_mark = time.monotonic(), float('inf')
+                    self._restart_stall_clock()
         blocked = ''
         if plan.held and target is not None:
             blocked = ', '.join(plan.contacts) or plan.held
@@ -767,7 +767,7 @@ class ReachController:
                 return target
             self.recovery = after
             if after.state == RECOVERING:    # on purpose away from the goal: no stall, the clock starts after it
-                self.improved_at, self.progress_mark = time.monotonic(), float('inf')
+                self._restart_stall_clock()
         if after.state == RECOVERING and recovery.state == READY:
             stuck = ', '.join(self.setup.arm.at_limits(moved))
             rospy.loginfo(f'the goal lies beyond a joint limit the way the arm stands ({stuck} at '
@@ -821,6 +821,10 @@ class ReachController:
             closest += f' (distance + angle x {task.distance_threshold / task.angle_threshold:g} m/rad)'
         rospy.loginfo(f'not reached: closest {closest} to {where}: {why}; holding at the closest')
 
+    def _restart_stall_clock(self) -> None:
+        """The goal's stall clock starts afresh, from no progress mark (under self.lock)."""
+        self.improved_at, self.progress_mark = time.monotonic(), float('inf')
+
     def _home_target(self, goal: list[float], q: list[float]) -> list[float] | None:
         """On the way home for a retry: home (with a body, back the way the arm came first: the configurations it
         passed, each clear of contacts) until every joint is there (or the stall window has passed twice without
@@ -829,7 +833,8 @@ class ReachController:
         there = max(abs(a - b) for a, b in zip(q, home)) < AT_HOME
         with self.lock:
             if there or time.monotonic() - self.homing_since > 2 * self.stall_window + 30.0:
-                self.homing, self.improved_at, self.progress_mark = False, time.monotonic(), float('inf')
+                self.homing = False
+                self._restart_stall_clock()
                 if there:
                     self.trail = [home]
                 return q

@@ -457,10 +457,7 @@ class ReachSetup:
                     break
             q[:, going] = self.move(q[:, going], jac, self._p_action(tip, goal[:, going], RECOVERY_STRIDE))
         achieved = self.goals_of(q)
-        _, reached = self.task.outcome(achieved.T, goal.T)
-        error = goal_distance(achieved[:3].T, goal[:3].T)
-        if self.pose:
-            error = error + goal_angle(achieved.T, goal.T) * (self.task.distance_threshold / self.task.angle_threshold)
+        reached, error = self.task.is_success(achieved.T, goal.T), self.task.error(achieved.T, goal.T)
         q = q.reshape(n, k, m)
         far = (((q - q_t[:, None, :]) / self.arm._half[:, None, None]) ** 2).sum(axis=0)
         reached, error = reached.reshape(k, m), error.reshape(k, m)

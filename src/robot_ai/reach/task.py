@@ -123,7 +123,16 @@ class ReachTask:
         success = (distance < self.distance_threshold) & (angle < self.angle_threshold)
         if self.reward_type == 'sparse':
             return -(~success).astype(np.float64), success
-        return -(distance + angle * (self.distance_threshold / self.angle_threshold)), success
+        return -self._pose_error(distance, angle), success
+
+    def error(self, achieved, desired) -> np.ndarray:
+        """The dense reward's error of achieved goals against desired ones (..., size): the distance, plus for pose
+        goals the angle weighted distance_threshold / angle_threshold metres a radian."""
+        distance = goal_distance(achieved, desired)
+        return distance if self.goal != 'pose' else self._pose_error(distance, goal_angle(achieved, desired))
+
+    def _pose_error(self, distance, angle):
+        return distance + angle * (self.distance_threshold / self.angle_threshold)
 
     @staticmethod
     def goal_configuration(arm: Arm, rng: np.random.Generator) -> np.ndarray:
