@@ -137,11 +137,14 @@ def log_path(candidate: str) -> str:
 
 def end_descendants(keep=None) -> None:
     """SIGKILL every process left below this one but keep (a Popen) and its own, and reap them: check_fk is a child
-    subreaper, so whatever the candidate started and left behind has become its descendant."""
-    for _ in range(100):
+    subreaper, so whatever the candidate started and left behind has become its descendant. It goes on until none is
+    left, for up to 10 s of a clock rather than 100 rounds of 10 ms: a killed process is gone only once it is
+    scheduled, which a loaded machine may delay past a second."""
+    deadline = time.monotonic() + 10.0
+    while True:
         spared = set() if keep is None else {keep.pid, *descendants(keep.pid)}
         left = [pid for pid in descendants(os.getpid()) if pid not in spared]
-        if not left:
+        if not left or time.monotonic() > deadline:
             return
         for pid in left:
             try:
