@@ -688,6 +688,10 @@ class TestLaunch(unittest.TestCase):
                 clicked.kill()
                 self.fail('no click on the arm published a point')
             self.assertIn('frame_id: "base_link"', out)
+            # the goal on the surface rviz picked, facing the view: drawn before the arm's own links can hide it
+            time.sleep(0.5)
+            os.makedirs(ARTIFACTS, exist_ok=True)
+            green_clicked = self.green_in_view(display, os.path.join(ARTIFACTS, 'reach_rviz_clicked.png'), (x, y))
             deadline, distance = time.time() + 60, float('inf')
             while time.time() < deadline and distance >= 0.05:
                 echo = subprocess.run(['rostopic', 'echo', '-n', '1', '/reach_controller/distance'], env=proc.env,
@@ -696,20 +700,38 @@ class TestLaunch(unittest.TestCase):
                     distance = float(echo.split('data:')[1].split()[0])
             self.assertLess(distance, 0.05, out)
             time.sleep(2.0)
-            os.makedirs(ARTIFACTS, exist_ok=True)
             path = os.path.join(ARTIFACTS, 'reach_rviz.png')
-            subprocess.run(['import', '-window', 'root', '-display', display, path], check=True, timeout=60)
+            green_reached = self.green_in_view(display, path)
             img = np.asarray(Image.open(path).convert('RGB')).astype(int)[63:690, 364:1007]
             r, g, b = img[..., 0], img[..., 1], img[..., 2]
-            green = int(((g > 150) & (r < 120) & (b < 120) & (g - r > 80)).sum())
             orange = int(((r > 190) & (g > 70) & (g < 160) & (b < 70)).sum())
             self.assertGreater(orange, 1500, 'the arm is not drawn')
-            self.assertGreater(green, 150, 'the goal\'s marker is not drawn')
+            # reached, the tip is inside the sphere and the wrist may hide it from this view (51 pixels in one run);
+            # as clicked, it is a disc of about 250 pixels around the click (shaded: a broader green)
+            self.assertTrue(green_clicked > 100 or green_reached > 150,
+                            f'the goal\'s marker is not drawn: {green_clicked} green pixels around the click, '
+                            f'{green_reached} in the view as reached')
         finally:
             if proc is not None:
                 stop(proc)
             xvfb.kill()
             xvfb.wait()
+
+    @staticmethod
+    def green_in_view(display: str, path: str, around: tuple[int, int] | None = None) -> int:
+        """A screenshot of the screen to path; the goal's green pixels in rviz's view (x 364-1007, y 63-690), or,
+        around a point of the screen, those of any shade within 30 pixels of it (the TF display's y axes are green
+        too: the narrower the place, the fewer of them)."""
+        subprocess.run(['import', '-window', 'root', '-display', display, path], check=True, timeout=60)
+        img = np.asarray(Image.open(path).convert('RGB')).astype(int)
+        if around is None:
+            img = img[63:690, 364:1007]
+            r, g, b = img[..., 0], img[..., 1], img[..., 2]
+            return int(((g > 150) & (r < 120) & (b < 120) & (g - r > 80)).sum())
+        x, y = around
+        img = img[max(y - 30, 0):y + 30, max(x - 30, 0):x + 30]
+        r, g, b = img[..., 0], img[..., 1], img[..., 2]
+        return int(((g > 90) & (g - r > 40) & (g - b > 40)).sum())
 
     def test_demo_rviz_shows_the_arm_and_the_cart_pole(self):
         """Issue 27: demo.launch rviz:=true showed the arm only, not the cart-pole the demo also drives: a second
