@@ -421,15 +421,57 @@ class CollisionModel:
         if len(self.pair_a):
             hit |= self._touching(x, y, z, self.pair_a, self.pair_b, padding).any(axis=0)
         if self.obstacles and len(self.moving_spheres):
-            hit |= self._touching_obstacles(x, y, z, padding).any(axis=(0, 1))
+            hit |= self._hits_obstacles(x, y, z, padding)
+        return hit
+
+    def _hits_obstacles(self, x, y, z, padding: float = 0.0) -> np.ndarray:
+        """(N,) bool: _touching_obstacles(...).any(axis=(0, 1)), the same numbers in place, an obstacle at a time
+        (an axis-aligned box without its rotation's products, which are exact there: x 1 + y 0 + z 0 is x)."""
+        m = self.moving_spheres
+        xs, ys, zs = x[m], y[m], z[m]
+        reach = self.radii[m][:, None] + padding
+        limit = reach ** 2
+        hit = np.zeros(xs.shape[1], dtype=bool)
+        d, d2 = np.empty_like(xs), np.empty_like(xs)
+        for o in self.obstacles:
+            rot, centre = o.pose[:3, :3], o.pose[:3, 3]
+            if o.kind != 'box':
+                np.subtract(xs, centre[0], out=d2)
+                np.multiply(d2, d2, out=d2)
+                for coordinate, t in ((ys, centre[1]), (zs, centre[2])):
+                    np.subtract(coordinate, t, out=d)
+                    d2 += d * d
+                hit |= (d2 < (reach + o.size[0]) ** 2).any(axis=0)
+                continue
+            aligned = np.array_equal(rot, np.identity(3))
+            deltas = (xs, ys, zs) if aligned else (xs - centre[0], ys - centre[1], zs - centre[2])
+            d2.fill(0.0)
+            for axis in range(3):
+                if aligned:
+                    np.subtract(deltas[axis], centre[axis], out=d)
+                else:
+                    np.multiply(deltas[0], rot[0, axis], out=d)
+                    d += rot[1, axis] * deltas[1]
+                    d += rot[2, axis] * deltas[2]
+                np.abs(d, out=d)
+                d -= o.size[axis] / 2.0
+                np.maximum(d, 0.0, out=d)
+                np.multiply(d, d, out=d)
+                d2 += d
+            hit |= (d2 < limit).any(axis=0)
         return hit
 
     def _touching(self, x, y, z, a: np.ndarray, b: np.ndarray, padding: float = 0.0) -> np.ndarray:
         """(len(a), N) bool: sphere a[p] touches sphere b[p] (or comes within padding), for centres given as (K, N)
         x, y and z."""
-        d2 = (x[a] - x[b]) ** 2
-        d2 += (y[a] - y[b]) ** 2
-        d2 += (z[a] - z[b]) ** 2
+        d2 = x[a]
+        d2 -= x[b]
+        d2 *= d2
+        for coordinate in (y, z):           # in place: the same numbers, without a temporary array each
+            d = coordinate[a]
+            d -= coordinate[b]
+            d *= d
+            d2 += d
         return d2 < ((self.radii[a] + self.radii[b] + padding)[:, None] ** 2)
 
     def _touching_obstacles(self, x, y, z, padding: float = 0.0) -> np.ndarray:
