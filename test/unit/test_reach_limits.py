@@ -41,7 +41,7 @@ def through_the_layer(setup: ReachSetup, env: ReachEnv, policy, seed: int, steps
         times.append(t)
         tip, jac = setup.place_one(q.tolist())
         a = setup.check_action_one(act(setup.observation_one(q.tolist(), tip, goal)))
-        target, recovery = setup.recover_one(q.tolist(), setup.move_one(q.tolist(), jac, a), a, goal, recovery)
+        target, recovery = setup.recover_one(q.tolist(), tip, setup.move_one(q.tolist(), jac, a), a, goal, recovery)
         plan = layer.plan(t, target, q, measured_at=t)
         assert not plan.held, plan.held
         arm.take(t, plan.start, *plan.points(period))

@@ -1,6 +1,6 @@
-"""ee control's limit recovery (issue 38, reach from wherever the arm stands): a step that a joint limit blocks sends
-the arm in joint space to a configuration that reaches the goal, once an episode, and the policy goes on from there.
-No roscore."""
+"""ee control's limit recovery (issue 38, reach from wherever the arm stands): a step that a joint limit blocks, or an
+arm stalled in a local minimum, sends the arm in joint space to a configuration that reaches the goal, once an
+episode, and the policy goes on from there. No roscore."""
 from dataclasses import replace
 
 import gymnasium
@@ -11,7 +11,7 @@ import robot_ai.reach  # noqa: F401 (registers robot_ai/Reach-v0)
 from fk_helpers import robot_path
 from robot_ai import ars
 from robot_ai.reach import ReachEnv, ReachError, ReachSetup, ReachVectorEnv, learn, policy_files
-from robot_ai.reach.env import READY, RECOVERED, RECOVERING, RECOVERY_ARRIVED, Recovery
+from robot_ai.reach.env import READY, RECOVERED, RECOVERING, RECOVERY_ARRIVED, Recoveries, Recovery
 from test_reach import assert_same, make_sync
 
 UR5 = robot_path('ur5.urdf')
@@ -73,6 +73,39 @@ def test_a_base_turned_to_its_limit_the_short_way_round_goes_round_in_joint_spac
     assert (steps <= 0.15 * half + 1e-12).all()       # in steps of at most RECOVERY_STEP of a half range
 
 
+def test_an_arm_stalled_away_from_its_limits_goes_round_too_and_random_actions_seldom_stall():
+    """Pose goals on the UR5 from home: the P-controller stalls short of one goal in ten with no joint at a limit (the
+    position and the turn hold each other in a local minimum). With the recovery it reaches at least 99 % of 500
+    goals, less than 95 % without. In such an episode the arm goes round once, after stall_steps steps that asked
+    toward the goal without progress, no joint at a limit, and reaches. Random actions ask toward the goal seldom
+    enough that a stall takes few of their episodes (each search costs as much as many steps): under 2 % from home;
+    from random starts, where joint limits block them, under 10 %."""
+    setup = ReachSetup(model=UR5, goal='pose')
+    plain = ReachSetup(model=UR5, goal='pose', limit_recovery=False)
+    with_it = learn.evaluate(learn.p_controller(setup), setup, 500)
+    without = learn.evaluate(learn.p_controller(plain), plain, 500)
+    assert with_it.success_rate >= 0.99 and without.success_rate < 0.95, (with_it, without)
+    assert without.misses['other'] > without.misses['limits'], without
+    stalled = ReachEnv(model=UR5, goal='pose', limit_recovery=False)
+    seed = next(s for s in range(100) if not episode(stalled, s)[0]['is_success']
+                and not stalled.arm.at_limits(stalled.joint_positions))
+    env = ReachEnv(model=UR5, goal='pose')
+    info, recoveries, joints = episode(env, seed)
+    assert info['is_success'], seed
+    states = [r.state for r in recoveries]
+    first = states.index(RECOVERING)
+    assert set(states[:first]) == {READY} and states[-1] == RECOVERED, states
+    assert recoveries[first].since >= env.setup.stall_steps and not env.arm.at_limits(joints[first - 1])
+    for kwargs, most in ((dict(), 0.02), (dict(goal='pose'), 0.02), (dict(start='random'), 0.1)):
+        vec = ReachVectorEnv(1000, model=UR5, **kwargs)
+        vec.reset(seed=0)
+        rng, taken = np.random.default_rng(1), np.zeros(1000, dtype=bool)
+        for _ in range(50):
+            vec.step(rng.uniform(-1, 1, vec.action_space.shape).astype(np.float32))
+            taken |= vec._recovery.state != READY
+        assert taken.mean() < most, (kwargs, taken.mean())
+
+
 def test_reaching_configurations_reach_goals_the_local_steps_miss_from_where_the_arm_stands():
     """reaching_configuration against the P-controller from the arm's own start (no recovery), 300 random starts and
     goals on the KUKA LWR: every answer within the limits, and it reaches at least 99 % of the goals, more than the
@@ -102,33 +135,42 @@ def test_the_recovery_of_one_arm_equals_the_batchs_and_envs_equal_sync_vector_en
     q, goal = stalled._q.copy(), stalled._goal.copy()
     tip, jac = setup.place(q)
     a = np.clip((goal - tip) / setup.ee_step, -1, 1)
+    a[:, 150:] = rng.uniform(-1, 1, (3, 50))                  # and actions that do not ask toward the goal
     target = setup.move(q, jac, a)
     state = np.where(np.arange(200) < 100, READY, rng.choice([READY, RECOVERING, RECOVERED], 200)).astype(np.int8)
     to = rng.uniform(setup.arm.lower, setup.arm.upper, (200, setup.arm.n)).T
-    batch, after, to_after = setup.recover(q, target, a, goal, state, to)
-    assert ((after == RECOVERING) & (state == READY)).sum() > 0           # some steps were blocked
+    error = setup.task.error(tip.T, goal.T)
+    best = np.where(rng.random(200) < 0.5, np.inf, error + rng.uniform(-0.01, 0.01, 200))
+    since = rng.integers(0, setup.stall_steps + 1, 200).astype(np.int32)
+    before = Recoveries(state, to, best, since)
+    batch, after = setup.recover(q, tip, target, a, goal, before)
+    started = (after.state == RECOVERING) & (state == READY)
+    assert started[:150].sum() > 0 and not started[150:].any()      # some were blocked or stalled; none at random
+    assert ((after.since == 0) & (since > 0))[150:].any()            # a try that is none starts the count again
     for i in range(200):
-        one, r = setup.recover_one(q[:, i].tolist(), target[:, i].tolist(), a[:, i].tolist(), goal[:, i].tolist(),
-                                   Recovery(int(state[i]), tuple(to[:, i].tolist())))
-        assert one == batch[:, i].tolist() and r.state == after[i]
+        one, r = setup.recover_one(q[:, i].tolist(), tip[:, i].tolist(), target[:, i].tolist(), a[:, i].tolist(),
+                                   goal[:, i].tolist(), Recovery(int(state[i]), tuple(to[:, i].tolist()),
+                                                                 float(best[i]), int(since[i])))
+        assert one == batch[:, i].tolist() and r.state == after.state[i], i
+        if state[i] == READY:
+            assert (r.best, r.since) == (after.best[i], after.since[i]), i
         if r.state != READY:
-            assert r.q == tuple(to_after[:, i].tolist())
+            assert r.q == tuple(after.q[:, i].tolist())
     for kwargs in (dict(start='random'), dict(start='chained', goal='pose')):
         n = 4
         kwargs = dict(model=UR5, reward_type='dense', **kwargs)
         sync, vec = make_sync(n, **kwargs), gymnasium.make_vec('robot_ai/Reach-v0', num_envs=n, **kwargs)
-        o1, _ = sync.reset(seed=20)
-        assert_same(o1, vec.reset(seed=20)[0])
-        step = vec.unwrapped.setup.ee_step
+        o1, _ = sync.reset(seed=5)
+        assert_same(o1, vec.reset(seed=5)[0])
+        p = learn.p_controller(vec.unwrapped.setup)
         recovered = 0
         for _ in range(160):
-            a = np.zeros(vec.action_space.shape, np.float32)
-            a[:, :3] = np.clip((o1['desired_goal'][:, :3] - o1['achieved_goal'][:, :3]) / step, -1, 1)
+            a = p.act_batch(ars.flatten_batch(vec.single_observation_space, o1)).astype(np.float32)
             r1, r2 = sync.step(a), vec.step(a)
             for x, y in zip(r1, r2):
                 assert_same(x, y)
             o1 = r1[0]
-            recovered += int((vec.unwrapped._recovery == RECOVERING).sum())
+            recovered += int((vec.unwrapped._recovery.state == RECOVERING).sum())
         assert recovered > 0, kwargs
 
 

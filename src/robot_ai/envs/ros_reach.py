@@ -372,7 +372,7 @@ class RosReachEnv(gymnasium.Env):
         self.action_space = self.setup.action_space
         self.robot_ns, self.timeout, self.render_mode = robot_ns, float(timeout), render_mode
         self.link: ArmLink | None = None
-        self._q = self._all = self._tip = self._goal = self._jac = None
+        self._q = self._all = self._tip = self._goal = self._jac = self._own_tip = None
         self._recovery = Recovery()             # limit recovery's state in the episode (ReachSetup.recover)
         self._failure = ''
         self._renderer = None
@@ -415,12 +415,12 @@ class RosReachEnv(gymnasium.Env):
         """The sim's positions as it stands (its last joint_states), to keep the joints this arm does not move."""
         return self.link.decoder.decode(self.link.last_state[1])[3].tolist()
 
-    def _take(self, q: list, tip: list, q_early: list | None = None, jac_early=None) -> None:
-        """The arm's answer: its joints (as the sim reported them) and the tip (from tf); the Jacobian of the next
-        step from those joints, as ReachEnv computes it (the one computed early, if it is of these very joints: a
-        lockstep sim reports the command it was sent, already within the limits)."""
+    def _take(self, q: list, tip: list, q_early: list | None = None, placed_early=None) -> None:
+        """The arm's answer: its joints (as the sim reported them) and the tip (from tf); the kinematics' tip and
+        Jacobian of the next step from those joints, as ReachEnv computes them (those computed early, if they are
+        of these very joints: a lockstep sim reports the command it was sent, already within the limits)."""
         self._q, self._tip = q, tip
-        self._jac = jac_early if q_early == self._q else self.setup.place_one(self._q)[1]
+        self._own_tip, self._jac = placed_early if q_early == self._q else self.setup.place_one(self._q)
 
     def step(self, action):
         if self._failure:
@@ -429,17 +429,18 @@ class RosReachEnv(gymnasium.Env):
             raise gymnasium.error.ResetNeeded('Cannot call env.step() before calling env.reset()')
         a = self.setup.check_action_one(action)
         commanded = self.setup.move_one(self._q, self._jac, a)
-        commanded, self._recovery = self.setup.recover_one(self._q, commanded, a, self._goal, self._recovery)
+        commanded, self._recovery = self.setup.recover_one(self._q, self._own_tip, commanded, a, self._goal,
+                                                           self._recovery)
         positions = list(self._all)
         for k, value in zip(self.link.index, commanded):
             positions[k] = value
-        try:   # the next step's Jacobian, from the commanded positions, while the arm answers
-            self._all, q_new, tip, (q_early, jac_early) = self.link.command(
-                positions, lambda: (commanded, self.setup.place_one(commanded)[1]))
+        try:   # the next step's kinematics, from the commanded positions, while the arm answers
+            self._all, q_new, tip, (q_early, placed_early) = self.link.command(
+                positions, lambda: (commanded, self.setup.place_one(commanded)))
         except RosReachError as e:
             self._broken(e)
             raise
-        self._take(q_new, tip, q_early, jac_early)
+        self._take(q_new, tip, q_early, placed_early)
         distance = goal_distance_one(self._tip, self._goal)
         return (self.setup.observation_one(self._q, self._tip, self._goal), self.task.reward_one(distance), False,
                 False, {'is_success': distance < self.task.distance_threshold})

@@ -94,6 +94,7 @@ goals from home), -1 when it could not be played.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -118,7 +119,7 @@ from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.collision import CollisionModel
-from robot_ai.reach.env import RECOVERING, READY, ReachSetup, Recovery
+from robot_ai.reach.env import RECOVERED, RECOVERING, READY, ReachSetup, Recovery
 from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, Limits, Plan, SafetyLayer
 from robot_ai.reach.task import GOALS, goal_angle, goal_distance_one, why_unreached
 from robot_ai.text import percent
@@ -197,6 +198,7 @@ class ReachController:
             raise ValueError(f'~command_joints lacks {", ".join(missing)}, which the arm moves to reach')
         self.slot = [self.command_joints.index(n) for n in arm.joints]
         self.layer = self._safety_layer(tree, xml)
+        self.moving = self.setup.through(self.layer.limits, self.layer.period)   # the arm as the layer moves it
         self._predict(self.policy)
         # the arm moves at velocity_scale of its speed: a motion takes 1 / velocity_scale as long, a stall too (a
         # pose goal from a singular home turns first, its distance growing for seconds at 0.25)
@@ -297,7 +299,7 @@ class ReachController:
     def _predict(self, policy) -> None:
         """The policy's success rate through this node's safety layer (its limits, one step a control period),
         played in-process from home (a second or two), logged and set as ~predicted_success_rate."""
-        setup = self.setup.through(self.layer.limits, self.layer.period)
+        setup = self.moving
         try:
             rate = learn.evaluate(policy, setup, PREDICTION_GOALS).success_rate
         except (policies.PolicyError, ValueError) as e:       # a model that answers no action somewhere
@@ -736,6 +738,11 @@ class ReachController:
         if plan.held and target is not None:
             blocked = ', '.join(plan.contacts) or plan.held
             rospy.logwarn_throttle(2.0, f'holding: {plan.held}, so the motion was not sent')
+            with self.lock:           # a way round that a collision blocks: the policy has the arm again (the env's);
+                if version == self.version:   # a step not sent is no step without progress
+                    given_up = plan.contacts and self.recovery.state == RECOVERING
+                    state = RECOVERED if given_up else self.recovery.state
+                    self.recovery = dataclasses.replace(self.recovery, state=state, since=0)
         elif self.layer.body is not None and goal is not None and not homing and not holding and (
                 not self.trail or max(abs(a - b) for a, b in zip(q, self.trail[-1])) > TRAIL_STEP):
             self.trail.append(q)          # where the arm is: clear of contacts, the way back home
@@ -760,8 +767,9 @@ class ReachController:
         except (policies.PolicyError, ValueError) as e:      # a model that answers no action here (NaN): none
             rospy.logerr_throttle(10.0, f'the policy gave no action for this state, so the arm holds: {e}')
             return None
-        moved = self.setup.move_one(q, self.setup.place_one(q)[1], a)
-        target, after = self.setup.recover_one(q, moved, a, goal, recovery)
+        own_tip, jac = self.setup.place_one(q)
+        moved = self.setup.move_one(q, jac, a)
+        target, after = self.moving.recover_one(q, own_tip, moved, a, goal, recovery)   # its stall: the layer's steps
         with self.lock:
             if version != self.version:
                 return target
@@ -770,9 +778,14 @@ class ReachController:
                 self._restart_stall_clock()
         if after.state == RECOVERING and recovery.state == READY:
             stuck = ', '.join(self.setup.arm.at_limits(moved))
-            rospy.loginfo(f'the goal lies beyond a joint limit the way the arm stands ({stuck} at '
-                          f'{"its limit" if "," not in stuck else "their limits"}): going round in joint space, to '
-                          f'a configuration that reaches it')
+            if stuck:
+                why = (f'the goal lies beyond a joint limit the way the arm stands ({stuck} at '
+                       f'{"its limit" if "," not in stuck else "their limits"})')
+            else:
+                error = self.setup.task.error(np.array(own_tip), np.array(goal))
+                why = (f'no progress for {self.moving.stall_steps * self.layer.period:.2f} s, {error:.3f} m from the '
+                       f'goal, with no joint at a limit (a local minimum)')
+            rospy.loginfo(f'{why}: going round in joint space, to a configuration that reaches it')
         return target
 
     def _judge(self, goal: list[float], achieved: list[float], q: list[float]) -> None:
@@ -822,8 +835,11 @@ class ReachController:
         rospy.loginfo(f'not reached: closest {closest} to {where}: {why}; holding at the closest')
 
     def _restart_stall_clock(self) -> None:
-        """The goal's stall clock starts afresh, from no progress mark (under self.lock)."""
+        """The goal's stall clock starts afresh, from no progress mark, and so does the recovery's count of steps
+        without progress (under self.lock)."""
         self.improved_at, self.progress_mark = time.monotonic(), float('inf')
+        if self.recovery.since:
+            self.recovery = dataclasses.replace(self.recovery, since=0)
 
     def _home_target(self, goal: list[float], q: list[float]) -> list[float] | None:
         """On the way home for a retry: home (with a body, back the way the arm came first: the configurations it

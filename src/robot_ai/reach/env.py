@@ -12,9 +12,10 @@ desired_goal, info)`` is vectorised, so stable-baselines3's HER relabels goals o
 Action: control='ee' (default): ``Box(-1, 1, (3,))``, a tip displacement of ``ee_step`` x action, turned into joint
 motion by damped least squares on the analytic Jacobian, the joints then clipped to their limits; ``ee_step``
 defaults to a twentieth of the chain's length, so that 50 steps cross any arm's workspace; limit_recovery (default
-on): a step that a joint limit blocks sends the arm, in joint space, to a configuration that reaches the goal, once
-an episode (ReachSetup.recover), so that a goal beyond a limit the way the arm stands is reached from wherever it
-starts. control='joints':
+on): a step that a joint limit blocks, or an arm stalled away from the goal for a tenth of an episode, sends the arm,
+in joint space, to a configuration that reaches the goal, once an episode (ReachSetup.recover), so that a goal beyond
+a limit the way the arm stands, or past a local minimum of the pose error, is reached from wherever it starts.
+control='joints':
 ``Box(-1, 1, (n,))``, joint displacements of 0.05 rad (or m) x action. Actions are clipped to [-1, 1]; NaN or
 infinite ones are refused (ValueError).
 
@@ -40,10 +41,10 @@ bit for bit (autoreset next-step, reset(seed=s) seeds env i with s + i).
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import math
 import os
-from dataclasses import dataclass
 from typing import Any
 
 import gymnasium
@@ -75,6 +76,9 @@ CONTROL_PERIOD = 0.05        # s: reach_controller's step (its ~rate, 20 Hz), an
 LAYER_EPISODE = 4            # with velocity_scale: episodes this many times as long, over the scale (10 s at 1.0)
 # ee control's limit recovery (ReachSetup.recover): a step is blocked when the action asks for at least RECOVERY_ASK
 # of a full step, a joint of its answer is at a limit, and the tip moves less than RECOVERY_PROGRESS of the way asked;
+# an arm is stalled when, asked as much, it is not at the goal and its dense error has not fallen STALL_GAIN of a full
+# step below the least it reached for STALL_FRACTION of an episode's steps in which the action asked toward the goal
+# (its cosine with the P-controller's at least STALL_COSINE): a local minimum, no limit in the way;
 # the arm then goes in joint space to a configuration that reaches the goal (the P-controller's steps for
 # RECOVERY_ITERATIONS from home and RECOVERY_SEEDS - 1 fixed postures), each joint at most RECOVERY_STEP of its half
 # range a step, and the policy has the arm again once every joint is within RECOVERY_ARRIVED of its half range of it
@@ -82,6 +86,10 @@ RECOVERY_ASK = 0.15
 RECOVERY_PROGRESS = 0.3
 RECOVERY_STEP = 0.15
 RECOVERY_ARRIVED = 0.05
+STALL_GAIN = RECOVERY_PROGRESS * RECOVERY_ASK
+STALL_FRACTION = 0.1
+STALL_BAND = 2.0
+STALL_COSINE = 0.5
 RECOVERY_SEEDS = 8
 RECOVERY_ITERATIONS = 30
 RECOVERY_STRIDE = 2.0        # ... in steps of up to this many full steps (a search, not a motion: the arm goes there
@@ -89,12 +97,46 @@ RECOVERY_STRIDE = 2.0        # ... in steps of up to this many full steps (a sea
 READY, RECOVERING, RECOVERED = 0, 1, 2      # an arm's limit recovery in its episode
 
 
-@dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True)
 class Recovery:
     """One arm's limit recovery in its episode (ReachSetup.recover_one): its state (READY, RECOVERING or
-    RECOVERED) and the configuration it goes to."""
+    RECOVERED), the configuration it goes to, the least dense error of the episode (lowered by STALL_GAIN of a
+    full step or more at a time) and the steps since then that asked toward the goal."""
     state: int = READY
     q: tuple[float, ...] | None = None
+    best: float = math.inf
+    since: int = 0
+
+
+@dataclasses.dataclass
+class Recoveries:
+    """The limit recovery's state of a batch of arms (ReachSetup.recover), Recovery's fields as arrays on the
+    batch's last axis: state (N,) int8, q (n, N), best (N,), since (N,) int32."""
+    state: np.ndarray
+    q: np.ndarray
+    best: np.ndarray
+    since: np.ndarray
+
+    @classmethod
+    def fresh(cls, n: int, count: int) -> Recoveries:
+        return cls(np.full(count, READY, dtype=np.int8), np.zeros((n, count)), np.full(count, np.inf),
+                   np.zeros(count, dtype=np.int32))
+
+    def __getitem__(self, rows) -> Recoveries:
+        return Recoveries(self.state[rows], self.q[:, rows], self.best[rows], self.since[rows])
+
+    def __setitem__(self, rows, other: Recoveries) -> None:
+        self.state[rows], self.q[:, rows], self.best[rows], self.since[rows] = (other.state, other.q, other.best,
+                                                                                other.since)
+
+    def restart(self, rows) -> None:
+        """A new episode for these arms."""
+        self.state[rows], self.best[rows], self.since[rows] = READY, np.inf, 0
+
+    def give_up(self, hit: np.ndarray | None) -> None:
+        """Arms going to their configuration whose motion a collision refused: the policy has them again."""
+        if hit is not None:
+            self.state[hit & (self.state == RECOVERING)] = RECOVERED
 
 
 def episode_steps(limits: Limits | None) -> int:
@@ -104,6 +146,11 @@ def episode_steps(limits: Limits | None) -> int:
     if limits is None:
         return EPISODE_STEPS
     return math.ceil(EPISODE_STEPS * LAYER_EPISODE / limits.velocity_scale - 1e-9)
+
+
+def stall_steps(steps: int) -> int:
+    """The steps an arm stalls before the recovery takes it (ReachSetup.recover): a tenth of an episode of steps."""
+    return max(2, round(STALL_FRACTION * steps))
 
 
 class ReachSetup:
@@ -156,6 +203,7 @@ class ReachSetup:
             raise ReachError('joint_limits and acceleration_scale are the safety layer\'s: give velocity_scale too '
                              '(1.0: the limits unscaled)')
         self.episode_steps = episode_steps(self.limits)
+        self.stall_steps = stall_steps(self.episode_steps)
         self.obstacles = parse_obstacles(obstacles)
         if collision is None:
             collision = bool(self.obstacles)
@@ -282,6 +330,7 @@ class ReachSetup:
         out.limits = limits
         out.control_period = self._positive('control_period', control_period, CONTROL_PERIOD)
         out.episode_steps = episode_steps(limits)
+        out.stall_steps = stall_steps(out.episode_steps)
         return out
 
     def motion_start(self, q_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -400,59 +449,84 @@ class ReachSetup:
             return self.arm.move_t(q_t, jac_t, actions_t * self.ee_step, self.damping, limit_gain=self.limit_gain)
         return self.arm.clip(q_t + actions_t * JOINT_STEP)
 
-    def recover(self, q_t: np.ndarray, target_t: np.ndarray, actions_t: np.ndarray, goal_t: np.ndarray,
-                state: np.ndarray, to_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """ee control's limit recovery: (targets (n, N), states (N,), configurations gone to (n, N)) of arms at q_t
-        (n, N) whose actions_t (a, N) moved gave target_t (move's), their goals goal_t (size, N); state (N, int8) is
-        each arm's in its episode (READY, RECOVERING, or RECOVERED: once an episode) and to_t the configurations
-        the recovering ones go to.
+    def recover(self, q_t: np.ndarray, tip_t: np.ndarray, target_t: np.ndarray, actions_t: np.ndarray,
+                goal_t: np.ndarray, rec: Recoveries) -> tuple[np.ndarray, Recoveries]:
+        """ee control's limit recovery: (targets (n, N), the recovery's state after the step) of arms at q_t (n, N)
+        with their tips (achieved goals) tip_t (size, N), whose actions_t (a, N) moved gave target_t (move's), their
+        goals goal_t (size, N); rec is each arm's state in its episode (READY, RECOVERING, or RECOVERED: once an
+        episode; Recoveries).
 
         Damped least squares is local: from a start whose joints lie on the wrong side of the goal (a base turned
         toward its limit the short way round, a shoulder against its stop under a goal overhead) it pushes a joint
-        onto its limit and the tip stalls there, however the policy acts. Such a step is blocked: the action asks
-        for at least RECOVERY_ASK of a full step, a joint of its answer is at a limit, and the tip moves less than
-        RECOVERY_PROGRESS of the way asked, along it. The arm then goes in joint space (a straight line within the
-        limits' box, which no limit blocks) to reaching_configuration's answer, each joint at most RECOVERY_STEP of its
-        half range a step, and the policy has it again there. An arm's result does not depend on its batch."""
+        onto its limit and the tip stalls there, however the policy acts; away from the limits, a pose goal's
+        position and turn can hold each other in a local minimum (the UR5 from home, 10 % of goals). A step whose
+        action asks for at least RECOVERY_ASK of a full step is blocked when a joint of its answer is at a limit and
+        the tip moves less than RECOVERY_PROGRESS of the way asked, along it; an arm so asked is stalled when
+        stall_steps steps in a row (a tenth of an episode) tried, asking toward the goal (_stall_count), and its
+        dense error did not fall STALL_GAIN of a full step below the least it reached nor rise STALL_BAND full steps
+        above it (an arm going the long way round is going somewhere), short of the goal. The arm then goes in joint
+        space (a straight line within the limits' box, which no limit blocks) to reaching_configuration's answer,
+        each joint at most RECOVERY_STEP of its half range a step, and the policy has it again there (or once a
+        collision refuses the way: Recoveries.give_up). A stalled arm for whose goal no configuration is found (a
+        goal beyond its reach) stays where it is: the recovery is spent for the episode. An arm's result does not
+        depend on its batch."""
         if not self.limit_recovery:
-            return target_t, state, to_t
+            return target_t, rec
         arm = self.arm
         asked = actions_t * self.ee_step
         asked2 = (asked * asked).sum(axis=0)
+        best, since, _ = self._stall_count(tip_t, goal_t, actions_t, rec.best, rec.since)
+        rec = Recoveries(rec.state.copy(), rec.q, best, since)
+        ready = (rec.state == READY) & (asked2 >= (RECOVERY_ASK * self.ee_step) ** 2)
         at_limit = ((target_t <= arm.lower[:, None] + LIMIT_TOLERANCE)
                     | (target_t >= arm.upper[:, None] - LIMIT_TOLERANCE)).any(axis=0)
-        check = np.flatnonzero(at_limit & (state == READY) & (asked2 >= (RECOVERY_ASK * self.ee_step) ** 2))
+        check = np.flatnonzero(ready & at_limit)
+        blocked = check[:0]
         if len(check):
             moved = self._tip_motion(q_t[:, check], target_t[:, check])
             blocked = check[(moved * asked[:, check]).sum(axis=0) < RECOVERY_PROGRESS * asked2[check]]
-            if len(blocked):
-                state, to_t = state.copy(), to_t.copy()
-                state[blocked] = RECOVERING
-                to_t[:, blocked] = self.reaching_configuration(goal_t[:, blocked], q_t[:, blocked])
-        recovering = state == RECOVERING
+        stalled = np.flatnonzero(ready & (rec.since >= self.stall_steps))
+        if len(stalled):
+            stalled = stalled[~self.task.is_success(tip_t[:, stalled].T, goal_t[:, stalled].T)]
+        going = np.union1d(blocked, stalled)
+        if len(going):
+            rec.q = rec.q.copy()
+            to = self.reaching_configuration(goal_t[:, going], q_t[:, going])
+            rec.q[:, going] = to
+            # a stall where no configuration reaches (a goal beyond the arm's reach): nowhere to go, this episode
+            hopeless = ~np.isin(going, blocked) & ~self.task.is_success(self.goals_of(to).T, goal_t[:, going].T)
+            rec.state[going] = np.where(hopeless, RECOVERED, RECOVERING)
+        recovering = rec.state == RECOVERING
         if not recovering.any():
-            return target_t, state, to_t
+            return target_t, rec
         half = arm._half[:, None]
-        step = np.minimum(np.maximum(to_t - q_t, -RECOVERY_STEP * half), RECOVERY_STEP * half)
+        step = np.minimum(np.maximum(rec.q - q_t, -RECOVERY_STEP * half), RECOVERY_STEP * half)
         back = q_t + step
-        done = recovering & (np.abs(to_t - back) <= RECOVERY_ARRIVED * half).all(axis=0)
-        return np.where(recovering, back, target_t), np.where(done, RECOVERED, state).astype(np.int8), to_t
+        done = recovering & (np.abs(rec.q - back) <= RECOVERY_ARRIVED * half).all(axis=0)
+        rec.state = np.where(done, RECOVERED, rec.state).astype(np.int8)
+        return np.where(recovering, back, target_t), rec
 
     def reaching_configuration(self, goal_t: np.ndarray, q_t: np.ndarray) -> np.ndarray:
-        """(n, M): for each goal (size, M), a configuration within the limits that reaches it, the nearest to q_t
-        (n, M) of the P-controller's answers after RECOVERY_ITERATIONS of this action space's steps from each of
-        recovery_seeds (home, then fixed postures): from one of several starts the local steps find a way round the
-        limits that they cannot find from where the arm stands. Where none reaches, the answer that comes nearest."""
+        """(n, M): for each goal (size, M), a configuration within the limits that reaches it: the P-controller's
+        steps in this action space from each of recovery_seeds (home, then fixed postures), up to
+        RECOVERY_ITERATIONS, until one of them is well within the thresholds; of those that are, the nearest to q_t
+        (n, M). From one of several starts the local steps find a way round the limits (or out of a local minimum)
+        that they cannot find from where the arm stands. Where none reaches, the answer that comes nearest. A
+        search costs as many steps as it takes, whatever the batch: stopping at the first answer (not the last
+        iteration) halved an evaluation's time on pose goals."""
         seeds = self.recovery_seeds
         n, k, m = self.arm.n, seeds.shape[1], goal_t.shape[1]
         q = np.repeat(seeds, m, axis=1)                 # column i * m + j: seed i, goal j
         goal = np.tile(goal_t, (1, k))
-        going = np.arange(k * m)      # a column stops once well within the thresholds (its own rule: batch-free)
+        going = np.arange(k * m)      # a goal's columns stop once one is well within the thresholds (batch-free)
+        found = np.zeros(m, dtype=np.bool_)
         for _ in range(RECOVERY_ITERATIONS):
             tip, jac = self.place(q[:, going])
             there = self._well_within(tip, goal[:, going])
             if there.any():
-                going, tip, jac = going[~there], tip[:, ~there], jac[..., ~there]
+                found[going[there] % m] = True
+                on = ~found[going % m]
+                going, tip, jac = going[on], tip[:, on], jac[..., on]
                 if not len(going):
                     break
             q[:, going] = self.move(q[:, going], jac, self._p_action(tip, goal[:, going], RECOVERY_STRIDE))
@@ -481,6 +555,45 @@ class ReachSetup:
         turn = rotation_error(tip_t.T, goal_t.T).T / self.angle_step
         return np.concatenate((move, np.minimum(np.maximum(turn, -most), most)))
 
+    def _stall_count(self, tip_t: np.ndarray, goal_t: np.ndarray, actions_t: np.ndarray, best: np.ndarray,
+                     since: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """recover's (best, since, trying) for a step from tips tip_t toward goal_t (size, N) with actions_t (a, N):
+        trying, the action asks toward the goal (its cosine with the P-controller's, unclipped, at least
+        STALL_COSINE: random actions seldom do, and seldom stall_steps in a row); the count goes on while the dense
+        error stays above best less STALL_GAIN of a full step and the action tries."""
+        error = self.task.error(tip_t.T, goal_t.T)
+        lower = error < best - STALL_GAIN * self.ee_step
+        toward = self._p_action(tip_t, goal_t, np.inf)
+        dot, tt, aa = toward[0] * actions_t[0], toward[0] * toward[0], actions_t[0] * actions_t[0]
+        for row in range(1, len(toward)):         # row by row: _stall_count_one's sums, in its order
+            dot = dot + toward[row] * actions_t[row]
+            tt = tt + toward[row] * toward[row]
+            aa = aa + actions_t[row] * actions_t[row]
+        trying = (dot > 0) & (dot >= STALL_COSINE * np.sqrt(tt * aa))
+        away = error > best + STALL_BAND * self.ee_step
+        return np.where(lower, error, best), np.where(lower | ~trying | away, 0, since + 1).astype(np.int32), trying
+
+    def _stall_count_one(self, tip: list, goal: list, a: list, best: float,
+                         since: int) -> tuple[float, int, bool]:
+        """_stall_count's numbers for one arm, in floats for position goals (the same operations in the same
+        order), through a batch of one for pose goals."""
+        if self.pose:
+            column = lambda v: np.array(v, dtype=np.float64)[:, None]     # noqa: E731
+            b, n, t = self._stall_count(column(tip), column(goal), column(a), np.array([best]),
+                                        np.array([since], dtype=np.int32))
+            return float(b[0]), int(n[0]), bool(t[0])
+        error = goal_distance_one(tip, goal)
+        lower = error < best - STALL_GAIN * self.ee_step
+        toward = [(g - t) / self.ee_step for g, t in zip(goal, tip)]
+        dot, tt, aa = toward[0] * a[0], toward[0] * toward[0], a[0] * a[0]
+        for row in (1, 2):
+            dot = dot + toward[row] * a[row]
+            tt = tt + toward[row] * toward[row]
+            aa = aa + a[row] * a[row]
+        trying = dot > 0 and dot >= STALL_COSINE * math.sqrt(tt * aa)
+        away = error > best + STALL_BAND * self.ee_step
+        return (error if lower else best), (0 if lower or not trying or away else since + 1), trying
+
     def _tip_motion(self, q_t: np.ndarray, target_t: np.ndarray) -> np.ndarray:
         """(3 or 6, N): how the tip moves from q_t to target_t, in the action's units times ee_step (pose goals:
         the turn as a rotation vector, weighted by angular_weight)."""
@@ -490,23 +603,25 @@ class ReachSetup:
         turn = rotation_error(before.T, after.T).T * self.angular_weight
         return np.concatenate((after[:3] - before[:3], turn))
 
-    def recover_one(self, q: list, target: list, a: list, goal: list,
+    def recover_one(self, q: list, tip: list, target: list, a: list, goal: list,
                     recovery: Recovery) -> tuple[list, Recovery]:
-        """recover's numbers for one arm (a: the action's floats, clipped)."""
+        """recover's numbers for one arm at q with its tip (achieved goal) tip (a: the action's floats, clipped)."""
         if not self.limit_recovery or recovery.state == RECOVERED:
             return target, recovery
-        if recovery.state == READY:
-            if sum(v * v for v in a) < RECOVERY_ASK * RECOVERY_ASK * (1 - 1e-9):
-                return target, recovery
-            lower, upper = self.arm._lower, self.arm._upper
-            if not any(t <= lo + LIMIT_TOLERANCE or t >= hi - LIMIT_TOLERANCE
-                       for t, lo, hi in zip(target, lower, upper)):
-                return target, recovery
+        if recovery.state == READY:         # recover's bookkeeping alone, while nothing can block or stall
+            best, counted, _ = self._stall_count_one(tip, goal, a, recovery.best, recovery.since)
+            asks = sum((v * self.ee_step) * (v * self.ee_step) for v in a) >= (RECOVERY_ASK * self.ee_step) ** 2
+            at_limit = any(t <= lo + LIMIT_TOLERANCE or t >= hi - LIMIT_TOLERANCE
+                           for t, lo, hi in zip(target, self.arm._lower, self.arm._upper))
+            if not (asks and (at_limit or counted >= self.stall_steps)):
+                return target, Recovery(READY, recovery.q, best, counted)
         column = lambda v: np.array(v, dtype=np.float64)[:, None]     # noqa: E731
         to = column(recovery.q) if recovery.q is not None else np.zeros((self.arm.n, 1))
-        out, state, to = self.recover(column(q), column(target), column(a), column(goal),
-                                      np.array([recovery.state], dtype=np.int8), to)
-        return out[:, 0].tolist(), Recovery(int(state[0]), tuple(to[:, 0].tolist()))
+        rec = Recoveries(np.array([recovery.state], dtype=np.int8), to, np.array([recovery.best]),
+                         np.array([recovery.since], dtype=np.int32))
+        out, rec = self.recover(column(q), column(tip), column(target), column(a), column(goal), rec)
+        return out[:, 0].tolist(), Recovery(int(rec.state[0]), tuple(rec.q[:, 0].tolist()), float(rec.best[0]),
+                                            int(rec.since[0]))
 
     # ------------------------------------------------------------------------------- one arm (plain floats)
     def place_one(self, q: list) -> tuple[list, list | None]:
@@ -613,7 +728,7 @@ class ReachEnv(gymnasium.Env):
             raise ResetNeeded('Cannot call env.step() before calling env.reset()')
         a = self.setup.check_action_one(action)
         target = self.setup.move_one(self._q, self._jac, a)
-        target, self._recovery = self.setup.recover_one(self._q, target, a, self._goal, self._recovery)
+        target, self._recovery = self.setup.recover_one(self._q, self._tip, target, a, self._goal, self._recovery)
         if self.setup.limits is not None:           # through the safety layer: one control period toward it
             q, v, self._sent = self.setup.advance(np.array(self._q)[:, None], self._v, self._sent,
                                                    np.array(target)[:, None])
@@ -621,6 +736,8 @@ class ReachEnv(gymnasium.Env):
             self._v = np.zeros_like(v) if hit else v
         else:
             self._q, hit = self.setup.guard_one(self._q, target)
+        if hit and self._recovery.state == RECOVERING:     # Recoveries.give_up
+            self._recovery = dataclasses.replace(self._recovery, state=RECOVERED)
         info = {} if hit is None else {'collision': hit}
         self._tip, self._jac = self.setup.place_one(self._q)
         if self.setup.pose:
@@ -694,8 +811,7 @@ class ReachVectorEnv(VectorEnv):
         self._goal = np.zeros((size, n))
         self._jac = np.zeros((6 if self.setup.pose else 3, self.arm.n, n)) if self.setup.control == 'ee' else None
         self._v, self._sent = self.setup.motion_start(self._q)
-        self._recovery = np.full(n, READY, dtype=np.int8)       # limit recovery's states (ReachSetup.recover)
-        self._recovery_q = np.zeros((self.arm.n, n))              # and the configurations the arms go to
+        self._recovery = Recoveries.fresh(self.arm.n, n)        # limit recovery's states (ReachSetup.recover)
         self._elapsed = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=np.bool_)
         self._started = np.zeros(n, dtype=np.bool_)
@@ -722,7 +838,7 @@ class ReachVectorEnv(VectorEnv):
         if jac is not None:
             self._jac[:, :, chosen] = jac
         self._elapsed[chosen] = 0
-        self._recovery[chosen] = READY
+        self._recovery.restart(chosen)
         self._started[chosen] = True
         if self._renderers is not None:
             for i in chosen:
@@ -804,15 +920,19 @@ class ReachVectorEnv(VectorEnv):
         before = self._q[:, rows]
         a_t = np.ascontiguousarray(a.T)
         target = self.setup.move(before, jac, a_t)
-        target, self._recovery[rows], self._recovery_q[:, rows] = self.setup.recover(
-            before, target, a_t, self._goal[:, rows], self._recovery[rows], self._recovery_q[:, rows])
+        target, rec = self.setup.recover(before, self._tip[:, rows], target, a_t, self._goal[:, rows],
+                                         self._recovery[rows])
         if self.setup.limits is None:
-            return self.setup.guard(before, target)
-        q, v, self._sent[:, :, rows] = self.setup.advance(before, self._v[:, rows], self._sent[:, :, rows], target)
-        q, hit = self.setup.guard(before, q)
-        if hit is not None:
-            v[:, hit] = 0.0
-        self._v[:, rows] = v
+            q, hit = self.setup.guard(before, target)
+        else:
+            q, v, self._sent[:, :, rows] = self.setup.advance(before, self._v[:, rows], self._sent[:, :, rows],
+                                                              target)
+            q, hit = self.setup.guard(before, q)
+            if hit is not None:
+                v[:, hit] = 0.0
+            self._v[:, rows] = v
+        rec.give_up(hit)
+        self._recovery[rows] = rec
         return q, hit
 
     def render(self):
