@@ -260,6 +260,29 @@ def fit_spheres(mesh, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]
     return centre_of, np.array(radii)
 
 
+
+# Rodrigues' rotation about a unit axis k by an angle (c = cos, s = sin, v = 1 - cos), entry by entry: the formulas of
+# CollisionModel._moving_poses, c I + s [k]x + v k k^T
+_RODRIGUES = {
+    (0, 0): lambda k, c, s, v: c + k[0] * k[0] * v, (0, 1): lambda k, c, s, v: k[0] * k[1] * v - k[2] * s,
+    (0, 2): lambda k, c, s, v: k[0] * k[2] * v + k[1] * s, (1, 0): lambda k, c, s, v: k[1] * k[0] * v + k[2] * s,
+    (1, 1): lambda k, c, s, v: c + k[1] * k[1] * v, (1, 2): lambda k, c, s, v: k[1] * k[2] * v - k[0] * s,
+    (2, 0): lambda k, c, s, v: k[2] * k[0] * v - k[1] * s, (2, 1): lambda k, c, s, v: k[2] * k[1] * v + k[0] * s,
+    (2, 2): lambda k, c, s, v: c + k[2] * k[2] * v,
+}
+
+
+def _live_entries(axis) -> set[tuple[int, int]]:
+    """The entries of the rotation about axis that are not 0 at every angle (the diagonal always; off it, where a
+    product of the axis's components or the component that multiplies s is not 0)."""
+    k = [float(x) for x in axis]
+    live = {(0, 0), (1, 1), (2, 2)}
+    for a, b in ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1)):
+        other = 3 - a - b
+        if k[a] * k[b] != 0.0 or k[other] != 0.0:
+            live.add((a, b))
+    return live
+
 class CollisionModel:
     """The arm's body as spheres per link, the pairs checked, and the world's obstacles (see the module)."""
 
@@ -522,6 +545,9 @@ class CollisionModel:
                 needed.add(parent[link].name)
                 link = parent[link].parent
         self._plan = [self.tree.joints[name] for name in self.tree.joint_order if name in needed]
+        self._turned_origins = {j.name for j in self._plan if not np.array_equal(j.matrix[:3, :3], np.identity(3))}
+        self._moved_origins = {j.name for j in self._plan if j.matrix[:3, 3].any()}
+        self._live_entries = {j.name: _live_entries(j.axis) for j in self._plan if j.axis is not None}
         self._wanted = below_arm
         at_home = self.tree.link_poses_batch(self.arm.home[None], names=self.arm.joints)
         base = np.linalg.inv(at_home[self.arm.base][0])
@@ -549,9 +575,10 @@ class CollisionModel:
         for j in self._plan:
             rot, pos = pose_of(j.parent)
             fixed = j.matrix
-            # the origin: R' = R Ro, p' = p + R to
-            r_origin = np.einsum('ijn,jk->ikn', rot, fixed[:3, :3])
-            p_origin = pos + np.einsum('ijn,j->in', rot, fixed[:3, 3])
+            # the origin: R' = R Ro, p' = p + R to (an identity Ro or a zero to changes nothing: skipped, exactly)
+            turned, moved = j.name in self._turned_origins, j.name in self._moved_origins
+            r_origin = np.einsum('ijn,jk->ikn', rot, fixed[:3, :3]) if turned else rot
+            p_origin = pos + np.einsum('ijn,j->in', rot, fixed[:3, 3]) if moved else pos
             theta = values.get(j.name) if j.type in ('revolute', 'continuous', 'prismatic') else None
             if theta is None:
                 poses[j.child] = (r_origin, p_origin)
@@ -562,21 +589,21 @@ class CollisionModel:
                 poses[j.child] = (r_origin, p_origin + np.einsum('ijn,j->in', r_origin, k) * theta)
                 continue
             c, s_, v = np.cos(theta), np.sin(theta), 1.0 - np.cos(theta)
-            motion = np.empty((3, 3, n))         # Rodrigues: c I + s [k]x + (1 - c) k k^T
-            motion[0, 0] = c + k[0] * k[0] * v
-            motion[0, 1] = k[0] * k[1] * v - k[2] * s_
-            motion[0, 2] = k[0] * k[2] * v + k[1] * s_
-            motion[1, 0] = k[1] * k[0] * v + k[2] * s_
-            motion[1, 1] = c + k[1] * k[1] * v
-            motion[1, 2] = k[1] * k[2] * v - k[0] * s_
-            motion[2, 0] = k[2] * k[0] * v - k[1] * s_
-            motion[2, 1] = k[2] * k[1] * v + k[0] * s_
-            motion[2, 2] = c + k[2] * k[2] * v
+            # Rodrigues: c I + s [k]x + (1 - c) k k^T, the entries an axis's zeros make 0 left out (a product with an
+            # exact 0 adds nothing to a finite sum: the numbers are the full product's)
+            entries = {}
+            for (a, b), formula in _RODRIGUES.items():
+                if (a, b) in self._live_entries[j.name]:
+                    entries[a, b] = formula(k, c, s_, v)
             rot_child = np.empty((3, 3, n))
             for a in range(3):
                 for b in range(3):
-                    rot_child[a, b] = (r_origin[a, 0] * motion[0, b] + r_origin[a, 1] * motion[1, b]
-                                       + r_origin[a, 2] * motion[2, b])
+                    total = None
+                    for m in range(3):
+                        if (m, b) in entries:
+                            term = r_origin[a, m] * entries[m, b]
+                            total = term if total is None else total + term
+                    rot_child[a, b] = 0.0 if total is None else total
             poses[j.child] = (rot_child, p_origin)
         return {link: poses[link] for link in self._wanted if link in poses}
 
