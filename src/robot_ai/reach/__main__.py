@@ -218,18 +218,20 @@ def plot_job(training: learn.Training) -> dict:
     hlines = [dict(y=95.0, label='95 %', color='tab:gray', ls=':')]
     if training.p_controller is not None:
         hlines.append(dict(y=100 * training.p_controller.success_rate, color='tab:green', ls='--',
-                           label=f'P-controller on the tip error ({percent(training.p_controller.success_rate)})'))
+                           label=f'P-controller, {"pose" if setup.pose else "tip"} error '
+                                 f'({percent(training.p_controller.success_rate)})'))
     if training.held_out is not None:
         hlines.append(dict(y=100 * training.held_out.success_rate, color='tab:red', ls='--',
-                           label=f'ARS, held-out ({percent(training.held_out.success_rate)} of '
-                                 f'{len(training.held_out.distances)} goals)'))
+                           label=f'ARS held-out, {len(training.held_out.distances)} goals '
+                                 f'({percent(training.held_out.success_rate)})'))
     layer = '' if setup.limits is None else f' through the safety layer x{setup.limits.velocity_scale:g}'
     return dict(title=f'Reach with ARS: {setup.model.tree.name} ({setup.model.name}), tip {setup.arm.tip}, '
                       f'{setup.control} control{layer}, seed {result.seed}: {result.elapsed:.1f} s',
                 xlabel='training steps (millions)', ylabel='goals reached within '
                 f'{within(setup)} (%)',
                 series=[dict(x=x, y=[100 * h.success_rate for h in result.history], style='line', color='tab:blue',
-                             lw=2, label='each iteration\'s policy on 256 fresh goals')],
+                             lw=2, label='each iteration, 256 fresh goals'
+                             + (', no recovery' if setup.limit_recovery else ''))],
                 hlines=hlines, ylim=[0, 105])
 
 
