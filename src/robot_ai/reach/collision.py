@@ -260,7 +260,6 @@ def fit_spheres(mesh, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]
     return centre_of, np.array(radii)
 
 
-
 # Rodrigues' rotation about a unit axis k by an angle (c = cos, s = sin, v = 1 - cos), entry by entry: the formulas of
 # CollisionModel._moving_poses, c I + s [k]x + v k k^T
 _RODRIGUES = {
@@ -282,6 +281,7 @@ def _live_entries(axis) -> set[tuple[int, int]]:
         if k[a] * k[b] != 0.0 or k[other] != 0.0:
             live.add((a, b))
     return live
+
 
 class CollisionModel:
     """The arm's body as spheres per link, the pairs checked, and the world's obstacles (see the module)."""
@@ -444,44 +444,8 @@ class CollisionModel:
         if len(self.pair_a):
             hit |= self._touching(x, y, z, self.pair_a, self.pair_b, padding).any(axis=0)
         if self.obstacles and len(self.moving_spheres):
-            hit |= self._hits_obstacles(x, y, z, padding)
-        return hit
-
-    def _hits_obstacles(self, x, y, z, padding: float = 0.0) -> np.ndarray:
-        """(N,) bool: _touching_obstacles(...).any(axis=(0, 1)), the same numbers in place, an obstacle at a time
-        (an axis-aligned box without its rotation's products, which are exact there: x 1 + y 0 + z 0 is x)."""
-        m = self.moving_spheres
-        xs, ys, zs = x[m], y[m], z[m]
-        reach = self.radii[m][:, None] + padding
-        limit = reach ** 2
-        hit = np.zeros(xs.shape[1], dtype=bool)
-        d, d2 = np.empty_like(xs), np.empty_like(xs)
-        for o in self.obstacles:
-            rot, centre = o.pose[:3, :3], o.pose[:3, 3]
-            if o.kind != 'box':
-                np.subtract(xs, centre[0], out=d2)
-                np.multiply(d2, d2, out=d2)
-                for coordinate, t in ((ys, centre[1]), (zs, centre[2])):
-                    np.subtract(coordinate, t, out=d)
-                    d2 += d * d
-                hit |= (d2 < (reach + o.size[0]) ** 2).any(axis=0)
-                continue
-            aligned = np.array_equal(rot, np.identity(3))
-            deltas = (xs, ys, zs) if aligned else (xs - centre[0], ys - centre[1], zs - centre[2])
-            d2.fill(0.0)
-            for axis in range(3):
-                if aligned:
-                    np.subtract(deltas[axis], centre[axis], out=d)
-                else:
-                    np.multiply(deltas[0], rot[0, axis], out=d)
-                    d += rot[1, axis] * deltas[1]
-                    d += rot[2, axis] * deltas[2]
-                np.abs(d, out=d)
-                d -= o.size[axis] / 2.0
-                np.maximum(d, 0.0, out=d)
-                np.multiply(d, d, out=d)
-                d2 += d
-            hit |= (d2 < limit).any(axis=0)
+            for touching in self._obstacle_contacts(x, y, z, padding):
+                hit |= touching.any(axis=0)
         return hit
 
     def _touching(self, x, y, z, a: np.ndarray, b: np.ndarray, padding: float = 0.0) -> np.ndarray:
@@ -500,22 +464,44 @@ class CollisionModel:
     def _touching_obstacles(self, x, y, z, padding: float = 0.0) -> np.ndarray:
         """(len(obstacles), K_moving, N) bool: the moving spheres that touch each obstacle (or come within
         padding)."""
+        return np.array(list(self._obstacle_contacts(x, y, z, padding)), dtype=bool).reshape(
+            len(self.obstacles), len(self.moving_spheres), x.shape[1])
+
+    def _obstacle_contacts(self, x, y, z, padding: float = 0.0):
+        """For each obstacle in turn, (K_moving, N) bool: the moving spheres (centres given as (K, N) x, y and z)
+        that touch it or come within padding. The numbers run in place, an obstacle at a time; an axis-aligned box
+        skips its rotation's products, which are exact there (x 1 + y 0 + z 0 is x)."""
         m = self.moving_spheres
-        radii = self.radii[m][:, None] + padding
         xs, ys, zs = x[m], y[m], z[m]
-        out = np.empty((len(self.obstacles), len(m), xs.shape[1]), dtype=bool)
-        for k, o in enumerate(self.obstacles):
-            rot, (tx, ty, tz) = o.pose[:3, :3], o.pose[:3, 3]
-            dx, dy, dz = xs - tx, ys - ty, zs - tz
-            if o.kind == 'box':
-                d2 = np.zeros_like(dx)
-                for axis in range(3):          # the sphere's centre in the box's frame, clamped outside it
-                    local = rot[0, axis] * dx + rot[1, axis] * dy + rot[2, axis] * dz
-                    d2 += np.maximum(np.abs(local) - o.size[axis] / 2.0, 0.0) ** 2
-                out[k] = d2 < radii ** 2
-            else:
-                out[k] = dx * dx + dy * dy + dz * dz < (radii + o.size[0]) ** 2
-        return out
+        reach = self.radii[m][:, None] + padding
+        limit = reach ** 2
+        d, d2 = np.empty_like(xs), np.empty_like(xs)
+        for o in self.obstacles:
+            rot, centre = o.pose[:3, :3], o.pose[:3, 3]
+            if o.kind != 'box':
+                np.subtract(xs, centre[0], out=d2)
+                np.multiply(d2, d2, out=d2)
+                for coordinate, t in ((ys, centre[1]), (zs, centre[2])):
+                    np.subtract(coordinate, t, out=d)
+                    d2 += d * d
+                yield d2 < (reach + o.size[0]) ** 2
+                continue
+            aligned = np.array_equal(rot, np.identity(3))
+            deltas = (xs, ys, zs) if aligned else (xs - centre[0], ys - centre[1], zs - centre[2])
+            d2.fill(0.0)
+            for axis in range(3):          # the sphere's centre in the box's frame, clamped outside it
+                if aligned:
+                    np.subtract(deltas[axis], centre[axis], out=d)
+                else:
+                    np.multiply(deltas[0], rot[0, axis], out=d)
+                    d += rot[1, axis] * deltas[1]
+                    d += rot[2, axis] * deltas[2]
+                np.abs(d, out=d)
+                d -= o.size[axis] / 2.0
+                np.maximum(d, 0.0, out=d)
+                np.multiply(d, d, out=d)
+                d2 += d
+            yield d2 < limit
 
     def _centres_by_coordinate(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The spheres' centres as three (K, N) arrays, x, y and z in the arm's base frame."""
