@@ -475,7 +475,7 @@ class ReachSetup:
         arm = self.arm
         asked = actions_t * self.ee_step
         asked2 = (asked * asked).sum(axis=0)
-        best, since, _ = self._stall_count(tip_t, goal_t, actions_t, rec.best, rec.since)
+        best, since = self._stall_count(tip_t, goal_t, actions_t, rec.best, rec.since)
         rec = Recoveries(rec.state.copy(), rec.q, best, since)
         ready = (rec.state == READY) & (asked2 >= (RECOVERY_ASK * self.ee_step) ** 2)
         at_limit = ((target_t <= arm.lower[:, None] + LIMIT_TOLERANCE)
@@ -556,11 +556,11 @@ class ReachSetup:
         return np.concatenate((move, np.minimum(np.maximum(turn, -most), most)))
 
     def _stall_count(self, tip_t: np.ndarray, goal_t: np.ndarray, actions_t: np.ndarray, best: np.ndarray,
-                     since: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """recover's (best, since, trying) for a step from tips tip_t toward goal_t (size, N) with actions_t (a, N):
-        trying, the action asks toward the goal (its cosine with the P-controller's, unclipped, at least
-        STALL_COSINE: random actions seldom do, and seldom stall_steps in a row); the count goes on while the dense
-        error stays above best less STALL_GAIN of a full step and the action tries."""
+                     since: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """recover's (best, since) after a step from tips tip_t toward goal_t (size, N) with actions_t (a, N): the
+        count goes on while the action tries, asking toward the goal (its cosine with the P-controller's, unclipped,
+        at least STALL_COSINE: random actions seldom do, and seldom stall_steps in a row), and the dense error stays
+        between best less STALL_GAIN of a full step and best plus STALL_BAND full steps."""
         error = self.task.error(tip_t.T, goal_t.T)
         lower = error < best - STALL_GAIN * self.ee_step
         toward = self._p_action(tip_t, goal_t, np.inf)
@@ -571,17 +571,17 @@ class ReachSetup:
             aa = aa + actions_t[row] * actions_t[row]
         trying = (dot > 0) & (dot >= STALL_COSINE * np.sqrt(tt * aa))
         away = error > best + STALL_BAND * self.ee_step
-        return np.where(lower, error, best), np.where(lower | ~trying | away, 0, since + 1).astype(np.int32), trying
+        return np.where(lower, error, best), np.where(lower | ~trying | away, 0, since + 1).astype(np.int32)
 
     def _stall_count_one(self, tip: list, goal: list, a: list, best: float,
-                         since: int) -> tuple[float, int, bool]:
+                         since: int) -> tuple[float, int]:
         """_stall_count's numbers for one arm, in floats for position goals (the same operations in the same
         order), through a batch of one for pose goals."""
         if self.pose:
             column = lambda v: np.array(v, dtype=np.float64)[:, None]     # noqa: E731
-            b, n, t = self._stall_count(column(tip), column(goal), column(a), np.array([best]),
-                                        np.array([since], dtype=np.int32))
-            return float(b[0]), int(n[0]), bool(t[0])
+            b, n = self._stall_count(column(tip), column(goal), column(a), np.array([best]),
+                                     np.array([since], dtype=np.int32))
+            return float(b[0]), int(n[0])
         error = goal_distance_one(tip, goal)
         lower = error < best - STALL_GAIN * self.ee_step
         toward = [(g - t) / self.ee_step for g, t in zip(goal, tip)]
@@ -592,7 +592,7 @@ class ReachSetup:
             aa = aa + a[row] * a[row]
         trying = dot > 0 and dot >= STALL_COSINE * math.sqrt(tt * aa)
         away = error > best + STALL_BAND * self.ee_step
-        return (error if lower else best), (0 if lower or not trying or away else since + 1), trying
+        return (error if lower else best), (0 if lower or not trying or away else since + 1)
 
     def _tip_motion(self, q_t: np.ndarray, target_t: np.ndarray) -> np.ndarray:
         """(3 or 6, N): how the tip moves from q_t to target_t, in the action's units times ee_step (pose goals:
@@ -609,7 +609,7 @@ class ReachSetup:
         if not self.limit_recovery or recovery.state == RECOVERED:
             return target, recovery
         if recovery.state == READY:         # recover's bookkeeping alone, while nothing can block or stall
-            best, counted, _ = self._stall_count_one(tip, goal, a, recovery.best, recovery.since)
+            best, counted = self._stall_count_one(tip, goal, a, recovery.best, recovery.since)
             asks = sum((v * self.ee_step) * (v * self.ee_step) for v in a) >= (RECOVERY_ASK * self.ee_step) ** 2
             at_limit = any(t <= lo + LIMIT_TOLERANCE or t >= hi - LIMIT_TOLERANCE
                            for t, lo, hi in zip(target, self.arm._lower, self.arm._upper))
