@@ -1,6 +1,7 @@
 """ee control's limit recovery (issue 38, reach from wherever the arm stands): a step that a joint limit blocks, or an
 arm stalled in a local minimum, sends the arm in joint space to a configuration that reaches the goal, once an
 episode, and the policy goes on from there. No roscore."""
+import os
 from dataclasses import replace
 
 import gymnasium
@@ -15,7 +16,9 @@ from robot_ai.reach.env import READY, RECOVERED, RECOVERING, RECOVERY_ARRIVED, R
 from test_reach import assert_same, make_sync
 
 UR5 = robot_path('ur5.urdf')
-ARMS = [UR5, robot_path('kuka_lwr_arm.urdf'), robot_path('panda.urdf'), robot_path('pr2.urdf')]
+KUKA = robot_path('kuka_lwr_arm.urdf')
+WORLD = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', 'world.yaml')
+ARMS = [UR5, KUKA, robot_path('panda.urdf'), robot_path('pr2.urdf')]
 
 
 @pytest.mark.parametrize('path', ARMS)
@@ -142,7 +145,7 @@ def test_the_recovery_of_one_arm_equals_the_batchs_and_envs_equal_sync_vector_en
     error = setup.task.error(tip.T, goal.T)
     best = np.where(rng.random(200) < 0.5, np.inf, error + rng.uniform(-0.01, 0.01, 200))
     since = rng.integers(0, setup.stall_steps + 1, 200).astype(np.int32)
-    before = Recoveries(state, to, best, since)
+    before = Recoveries(state, to, best, since, to.copy())
     batch, after = setup.recover(q, tip, target, a, goal, before)
     started = (after.state == RECOVERING) & (state == READY)
     assert started[:150].sum() > 0 and not started[150:].any()      # some were blocked or stalled; none at random
@@ -187,6 +190,51 @@ def test_the_setting_is_kept_by_policy_files_and_older_files_learned_without_it(
     assert not ReachSetup(model=UR5, control='joints').limit_recovery
     with pytest.raises(ReachError, match='limit_recovery must be true or false'):
         ReachSetup(model=UR5, limit_recovery='yes')
+
+
+def test_in_a_world_the_recovery_goes_round_the_obstacles_on_a_way_it_checked():
+    """The KUKA among test/world.yaml's table and two boxes, the P-controller from 300 random starts: a collision
+    holds the arm (a motion that would touch is not made), which stalls, and the recovery takes it to a reaching
+    configuration clear of contacts on a way checked step by step, through a via point where the straight way
+    touches. At least 97 % reached (without the recovery under 80 %); of the steps the recovery made, almost none
+    refused by a collision; some ways went through a via point, and every such way's points are clear; the vector
+    env equals single envs while they go round."""
+    setup = ReachSetup(model=KUKA, obstacles=WORLD, start='random')
+    plain = ReachSetup(model=KUKA, obstacles=WORLD, start='random', limit_recovery=False)
+    without = learn.evaluate(learn.p_controller(plain), plain, 300)
+    p = learn.p_controller(setup)
+    env = ReachVectorEnv(300, setup=setup)
+    obs, _ = env.reset(seed=2 ** 31)
+    recovering = refused = 0
+    vias = []
+    for _ in range(env.max_episode_steps):
+        rec = env._recovery
+        going = rec.state == RECOVERING
+        onward = going & (rec.then != rec.q).any(axis=0)
+        vias += [(rec.q[:, i].copy(), rec.then[:, i].copy()) for i in np.flatnonzero(onward)]
+        obs, _, _, _, infos = env.step(p.act_batch(ars.flatten_batch(env.single_observation_space, obs)))
+        recovering += int(going.sum())
+        refused += int((going & infos['collision']).sum())
+        assert not setup.body.in_collision(env._q.T).any()
+    rate = infos['is_success'].mean()
+    assert rate >= 0.97 and without.success_rate < 0.8, (rate, without)
+    assert recovering > 100 and refused < 0.02 * recovering, (recovering, refused)
+    assert vias and not setup.body.in_collision(np.array([v for pair in vias for v in pair])).any()
+    n = 12
+    sync = make_sync(n, model=KUKA, obstacles=WORLD, start='random')
+    vec = gymnasium.make_vec('robot_ai/Reach-v0', num_envs=n, model=KUKA, obstacles=WORLD, start='random')
+    o1, _ = sync.reset(seed=40)
+    assert_same(o1, vec.reset(seed=40)[0])
+    went_via = 0
+    for _ in range(100):
+        a = p.act_batch(ars.flatten_batch(vec.single_observation_space, o1)).astype(np.float32)
+        r1, r2 = sync.step(a), vec.step(a)
+        for x, y in zip(r1, r2):
+            assert_same(x, y)
+        o1 = r1[0]
+        rec = vec.unwrapped._recovery
+        went_via += int(((rec.state == RECOVERING) & (rec.then != rec.q).any(axis=0)).sum())
+    assert went_via > 0, went_via
 
 
 def test_ars_trained_from_home_reaches_from_random_starts_and_chained():

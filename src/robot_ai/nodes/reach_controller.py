@@ -198,7 +198,7 @@ class ReachController:
             raise ValueError(f'~command_joints lacks {", ".join(missing)}, which the arm moves to reach')
         self.slot = [self.command_joints.index(n) for n in arm.joints]
         self.layer = self._safety_layer(tree, xml)
-        self.moving = self.setup.through(self.layer.limits, self.layer.period)   # the arm as the layer moves it
+        self.moving = self.setup.through(self.layer.limits, self.layer.period, self.layer.margin)   # as it moves
         self._predict(self.policy)
         # the arm moves at velocity_scale of its speed: a motion takes 1 / velocity_scale as long, a stall too (a
         # pose goal from a singular home turns first, its distance growing for seconds at 0.25)

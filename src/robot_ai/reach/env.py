@@ -81,7 +81,8 @@ LAYER_EPISODE = 4            # with velocity_scale: episodes this many times as 
 # (its cosine with the P-controller's at least STALL_COSINE): a local minimum, no limit in the way;
 # the arm then goes in joint space to a configuration that reaches the goal (the P-controller's steps for
 # RECOVERY_ITERATIONS from home and RECOVERY_SEEDS - 1 fixed postures), each joint at most RECOVERY_STEP of its half
-# range a step, and the policy has the arm again once every joint is within RECOVERY_ARRIVED of its half range of it
+# range a step, and the policy has the arm again once every joint is within RECOVERY_ARRIVED of its half range of it;
+# with a body, to one clear of contacts on a way checked step by step, straight or through one via point
 RECOVERY_ASK = 0.15
 RECOVERY_PROGRESS = 0.3
 RECOVERY_STEP = 0.15
@@ -94,6 +95,8 @@ RECOVERY_SEEDS = 8
 RECOVERY_ITERATIONS = 30
 RECOVERY_STRIDE = 2.0        # ... in steps of up to this many full steps (a search, not a motion: the arm goes there
                              # in joint space, at RECOVERY_STEP)
+RECOVERY_VIAS = 56           # with a body: fixed draws beside the seeds, clear of contacts, where a way round the
+                             # obstacles and the arm's own links may pass (and the search starts from)
 READY, RECOVERING, RECOVERED = 0, 1, 2      # an arm's limit recovery in its episode
 
 
@@ -101,33 +104,37 @@ READY, RECOVERING, RECOVERED = 0, 1, 2      # an arm's limit recovery in its epi
 class Recovery:
     """One arm's limit recovery in its episode (ReachSetup.recover_one): its state (READY, RECOVERING or
     RECOVERED), the configuration it goes to, the least dense error of the episode (lowered by STALL_GAIN of a
-    full step or more at a time) and the steps since then that asked toward the goal."""
+    full step or more at a time), the steps since then that asked toward the goal, and the configuration it goes to
+    after q (the end of its way; q itself when the way has no via point)."""
     state: int = READY
     q: tuple[float, ...] | None = None
     best: float = math.inf
     since: int = 0
+    then: tuple[float, ...] | None = None
 
 
 @dataclasses.dataclass
 class Recoveries:
     """The limit recovery's state of a batch of arms (ReachSetup.recover), Recovery's fields as arrays on the
-    batch's last axis: state (N,) int8, q (n, N), best (N,), since (N,) int32."""
+    batch's last axis: state (N,) int8, q (n, N), best (N,), since (N,) int32, then (n, N)."""
     state: np.ndarray
     q: np.ndarray
     best: np.ndarray
     since: np.ndarray
+    then: np.ndarray
 
     @classmethod
     def fresh(cls, n: int, count: int) -> Recoveries:
         return cls(np.full(count, READY, dtype=np.int8), np.zeros((n, count)), np.full(count, np.inf),
-                   np.zeros(count, dtype=np.int32))
+                   np.zeros(count, dtype=np.int32), np.zeros((n, count)))
 
     def __getitem__(self, rows) -> Recoveries:
-        return Recoveries(self.state[rows], self.q[:, rows], self.best[rows], self.since[rows])
+        return Recoveries(self.state[rows], self.q[:, rows], self.best[rows], self.since[rows], self.then[:, rows])
 
     def __setitem__(self, rows, other: Recoveries) -> None:
         self.state[rows], self.q[:, rows], self.best[rows], self.since[rows] = (other.state, other.q, other.best,
                                                                                 other.since)
+        self.then[:, rows] = other.then
 
     def restart(self, rows) -> None:
         """A new episode for these arms."""
@@ -205,6 +212,7 @@ class ReachSetup:
         self.episode_steps = episode_steps(self.limits)
         self.stall_steps = stall_steps(self.episode_steps)
         self.obstacles = parse_obstacles(obstacles)
+        self.way_margin = 0.0       # metres the recovery's ways keep clear of contacts (through a layer: its margin)
         if collision is None:
             collision = bool(self.obstacles)
         if not isinstance(collision, (bool, np.bool_)):
@@ -217,6 +225,10 @@ class ReachSetup:
             if touching:
                 raise ReachError(f'home is in collision: {", ".join(touching[:4])} (move the obstacles, or give a '
                                  f'home that is clear of them)')
+            # the recovery's via points round the obstacles and the arm's own links: fixed draws clear of them
+            draws = np.random.default_rng(1).uniform(self.arm.lower, self.arm.upper, (RECOVERY_VIAS, self.arm.n))
+            vias = np.vstack((self.recovery_seeds.T, draws))
+            self.recovery_vias = np.ascontiguousarray(vias[~self.body.in_collision(vias)].T)
         bound = self.arm.radius + 1e-6
         goal_low = np.full(3, -bound) if not self.pose else np.concatenate((np.full(3, -bound), -np.ones(4)))
         goal_high = -goal_low
@@ -323,11 +335,12 @@ class ReachSetup:
         return out
 
     # ---------------------------------------------------------------------------- the safety layer's motion
-    def through(self, limits: Limits, control_period: float = CONTROL_PERIOD) -> ReachSetup:
+    def through(self, limits: Limits, control_period: float = CONTROL_PERIOD, margin: float = 0.0) -> ReachSetup:
         """This setup with the arm moved through a safety layer of these limits (what velocity_scale and
-        joint_limits make), without loading the model again: a node's prediction of its own arm."""
+        joint_limits make), without loading the model again: a node's prediction of its own arm. margin: the
+        metres the layer keeps clear of contacts, which the recovery's ways keep too (recovery_way)."""
         out = copy.copy(self)
-        out.limits = limits
+        out.limits, out.way_margin = limits, float(margin)
         out.control_period = self._positive('control_period', control_period, CONTROL_PERIOD)
         out.episode_steps = episode_steps(limits)
         out.stall_steps = stall_steps(out.episode_steps)
@@ -464,19 +477,21 @@ class ReachSetup:
         the tip moves less than RECOVERY_PROGRESS of the way asked, along it; an arm so asked is stalled when
         stall_steps steps in a row (a tenth of an episode) tried, asking toward the goal (_stall_count), and its
         dense error did not fall STALL_GAIN of a full step below the least it reached nor rise STALL_BAND full steps
-        above it (an arm going the long way round is going somewhere), short of the goal. The arm then goes in joint
-        space (a straight line within the limits' box, which no limit blocks) to reaching_configuration's answer,
-        each joint at most RECOVERY_STEP of its half range a step, and the policy has it again there (or once a
-        collision refuses the way: Recoveries.give_up). A stalled arm for whose goal no configuration is found (a
-        goal beyond its reach) stays where it is: the recovery is spent for the episode. An arm's result does not
-        depend on its batch."""
+        above it (an arm going the long way round is going somewhere), short of the goal (an arm that a collision
+        holds stalls so). The arm then goes in joint space (a straight line within the limits' box, which no limit
+        blocks) to reaching_configuration's answer, each joint at most RECOVERY_STEP of its half range a step, and
+        the policy has it again there (or once a collision refuses the way: Recoveries.give_up). With a body, it goes
+        to recovery_way's answer: a reaching configuration clear of contacts, on a way whose every step is clear,
+        through a via point where the straight way touches (the next leg starts once the arm itself is there). A
+        stalled arm for whose goal no configuration is found (a goal beyond its reach) stays where it is: the
+        recovery is spent for the episode. An arm's result does not depend on its batch."""
         if not self.limit_recovery:
             return target_t, rec
         arm = self.arm
         asked = actions_t * self.ee_step
         asked2 = (asked * asked).sum(axis=0)
         best, since = self._stall_count(tip_t, goal_t, actions_t, rec.best, rec.since)
-        rec = Recoveries(rec.state.copy(), rec.q, best, since)
+        rec = Recoveries(rec.state.copy(), rec.q, best, since, rec.then)
         ready = (rec.state == READY) & (asked2 >= (RECOVERY_ASK * self.ee_step) ** 2)
         at_limit = ((target_t <= arm.lower[:, None] + LIMIT_TOLERANCE)
                     | (target_t >= arm.upper[:, None] - LIMIT_TOLERANCE)).any(axis=0)
@@ -490,9 +505,9 @@ class ReachSetup:
             stalled = stalled[~self.task.is_success(tip_t[:, stalled].T, goal_t[:, stalled].T)]
         going = np.union1d(blocked, stalled)
         if len(going):
-            rec.q = rec.q.copy()
-            to = self.reaching_configuration(goal_t[:, going], q_t[:, going])
-            rec.q[:, going] = to
+            rec.q, rec.then = rec.q.copy(), rec.then.copy()
+            via, to = self.recovery_way(goal_t[:, going], q_t[:, going])
+            rec.q[:, going], rec.then[:, going] = via, to
             # a stall where no configuration reaches (a goal beyond the arm's reach): nowhere to go, this episode
             hopeless = ~np.isin(going, blocked) & ~self.task.is_success(self.goals_of(to).T, goal_t[:, going].T)
             rec.state[going] = np.where(hopeless, RECOVERED, RECOVERING)
@@ -500,9 +515,15 @@ class ReachSetup:
         if not recovering.any():
             return target_t, rec
         half = arm._half[:, None]
+        # at its via point (the arm itself, which a safety layer may bring there later than its targets): onward
+        onward = recovering & (rec.then != rec.q).any(axis=0) & (np.abs(rec.q - q_t) <= RECOVERY_ARRIVED * half).all(
+            axis=0)
+        if onward.any():
+            rec.q = np.where(onward, rec.then, rec.q)
         step = np.minimum(np.maximum(rec.q - q_t, -RECOVERY_STEP * half), RECOVERY_STEP * half)
         back = q_t + step
-        done = recovering & (np.abs(rec.q - back) <= RECOVERY_ARRIVED * half).all(axis=0)
+        done = recovering & (rec.then == rec.q).all(axis=0) & (np.abs(rec.q - back) <= RECOVERY_ARRIVED * half).all(
+            axis=0)
         rec.state = np.where(done, RECOVERED, rec.state).astype(np.int8)
         return np.where(recovering, back, target_t), rec
 
@@ -514,7 +535,15 @@ class ReachSetup:
         that they cannot find from where the arm stands. Where none reaches, the answer that comes nearest. A
         search costs as many steps as it takes, whatever the batch: stopping at the first answer (not the last
         iteration) halved an evaluation's time on pose goals."""
-        seeds = self.recovery_seeds
+        q, reached, error, far = self._reaching_search(goal_t, q_t, self.recovery_seeds, clear=False)
+        best = np.where(reached.any(axis=0), np.where(reached, far, np.inf).argmin(axis=0), error.argmin(axis=0))
+        return np.ascontiguousarray(q[:, best, np.arange(goal_t.shape[1])])
+
+    def _reaching_search(self, goal_t: np.ndarray, q_t: np.ndarray, seeds: np.ndarray,
+                         clear: bool) -> tuple[np.ndarray, ...]:
+        """reaching_configuration's search from seeds (n, k), a goal's stopping once one answer is well within the
+        thresholds (and, clear, clear of collisions): (configurations (n, k, M), reached (k, M), error (k, M),
+        squared distance from q_t in half ranges (k, M))."""
         n, k, m = self.arm.n, seeds.shape[1], goal_t.shape[1]
         q = np.repeat(seeds, m, axis=1)                 # column i * m + j: seed i, goal j
         goal = np.tile(goal_t, (1, k))
@@ -524,8 +553,12 @@ class ReachSetup:
             tip, jac = self.place(q[:, going])
             there = self._well_within(tip, goal[:, going])
             if there.any():
+                on = np.ones(len(going), dtype=np.bool_)
+                if clear:           # an answer that touches stops there too, and its goal's search goes on
+                    on[there] = False
+                    there[there] = ~self.body.in_collision(q[:, going[there]].T, self.way_margin)
                 found[going[there] % m] = True
-                on = ~found[going % m]
+                on &= ~found[going % m]
                 going, tip, jac = going[on], tip[:, on], jac[..., on]
                 if not len(going):
                     break
@@ -534,9 +567,101 @@ class ReachSetup:
         reached, error = self.task.is_success(achieved.T, goal.T), self.task.error(achieved.T, goal.T)
         q = q.reshape(n, k, m)
         far = (((q - q_t[:, None, :]) / self.arm._half[:, None, None]) ** 2).sum(axis=0)
-        reached, error = reached.reshape(k, m), error.reshape(k, m)
-        best = np.where(reached.any(axis=0), np.where(reached, far, np.inf).argmin(axis=0), error.argmin(axis=0))
-        return np.ascontiguousarray(q[:, best, np.arange(m)])
+        return q, reached.reshape(k, m), error.reshape(k, m), far
+
+    def recovery_way(self, goal_t: np.ndarray, q_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(via, to), each (n, M): where the recovery takes arms at q_t (n, M) for goals goal_t (size, M): to is
+        reaching_configuration's answer and via is to, without a body. With one, a goal's search stops once an
+        answer reaches it clear of contacts, and where no way to its answers from recovery_seeds is clear, it
+        starts again from every one of recovery_vias (from the seeds alone, every answer touched a box for 25 of 29
+        goals missed among test/world.yaml, when the search stopped at any answer). Then to is the
+        nearest such answer whose way (the recovery's own steps, every one checked, way_margin kept) is clear, and
+        via is to; else, the nearest whose way through one of recovery_vias (there, then on) is, and via is that
+        point (the shorter way first). Where no way is clear, the nearest answer, straight (a collision will refuse
+        it and the policy has the arm again: Recoveries.give_up). Arm by arm: an arm's way does not depend on its
+        batch."""
+        if self.body is None:
+            to = self.reaching_configuration(goal_t, q_t)
+            return to, to
+        via, to = np.empty_like(q_t), np.empty_like(q_t)
+        left = np.arange(q_t.shape[1])
+        for seeds in (self.recovery_seeds, self.recovery_vias):     # the few seeds first: most goals need no more
+            q, reached, error, far = self._reaching_search(goal_t[:, left], q_t[:, left], seeds, clear=True)
+            orders = []
+            for i in range(len(left)):                 # each arm's answers, the nearest reaching one first
+                order = np.flatnonzero(reached[:, i])
+                orders.append(order[np.argsort(far[order, i], kind='stable')] if len(order)
+                              else np.array([error[:, i].argmin()]))
+            owner = np.repeat(np.arange(len(left)), [len(order) for order in orders])
+            ends = np.concatenate([q[:, order, i] for i, order in enumerate(orders)], axis=1)
+            clear = ~self.body.in_collision(ends.T, self.way_margin)
+            nearest = {}                       # each arm's nearest answer clear of contacts: its straight way first,
+            for k in np.flatnonzero(clear):    # all arms at once
+                nearest.setdefault(owner[k], k)
+            tried = np.array(list(nearest.values()), dtype=np.intp)
+            straight = np.zeros(len(owner), dtype=np.bool_)
+            straight[tried] = self._way_clear(q_t[:, left[owner[tried]]], ends[:, tried])[0]
+            found = np.zeros(len(left), dtype=np.bool_)
+            for i, j in enumerate(left):
+                mine = np.flatnonzero((owner == i) & clear)
+                if len(mine) and straight[mine[0]]:
+                    way = ends[:, mine[0]], ends[:, mine[0]]
+                else:
+                    way = self._clear_way(q_t[:, j], ends[:, mine])
+                found[i] = way is not None
+                first = q[:, orders[i][0], i]
+                via[:, j], to[:, j] = way if found[i] else (first, first)
+            left = left[~found]
+            if not len(left):
+                break
+        return via, to
+
+    def _clear_way(self, q: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(via, to) from q (n,) to the first of ends (n, c) (clear of contacts; the first one's straight way
+        touches) whose way is clear: straight (via is to), else through one of recovery_vias, the shortest way
+        through one for the first end that has one; None without one."""
+        c = ends.shape[1]
+        if not c:
+            return None
+        straight = self._way_clear(np.repeat(q[:, None], c - 1, axis=1), ends[:, 1:])[0]
+        if straight.any():
+            end = ends[:, 1 + straight.argmax()]
+            return end, end
+        vias = self.recovery_vias
+        v = vias.shape[1]
+        first, there = self._way_clear(np.repeat(q[:, None], v, axis=1), vias)
+        if not first.any():
+            return None
+        vias, there = vias[:, first], there[:, first]
+        v = vias.shape[1]
+        second = self._way_clear(np.repeat(there, c, axis=1), np.tile(ends, (1, v)))[0]
+        second = second.reshape(v, c)          # via i, end j: column i * c + j
+        half = self.arm._half[:, None]
+        for j in range(c):                     # the nearest end first, then the shortest way through a via point
+            ok = np.flatnonzero(second[:, j])
+            if len(ok):
+                length = (np.abs((vias[:, ok] - q[:, None]) / half).max(axis=0)
+                          + np.abs((ends[:, j:j + 1] - there[:, ok]) / half).max(axis=0))
+                return vias[:, ok[length.argmin()]], ends[:, j]
+        return None
+
+    def _way_clear(self, start_t: np.ndarray, end_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(clear (P,), where each way stops (n, P)): the recovery's steps from start_t to end_t (n, P), each joint
+        at most RECOVERY_STEP of its half range a step until every joint is within RECOVERY_ARRIVED of it (recover's
+        rule), every configuration on the way checked against the body."""
+        if not start_t.shape[1]:
+            return np.zeros(0, dtype=np.bool_), start_t.copy()
+        half = self.arm._half[:, None]
+        x, stops = start_t.copy(), []
+        going = np.ones(x.shape[1], dtype=np.bool_)
+        while going.any():
+            step = np.minimum(np.maximum(end_t[:, going] - x[:, going], -RECOVERY_STEP * half),
+                              RECOVERY_STEP * half)
+            x[:, going] += step
+            stops.append(x.copy())
+            going[going] = ~(np.abs(end_t[:, going] - x[:, going]) <= RECOVERY_ARRIVED * half).all(axis=0)
+        hits = self.body.in_collision(np.concatenate(stops, axis=1).T, self.way_margin).reshape(len(stops), -1)
+        return ~hits.any(axis=0), x
 
     def _well_within(self, achieved_t: np.ndarray, goal_t: np.ndarray) -> np.ndarray:
         """(N,): achieved goals (size, N) within half the task's thresholds of goal_t."""
@@ -617,11 +742,12 @@ class ReachSetup:
                 return target, Recovery(READY, recovery.q, best, counted)
         column = lambda v: np.array(v, dtype=np.float64)[:, None]     # noqa: E731
         to = column(recovery.q) if recovery.q is not None else np.zeros((self.arm.n, 1))
+        then = column(recovery.then) if recovery.then is not None else to.copy()
         rec = Recoveries(np.array([recovery.state], dtype=np.int8), to, np.array([recovery.best]),
-                         np.array([recovery.since], dtype=np.int32))
+                         np.array([recovery.since], dtype=np.int32), then)
         out, rec = self.recover(column(q), column(tip), column(target), column(a), column(goal), rec)
         return out[:, 0].tolist(), Recovery(int(rec.state[0]), tuple(rec.q[:, 0].tolist()), float(rec.best[0]),
-                                            int(rec.since[0]))
+                                            int(rec.since[0]), tuple(rec.then[:, 0].tolist()))
 
     # ------------------------------------------------------------------------------- one arm (plain floats)
     def place_one(self, q: list) -> tuple[list, list | None]:
