@@ -7,15 +7,17 @@
   30 ms after it is made. The arm's motion is sampled every 5 ms and checked against the position, velocity and
   acceleration limits (velocity_scale 0.5) and against the arm's body and the world with no margin. Policies: ARS
   trained here, the P-controller on the same action, and hostile ones: always +1, oscillating (the sign flips every
-  step), random, and NaN one step in five. --goals goals each (100), on the KUKA LWR among a table and two boxes
-  (test/world.yaml) and on the UR5 (limits only: its collision meshes are not on this machine).
+  step), random, and NaN one step in five; every action through the env's recovery as reach_controller runs it (a
+  way round a joint limit, a stall or an obstacle, once a goal). --goals goals each (100), on the KUKA LWR among a
+  table and two boxes (test/world.yaml) and on the UR5 (limits only: its collision meshes are not on this machine).
 - Through ROS (reach.launch command:=trajectory, the UR5, velocity_scale 1): the time from a goal published on
   ~goal to the first trajectory on joint_trajectory_controller/command, with the arm at rest before each click
   (after ~home), quiet and with two busy loops on the cores (started here).
 
-    python bench/reach_safety.py [--goals 100] [--clicks 100]
+    python bench/reach_safety.py [--goals 100] [--clicks 100] [--seconds 6]
 """
 import argparse
+import dataclasses
 import os
 import subprocess
 import sys
@@ -32,7 +34,7 @@ from ros_env_speed import free_port, stop_all  # noqa: E402
 
 PERIOD = 0.05
 SCALE = 0.5
-EPISODE = 6.0          # seconds of a goal at most
+EPISODE = 6.0          # seconds of a goal at most (--seconds)
 
 
 class Hostile:
@@ -55,14 +57,16 @@ class Hostile:
         return out
 
 
-def run_goals(setup, policy, goals: int, seed: int, body) -> dict:
+def run_goals(setup, policy, goals: int, seed: int, body, seconds: float = EPISODE) -> dict:
     """The controller's loop in-process over `goals` goals (see the module): violations, collisions, reached."""
     from robot_ai import ars
     from robot_ai.reach.safety import Limits, SafetyLayer, violations
+    from robot_ai.reach.env import RECOVERED, RECOVERING, Recovery
     from robot_ai.reach.task import goal_distance_one
     from robot_ai.reach.trajectory import Follower
     limits = Limits.of(setup.arm, velocity_scale=SCALE)
     layer = SafetyLayer(limits, PERIOD, body=body)
+    moving = setup.through(limits, PERIOD, layer.margin)      # reach_controller's recovery, as it runs it
     arm = Follower(setup.home)
     rng = np.random.default_rng(seed)
     now, times, positions = 0.0, [], []
@@ -73,7 +77,8 @@ def run_goals(setup, policy, goals: int, seed: int, body) -> dict:
             if body is None or not body.in_collision(q[None], 0.03)[0]:
                 break
         goal = setup.arm.tip_positions(q[None])[0].tolist()
-        end = now + EPISODE
+        end = now + seconds
+        recovery = Recovery()
         while now < end:
             p, v = arm.state_at(now)
             tip = setup.place_one(p.tolist())[0]
@@ -85,9 +90,14 @@ def run_goals(setup, policy, goals: int, seed: int, body) -> dict:
                                                                                   obs.items()}))[0]
             action = np.asarray(action, dtype=float)
             if np.isfinite(action).all():
-                target = setup.move_one(p.tolist(), setup.place_one(p.tolist())[1],
-                                        setup.check_action_one(action))
+                a = setup.check_action_one(action)
+                moved = setup.move_one(p.tolist(), setup.place_one(p.tolist())[1], a)
+                target, recovery = moving.recover_one(p.tolist(), tip, moved, a, goal, recovery)
                 plan = layer.plan(now, target, p, v)
+                if plan.held:         # reach_controller's rule: a step a collision refuses is one without progress
+                    state = RECOVERED if plan.contacts and recovery.state == RECOVERING else recovery.state
+                    recovery = dataclasses.replace(recovery, state=state,            # (and gives a way round up),
+                                                   since=recovery.since if plan.contacts else 0)   # others no step
             else:
                 plan = layer.plan(now, None, p, v, why_not='the policy gave no action')
             held += bool(plan.held)
@@ -107,7 +117,7 @@ def run_goals(setup, policy, goals: int, seed: int, body) -> dict:
                 seconds=now)
 
 
-def in_process(goals: int) -> None:
+def in_process(goals: int, seconds: float = EPISODE) -> None:
     from robot_ai.reach import learn
     from robot_ai.reach.env import ReachSetup
     world = os.path.join(ROOT, 'test', 'world.yaml')
@@ -120,7 +130,7 @@ def in_process(goals: int) -> None:
         trained = time.monotonic() - t
         where = "a table and two boxes, the arm's body" if body else 'limits only'
         print(f'  {setup.model.tree.name} ({where}), '
-              f'{goals} goals a policy, velocity_scale {SCALE}; ARS trained in {trained:.1f} s')
+              f'{goals} goals a policy, {seconds:g} s a goal, velocity_scale {SCALE}; ARS trained in {trained:.1f} s')
         print(f'    {"policy":16s} {"limits passed (pos/vel/acc)":>28s} {"contacts":>9s} {"reached":>8s} '
               f'{"holds":>6s} {"samples":>8s}  worst velocity, acceleration (share of the limit)')
         size = setup.action_space.shape[0]
@@ -128,7 +138,7 @@ def in_process(goals: int) -> None:
         policies += [(kind, Hostile(kind, size, seed=k)) for k, kind in
                      enumerate(('always +1', 'oscillating', 'random', 'NaN 1 step in 5'))]
         for label, policy in policies:
-            r = run_goals(setup, policy, goals, seed=7, body=body)
+            r = run_goals(setup, policy, goals, seed=7, body=body, seconds=seconds)
             f = r['found']
             worst = f'{f.worst["velocity"][0]:.3f}, {f.worst["acceleration"][0]:.4f}'
             print(f'    {label:16s} {f"{f.position}/{f.velocity}/{f.acceleration}":>28s} {r["touching"]:>9d} '
@@ -217,10 +227,11 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n\n')[0])
     parser.add_argument('--goals', type=int, default=100, help='goals for each policy, in-process')
     parser.add_argument('--clicks', type=int, default=100, help='clicks through ROS, each load')
+    parser.add_argument('--seconds', type=float, default=EPISODE, help='seconds a goal at most, in-process')
     a = parser.parse_args()
     print(f'reach_controller\'s safety layer, {os.cpu_count()} cores (load average {os.getloadavg()[0]:.2f})   '
           f'[bench/reach_safety.py, {time.strftime("%Y-%m-%d")}]')
-    in_process(a.goals)
+    in_process(a.goals, a.seconds)
     if a.clicks:
         through_ros(a.clicks)
     return 0

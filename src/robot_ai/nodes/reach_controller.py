@@ -739,10 +739,11 @@ class ReachController:
             blocked = ', '.join(plan.contacts) or plan.held
             rospy.logwarn_throttle(2.0, f'holding: {plan.held}, so the motion was not sent')
             with self.lock:           # a way round that a collision blocks: the policy has the arm again (the env's);
-                if version == self.version:   # a step not sent is no step without progress
-                    given_up = plan.contacts and self.recovery.state == RECOVERING
-                    state = RECOVERED if given_up else self.recovery.state
-                    self.recovery = dataclasses.replace(self.recovery, state=state, since=0)
+                if version == self.version:   # a step a collision refuses is one without progress (the env's rule:
+                    given_up = plan.contacts and self.recovery.state == RECOVERING   # the recovery goes round),
+                    state = RECOVERED if given_up else self.recovery.state           # a step held for any other
+                    since = self.recovery.since if plan.contacts else 0              # reason is no step
+                    self.recovery = dataclasses.replace(self.recovery, state=state, since=since)
         elif self.layer.body is not None and goal is not None and not homing and not holding and (
                 not self.trail or max(abs(a - b) for a, b in zip(q, self.trail[-1])) > TRAIL_STEP):
             self.trail.append(q)          # where the arm is: clear of contacts, the way back home
