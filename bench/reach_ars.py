@@ -13,6 +13,9 @@ Where stable-baselines3 and sb3-contrib are installed (a venv of their own: torc
 learning rate 1e-3, tau 0.05, batch 256, two layers of 64) on the UR5's Reach-v0, steps and seconds.
 Pose goals (goal='pose', within 0.05 m and 0.1 rad): ARS from home on its feature layer beside the P-controller on
 the pose error, from home, random starts and chained.
+Among a table and two boxes (test/world.yaml), the KUKA LWR and the PR2 (the reference arms whose collision geometry
+is here): ARS trained with the obstacles and the P-controller, from home, random starts and chained, and the
+P-controller without the recovery.
 Through the safety layer (Reach-v0 velocity_scale: the arm moved as reach_controller's layer and a trajectory
 controller move it, one 0.05 s control period per step, episodes of 200 steps / scale): ARS trained as reach_controller
 trains it at start (at once, from home) and the P-controller, from home and chained, at scales 1, 0.5 and 0.25; and
@@ -102,6 +105,36 @@ def pose_section(names):
         print(f'  {name:16s} {wall:6.1f} s {100 * home.held_out.success_rate:7.1f}% '
               f'{100 * home.p_controller.success_rate:5.1f}% {100 * rates[0]:7.1f}% {100 * rates[1]:5.1f}% '
               f'{100 * rates[2]:8.1f}% {100 * rates[3]:6.1f}%', flush=True)
+
+
+WORLD = os.path.abspath(os.path.join(HERE, '..', 'test', 'world.yaml'))
+WORLD_ROBOTS = ('kuka_lwr', 'pr2')      # the reference arms whose collision geometry is on this machine
+
+
+def world_section(names):
+    print('among a table and two boxes (test/world.yaml, in each arm\'s base frame), the arm\'s body checked every '
+          'step: ARS (train --obstacles, seed 0)')
+    print('  beside the P-controller, 1000 held-out goals (the arm never touches: a motion that would is not made); '
+          'the misses by reason; "no recovery": the P-controller without it')
+    print(f'  {"robot":16s} {"ARS wall":>8s} {"ARS home":>8s} {"ARS rand":>8s} {"ARS chain":>9s} {"P home":>6s} '
+          f'{"P rand":>6s} {"P chain":>7s}  no recovery: {"P rand":>6s} {"P chain":>7s}  misses of P rand')
+    for name in names:
+        model, args = ROBOTS[name]
+        t0 = time.monotonic()
+        home = learn.train(dict(model=model, xacro_args=args, obstacles=WORLD), seed=0)
+        wall = time.monotonic() - t0
+        setup, p = home.setup, learn.p_controller(home.setup)
+        ars_rates = [learn.evaluate(home.policy, setup, start=start).success_rate for start in ('random', 'chained')]
+        p_random = learn.evaluate(p, setup, start='random')
+        p_chained = learn.evaluate(p, setup, start='chained')
+        plain = ReachSetup(model=model, xacro_args=args, obstacles=WORLD, limit_recovery=False)
+        plain_rates = [learn.evaluate(learn.p_controller(plain), plain, start=start).success_rate
+                       for start in ('random', 'chained')]
+        print(f'  {name:16s} {wall:6.1f} s {100 * home.held_out.success_rate:7.1f}% {100 * ars_rates[0]:7.1f}% '
+              f'{100 * ars_rates[1]:8.1f}% {100 * home.p_controller.success_rate:5.1f}% '
+              f'{100 * p_random.success_rate:5.1f}% {100 * p_chained.success_rate:6.1f}%  {"":13s}'
+              f'{100 * plain_rates[0]:5.1f}% {100 * plain_rates[1]:6.1f}%  {p_random.misses_text() or "none"}',
+              flush=True)
 
 
 def layer_section(names):
@@ -215,7 +248,7 @@ def main() -> int:
     p.add_argument('--seeds', type=int, default=10, help='CartPole seeds')
     p.add_argument('--sb3-steps', type=int, default=200000, help='sb3-contrib ARS steps')
     p.add_argument('--sac-steps', type=int, default=20000, help='SAC + HER steps')
-    p.add_argument('--skip', default='', help='sections to skip: reach, pose, layer, sb3, cartpole')
+    p.add_argument('--skip', default='', help='sections to skip: reach, pose, world, layer, sb3, cartpole')
     a = p.parse_args()
     load = open('/proc/loadavg').read().split()[0]
     print(f'reach and ARS, {os.cpu_count()} cores (load average {load})   [bench/reach_ars.py, '
@@ -224,6 +257,8 @@ def main() -> int:
         reach_section([n for n in a.robots.split(',') if n], a.model)
     if 'pose' not in a.skip:
         pose_section([n for n in a.robots.split(',') if n in POSE_ROBOTS])
+    if 'world' not in a.skip:
+        world_section([n for n in a.robots.split(',') if n in WORLD_ROBOTS])
     if 'layer' not in a.skip:
         layer_section([n for n in a.robots.split(',') if n in POSE_ROBOTS])
     if 'cartpole' not in a.skip:

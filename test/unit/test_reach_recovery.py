@@ -13,6 +13,7 @@ from fk_helpers import robot_path
 from robot_ai import ars
 from robot_ai.reach import ReachEnv, ReachError, ReachSetup, ReachVectorEnv, learn, policy_files
 from robot_ai.reach.env import READY, RECOVERED, RECOVERING, RECOVERY_ARRIVED, Recoveries, Recovery
+from robot_ai.reach.safety import Limits
 from test_reach import assert_same, make_sync
 
 UR5 = robot_path('ur5.urdf')
@@ -234,7 +235,21 @@ def test_in_a_world_the_recovery_goes_round_the_obstacles_on_a_way_it_checked():
         o1 = r1[0]
         rec = vec.unwrapped._recovery
         went_via += int(((rec.state == RECOVERING) & (rec.then != rec.q).any(axis=0)).sum())
-    assert went_via > 0, went_via
+    assert went_via > 0
+    # through a safety layer (reach_controller's prediction of its arm) the ways keep the layer's margin
+    moving = setup.through(Limits.of(setup.arm, velocity_scale=0.5), margin=0.03)
+    rng = np.random.default_rng(9)
+    q, goals = [], []
+    while len(q) < 40:
+        a, b = rng.uniform(setup.arm.lower, setup.arm.upper, (2, setup.arm.n))
+        if not setup.body.in_collision(np.array([a, b]), 0.03).any():
+            q.append(a)
+            goals.append(b)
+    goals = setup.goals_of(np.array(goals).T)
+    via, to = moving.recovery_way(goals, np.array(q).T)
+    clear = ~setup.body.in_collision(to.T, 0.03) & ~setup.body.in_collision(via.T, 0.03)
+    assert clear.mean() > 0.9 and setup.task.is_success(setup.goals_of(to[:, clear]).T, goals[:, clear].T).all()
+    assert moving.way_margin == 0.03 and setup.way_margin == 0.0
 
 
 def test_ars_trained_from_home_reaches_from_random_starts_and_chained():
