@@ -784,9 +784,13 @@ class ReachController:
                        f'{"its limit" if "," not in stuck else "their limits"})')
             else:
                 error = self.setup.task.error(np.array(own_tip), np.array(goal))
+                with self.lock:
+                    blocked = self.blocked
+                where = f'held by a collision ({blocked})' if blocked else 'with no joint at a limit (a local minimum)'
                 why = (f'no progress for {self.moving.stall_steps * self.layer.period:.2f} s, {error:.3f} m from the '
-                       f'goal, with no joint at a limit (a local minimum)')
-            rospy.loginfo(f'{why}: going round in joint space, to a configuration that reaches it')
+                       f'goal, {where}')
+            rospy.loginfo(f'{why}: going round in joint space, to a configuration that reaches it'
+                          + (' clear of contacts' if self.moving.body is not None else ''))
         return target
 
     def _judge(self, goal: list[float], achieved: list[float], q: list[float]) -> None:
