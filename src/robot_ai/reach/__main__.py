@@ -225,8 +225,10 @@ def plot_job(training: learn.Training) -> dict:
                            label=f'ARS held-out, {len(training.held_out.distances)} goals '
                                  f'({percent(training.held_out.success_rate)})'))
     layer = '' if setup.limits is None else f' through the safety layer x{setup.limits.velocity_scale:g}'
+    world = f' among {len(setup.obstacles)} obstacle{"s" if len(setup.obstacles) > 1 else ""}' if setup.obstacles \
+        else ''
     return dict(title=f'Reach with ARS: {setup.model.tree.name} ({setup.model.name}), tip {setup.arm.tip}, '
-                      f'{setup.control} control{layer}, seed {result.seed}: {result.elapsed:.1f} s',
+                      f'{setup.control} control{layer}{world}, seed {result.seed}: {result.elapsed:.1f} s',
                 xlabel='training steps (millions)', ylabel='goals reached within '
                 f'{within(setup)} (%)',
                 series=[dict(x=x, y=[100 * h.success_rate for h in result.history], style='line', color='tab:blue',
