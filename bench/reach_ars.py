@@ -88,17 +88,22 @@ def reach_section(names, extra_models):
 POSE_ROBOTS = ('ur5_package', 'kuka_lwr', 'panda', 'pr2')
 
 
+def timed_training(name: str, **kwargs) -> tuple:
+    """(learn.train's Training of robot `name` with env kwargs, seed 0; its wall time in seconds)."""
+    model, args = ROBOTS[name]
+    t0 = time.monotonic()
+    training = learn.train(dict(model=model, xacro_args=args, **kwargs), seed=0)
+    return training, time.monotonic() - t0
+
+
 def pose_section(names):
     print('pose goals: ARS (train --goal pose, seed 0) beside the P-controller on the pose error, 1000 held-out goals '
           'within 0.05 m and 0.1 rad')
     print(f'  {"robot":16s} {"ARS wall":>8s} {"ARS home":>8s} {"P home":>6s} {"ARS rand":>8s} {"P rand":>6s} '
           f'{"ARS chain":>9s} {"P chain":>7s}')
     for name in names:
-        model, args = ROBOTS[name]
         tip = 'r_gripper_tool_frame' if name == 'pr2' else None
-        t0 = time.monotonic()
-        home = learn.train(dict(model=model, xacro_args=args, tip=tip, goal='pose'), seed=0)
-        wall = time.monotonic() - t0
+        home, wall = timed_training(name, tip=tip, goal='pose')
         setup, p = home.setup, learn.p_controller(home.setup)
         rates = [learn.evaluate(policy, setup, start=start).success_rate
                  for start in ('random', 'chained') for policy in (home.policy, p)]
@@ -120,9 +125,7 @@ def world_section(names):
           f'{"P rand":>6s} {"P chain":>7s}  no recovery: {"P rand":>6s} {"P chain":>7s}  misses of P rand')
     for name in names:
         model, args = ROBOTS[name]
-        t0 = time.monotonic()
-        home = learn.train(dict(model=model, xacro_args=args, obstacles=WORLD), seed=0)
-        wall = time.monotonic() - t0
+        home, wall = timed_training(name, obstacles=WORLD)
         setup, p = home.setup, learn.p_controller(home.setup)
         ars_rates = [learn.evaluate(home.policy, setup, start=start).success_rate for start in ('random', 'chained')]
         p_random = learn.evaluate(p, setup, start='random')

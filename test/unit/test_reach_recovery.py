@@ -162,20 +162,27 @@ def test_the_recovery_of_one_arm_equals_the_batchs_and_envs_equal_sync_vector_en
             assert r.q == tuple(after.q[:, i].tolist())
     for kwargs in (dict(start='random'), dict(start='chained', goal='pose')):
         n = 4
-        kwargs = dict(model=UR5, reward_type='dense', **kwargs)
-        sync, vec = make_sync(n, **kwargs), gymnasium.make_vec('robot_ai/Reach-v0', num_envs=n, **kwargs)
-        o1, _ = sync.reset(seed=5)
-        assert_same(o1, vec.reset(seed=5)[0])
-        p = learn.p_controller(vec.unwrapped.setup)
-        recovered = 0
-        for _ in range(160):
-            a = p.act_batch(ars.flatten_batch(vec.single_observation_space, o1)).astype(np.float32)
-            r1, r2 = sync.step(a), vec.step(a)
-            for x, y in zip(r1, r2):
-                assert_same(x, y)
-            o1 = r1[0]
-            recovered += int((vec.unwrapped._recovery.state == RECOVERING).sum())
-        assert recovered > 0, kwargs
+        recovering = lambda rec: int((rec.state == RECOVERING).sum())    # noqa: E731
+        assert lockstep(n, 5, 160, recovering, model=UR5, reward_type='dense', **kwargs) > 0, kwargs
+
+
+def lockstep(n: int, seed: int, steps: int, count, **kwargs) -> int:
+    """gymnasium's SyncVectorEnv over n Reach-v0 envs of kwargs and ReachVectorEnv, reset with seed and driven by the
+    P-controller for steps steps, equal bit for bit at every step: the sum over the steps of count(the vector env's
+    Recoveries)."""
+    sync, vec = make_sync(n, **kwargs), gymnasium.make_vec('robot_ai/Reach-v0', num_envs=n, **kwargs)
+    o1, _ = sync.reset(seed=seed)
+    assert_same(o1, vec.reset(seed=seed)[0])
+    p = learn.p_controller(vec.unwrapped.setup)
+    total = 0
+    for _ in range(steps):
+        a = p.act_batch(ars.flatten_batch(vec.single_observation_space, o1)).astype(np.float32)
+        r1, r2 = sync.step(a), vec.step(a)
+        for x, y in zip(r1, r2):
+            assert_same(x, y)
+        o1 = r1[0]
+        total += count(vec.unwrapped._recovery)
+    return total
 
 
 def test_the_setting_is_kept_by_policy_files_and_older_files_learned_without_it(tmp_path):
@@ -221,21 +228,8 @@ def test_in_a_world_the_recovery_goes_round_the_obstacles_on_a_way_it_checked():
     assert rate >= 0.97 and without.success_rate < 0.8, (rate, without)
     assert recovering > 100 and refused < 0.02 * recovering, (recovering, refused)
     assert vias and not setup.body.in_collision(np.array([v for pair in vias for v in pair])).any()
-    n = 12
-    sync = make_sync(n, model=KUKA, obstacles=WORLD, start='random')
-    vec = gymnasium.make_vec('robot_ai/Reach-v0', num_envs=n, model=KUKA, obstacles=WORLD, start='random')
-    o1, _ = sync.reset(seed=40)
-    assert_same(o1, vec.reset(seed=40)[0])
-    went_via = 0
-    for _ in range(100):
-        a = p.act_batch(ars.flatten_batch(vec.single_observation_space, o1)).astype(np.float32)
-        r1, r2 = sync.step(a), vec.step(a)
-        for x, y in zip(r1, r2):
-            assert_same(x, y)
-        o1 = r1[0]
-        rec = vec.unwrapped._recovery
-        went_via += int(((rec.state == RECOVERING) & (rec.then != rec.q).any(axis=0)).sum())
-    assert went_via > 0
+    via = lambda rec: int(((rec.state == RECOVERING) & (rec.then != rec.q).any(axis=0)).sum())    # noqa: E731
+    assert lockstep(12, 40, 100, via, model=KUKA, obstacles=WORLD, start='random') > 0
     # through a safety layer (reach_controller's prediction of its arm) the ways keep the layer's margin
     moving = setup.through(Limits.of(setup.arm, velocity_scale=0.5), margin=0.03)
     rng = np.random.default_rng(9)
