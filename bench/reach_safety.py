@@ -61,7 +61,7 @@ def run_goals(setup, policy, goals: int, seed: int, body, seconds: float = EPISO
     """The controller's loop in-process over `goals` goals (see the module): violations, collisions, reached."""
     from robot_ai import ars
     from robot_ai.reach.safety import Limits, SafetyLayer, violations
-    from robot_ai.reach.env import RECOVERED, RECOVERING, Recovery
+    from robot_ai.reach.env import Recovery
     from robot_ai.reach.task import goal_distance_one
     from robot_ai.reach.trajectory import Follower
     limits = Limits.of(setup.arm, velocity_scale=SCALE)
@@ -94,10 +94,9 @@ def run_goals(setup, policy, goals: int, seed: int, body, seconds: float = EPISO
                 moved = setup.move_one(p.tolist(), setup.place_one(p.tolist())[1], a)
                 target, recovery = moving.recover_one(p.tolist(), tip, moved, a, goal, recovery)
                 plan = layer.plan(now, target, p, v)
-                if plan.held:         # reach_controller's rule: a step a collision refuses is one without progress
-                    state = RECOVERED if plan.contacts and recovery.state == RECOVERING else recovery.state
-                    recovery = dataclasses.replace(recovery, state=state,            # (and gives a way round up),
-                                                   since=recovery.since if plan.contacts else 0)   # others no step
+                if plan.held:         # reach_controller's rule: a step a collision refuses gives a way round up and
+                    recovery = (recovery.give_up() if plan.contacts    # is one without progress; others no step
+                                else dataclasses.replace(recovery, since=0))
             else:
                 plan = layer.plan(now, None, p, v, why_not='the policy gave no action')
             held += bool(plan.held)

@@ -119,7 +119,7 @@ from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.collision import CollisionModel
-from robot_ai.reach.env import RECOVERED, RECOVERING, READY, ReachSetup, Recovery
+from robot_ai.reach.env import RECOVERING, READY, ReachSetup, Recovery
 from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, Limits, Plan, SafetyLayer
 from robot_ai.reach.task import GOALS, goal_angle, goal_distance_one, why_unreached
 from robot_ai.text import percent
@@ -738,12 +738,10 @@ class ReachController:
         if plan.held and target is not None:
             blocked = ', '.join(plan.contacts) or plan.held
             rospy.logwarn_throttle(2.0, f'holding: {plan.held}, so the motion was not sent')
-            with self.lock:           # a way round that a collision blocks: the policy has the arm again (the env's);
-                if version == self.version:   # a step a collision refuses is one without progress (the env's rule:
-                    given_up = plan.contacts and self.recovery.state == RECOVERING   # the recovery goes round),
-                    state = RECOVERED if given_up else self.recovery.state           # a step held for any other
-                    since = self.recovery.since if plan.contacts else 0              # reason is no step
-                    self.recovery = dataclasses.replace(self.recovery, state=state, since=since)
+            with self.lock:           # a step a collision refuses, as in the env: a way round it was on is given up,
+                if version == self.version:   # and it is a step without progress (the recovery goes round);
+                    self.recovery = (self.recovery.give_up() if plan.contacts    # a step held for any other
+                                     else dataclasses.replace(self.recovery, since=0))   # reason is no step
         elif self.layer.body is not None and goal is not None and not homing and not holding and (
                 not self.trail or max(abs(a - b) for a, b in zip(q, self.trail[-1])) > TRAIL_STEP):
             self.trail.append(q)          # where the arm is: clear of contacts, the way back home

@@ -112,6 +112,11 @@ class Recovery:
     since: int = 0
     then: tuple[float, ...] | None = None
 
+    def give_up(self) -> Recovery:
+        """Recoveries.give_up for this arm, whose motion a collision refused: a way round it was on ends there (the
+        policy has the arm again); the count of steps without progress goes on."""
+        return dataclasses.replace(self, state=RECOVERED) if self.state == RECOVERING else self
+
 
 @dataclasses.dataclass
 class Recoveries:
@@ -862,8 +867,8 @@ class ReachEnv(gymnasium.Env):
             self._v = np.zeros_like(v) if hit else v
         else:
             self._q, hit = self.setup.guard_one(self._q, target)
-        if hit and self._recovery.state == RECOVERING:     # Recoveries.give_up
-            self._recovery = dataclasses.replace(self._recovery, state=RECOVERED)
+        if hit:
+            self._recovery = self._recovery.give_up()
         info = {} if hit is None else {'collision': hit}
         self._tip, self._jac = self.setup.place_one(self._q)
         if self.setup.pose:
