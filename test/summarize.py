@@ -4,14 +4,18 @@
 One line per test file: pytest-*.xml (the unit tests), each rostest .test file (rostest-*.xml, with the cases of
 its test node counted from the rosunit-*.xml it names), roslaunch-check*.xml. A rostest file adds its own failures
 too, so a test node that died or ran out of time fails the run even without case results; MISSING-*.xml is a
-runner that wrote nothing. Exits 1 if any test failed or errored, if any was skipped (no test here may skip on the
-supported machine), if the unit tests left no results, or if no test ran at all.
+runner that wrote nothing. After the summary line, the end of each failure's text (what a CI log shows). Exits 1
+if any test failed or errored, if any was skipped (no test here may skip on the supported machine), if the unit
+tests left no results, or if no test ran at all.
 """
 import glob
 import os
 import sys
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
+
+WHY_LINES = 12        # lines of each failure's text printed after the summary (a CI log shows its end)
+WHY_TOTAL = 80        # and of all of them
 
 
 @dataclass
@@ -20,12 +24,14 @@ class Counts:
     failed: int = 0
     skipped: int = 0
     names: list = field(default_factory=list)   # the failed and skipped cases
+    why: list = field(default_factory=list)     # (a failed case, the last lines of its failure's text)
 
     def add(self, other: 'Counts') -> None:
         self.passed += other.passed
         self.failed += other.failed
         self.skipped += other.skipped
         self.names += other.names
+        self.why += other.why
 
 
 def parse(path: str):
@@ -34,6 +40,11 @@ def parse(path: str):
         return ET.parse(path).getroot()
     except (ET.ParseError, OSError):
         return None
+
+
+def last_lines(text: str, n: int = WHY_LINES) -> list[str]:
+    """The last n non-blank lines of a failure's text: where an assertion names what it met."""
+    return [l.rstrip() for l in text.splitlines() if l.strip()][-n:]
 
 
 def count(path: str) -> Counts:
@@ -45,9 +56,11 @@ def count(path: str) -> Counts:
     cases = list(root.iter('testcase'))
     for case in cases:
         name = f'{case.get("classname", "")}.{case.get("name", "")}'
-        if case.find('failure') is not None or case.find('error') is not None:
+        bad = case.find('failure') if case.find('failure') is not None else case.find('error')
+        if bad is not None:
             c.failed += 1
             c.names.append(name)
+            c.why.append((name, last_lines(f'{bad.get("message") or ""}\n{bad.text or ""}')))
         elif case.find('skipped') is not None:
             c.skipped += 1
             c.names.append(name + ' (skipped)')
@@ -94,6 +107,15 @@ def main(result_dir: str) -> int:
         for n in c.names:
             print(f'    - {n}')
     print(f'summary: {totals.passed} passed, {totals.failed} failed, {totals.skipped} skipped')
+    printed = 0
+    for name, text in totals.why:
+        if printed >= WHY_TOTAL:
+            print(f'    (the rest of the failures: in the JUnit files of {result_dir})')
+            break
+        print(f'why {name} failed (the end of its failure):')
+        for line in text or ['(no text)']:
+            print(f'    {line}')
+        printed += 1 + max(1, len(text))
     if not lines or totals.passed == 0:
         print(f'no test ran (looked in {result_dir})')
         return 1

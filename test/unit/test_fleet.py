@@ -3,15 +3,21 @@ missing or a cluster that is not there, and a node that cannot sandbox grades no
 test/test_ray_cluster.py (a rostest). No rospy."""
 from __future__ import annotations
 
+import csv
+import os
+import signal
 import socket
 import subprocess
 import sys
+import time
 
 import pytest
 
 from robot_ai import fleet
 from robot_ai.grading import on_ray, sandbox
 from robot_ai.grading.class_run import Judging
+
+ROBOTS_DIR = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', '..', 'shared', 'robots')
 
 
 def free_port() -> int:
@@ -68,3 +74,34 @@ def test_check_fk_takes_ray_with_a_class_only(tmp_path):
     assert e.value.code == 2
     a = parse_args(['--model', 'x.urdf', '--candidates', str(tmp_path), '--ray', 'auto'])
     assert a.ray == 'auto'
+
+
+@pytest.mark.parametrize('signum', [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_while_connecting_writes_the_csv_and_ends_with_its_status(signum, tmp_path, monkeypatch, capsys):
+    """Connecting to a loaded cluster takes seconds: a Ctrl-C (or a SIGTERM) then stops the class as one mid-class
+    does, every student in the CSV 'not graded (check_fk was stopped)', the status the signal's, and the handlers the
+    caller had are back."""
+    from robot_ai.grading.report import read_model
+    from robot_ai.nodes.check_fk import parse_args
+    for student in ('alice', 'bob'):
+        (tmp_path / 'class' / student).mkdir(parents=True)
+        (tmp_path / 'class' / student / 'fk.py').write_text('import rospy\n')
+    csv_path = tmp_path / 'out.csv'
+    model = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+    a = parse_args(['--model', model, '--candidates', str(tmp_path / 'class'), '--csv', str(csv_path), '--ray',
+                    f'127.0.0.1:{free_port()}'])
+
+    def connecting(address):          # the signal arrives while ray.init waits for the cluster
+        os.kill(os.getpid(), signum)
+        time.sleep(30)
+        raise AssertionError('the signal did not stop the wait')
+    monkeypatch.setattr(fleet, 'connect', connecting)
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    xml, tree = read_model(model)
+    assert on_ray.grade_class_on_ray(a, tree, xml) == 128 + signum
+    with open(csv_path, newline='') as f:
+        rows = list(csv.DictReader(f))
+    assert [(r['student'], r['verdict']) for r in rows] == [
+        ('alice', 'not graded (check_fk was stopped)'), ('bob', 'not graded (check_fk was stopped)')]
+    assert 'check_fk: stopped: 0 of 2 graded (0 PASS)' in capsys.readouterr().out
+    assert {s: signal.getsignal(s) for s in before} == before

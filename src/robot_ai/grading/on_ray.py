@@ -82,31 +82,15 @@ def _on_this_machine(judging: Judging, model_xml: str, work: str) -> Judging:
 
 def grade_class_on_ray(a, tree, xml: str) -> int:
     """--candidates DIR --ray ADDRESS: the class graded on the Ray cluster at a.ray (tree and xml: the model as
-    check_fk read it); the same lines, reports and CSV as robot_ai.grading.class_run.grade_class's."""
+    check_fk read it); the same lines, reports and CSV as robot_ai.grading.class_run.grade_class's. A signal at any
+    point once the class is read (connecting to a loaded cluster takes seconds) writes the CSV, every student not yet
+    graded named so, and exits with the signal's status."""
     run = ClassRun.of(a, tree)
     if run is None:
         return 2
-    try:
-        ray = fleet.connect(a.ray)
-    except fleet.FleetError as e:
-        print(f'check_fk: {e}', file=sys.stderr)
-        return 2
-    nodes = fleet.cluster_cpus(ray)
-    if not nodes:
-        print(f'check_fk: the Ray cluster at {a.ray} has no node with a CPU', file=sys.stderr)
-        return 2
-    smallest = min(nodes.values())
-    cpus = smallest / a.jobs if a.jobs else 1.0        # --jobs: students per node at once (the smallest node's)
-    cores = max(1.0, cpus)
-    total = sum(nodes.values())
-    run.prepare_reports()
-    each = f'{a.jobs} per node' if a.jobs else 'one per CPU'
-    run.header(a, tree, f'on the Ray cluster at {a.ray} ({len(nodes)} nodes, {total:g} CPUs, {each})',
-               f'at most {cores:g} cores', 1)
-    model_xml = ray.put(xml)              # once for the class: every task reads it
-    task = ray.remote(grade_on_node).options(num_cpus=cpus, max_retries=MAX_RETRIES, retry_exceptions=False)
-    window = max(2, int(IN_FLIGHT_PER_CPU * total / cpus))
-    results, pending, waiting = {}, {}, list(enumerate(run.students))
+    results, pending = {}, {}
+    ray = None
+    begun = False
     stopped = None
     signals = []
 
@@ -114,35 +98,22 @@ def grade_class_on_ray(a, tree, xml: str) -> int:
         if not signals:
             signals.append(signum)
             raise SystemExit(128 + signum)
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    stops = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    previous = {sig: signal.signal(sig, on_signal) for sig in stops}
     try:
-        while waiting or pending:
-            while waiting and len(pending) < window:
-                index, student = waiting.pop(0)
-                shown_folder = os.path.join(run.folder, student)
-                t = time.time()
-                try:
-                    packed = sandbox.pack_folder(shown_folder)
-                except (sandbox.SandboxError, OSError) as e:      # as a local run's copy says it
-                    result = candidates.Result(
-                        sandbox.printable(student), f'FAIL: its folder cannot be graded: {sandbox.printable(str(e))}',
-                        run.judging.none_right, '', time.time() - t)
-                    _record(run, results, index, student, result, b'')
-                    continue
-                ref = task.remote(run.judging, index, student, shown_folder, packed, cores, model_xml)
-                pending[ref] = (index, student, t)
-            done, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
-            for ref in done:
-                index, student, t = pending.pop(ref)
-                try:
-                    result, report = ray.get(ref)
-                except ray.exceptions.RayError as e:     # its retries spent, or an error of the task's own
-                    why = sandbox.printable(str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__)
-                    line = f'{NOT_GRADED}: its Ray task failed ({type(e).__name__}: {why})'
-                    result, report = candidates.Result(sandbox.printable(student), line, '', '', time.time() - t), \
-                        (line + '\n').encode()
-                if result is not None:
-                    _record(run, results, index, student, result, report)
+        try:
+            ray = fleet.connect(a.ray)
+        except fleet.FleetError as e:
+            print(f'check_fk: {e}', file=sys.stderr)
+            return 2
+        for sig in stops:                 # ray.init sets a SIGTERM handler of its own
+            signal.signal(sig, on_signal)
+        nodes = fleet.cluster_cpus(ray)
+        if not nodes:
+            print(f'check_fk: the Ray cluster at {a.ray} has no node with a CPU', file=sys.stderr)
+            return 2
+        begun = True
+        _grade(ray, run, a, tree, xml, nodes, results, pending)
     except BaseException as e:   # a signal: the tasks are cancelled, none starts, the CSV is written
         # Ray's wait turns what a signal handler raises into SystemExit(1), and its own SIGTERM handler exits 15: the
         # status is the signal's, as a local run's
@@ -159,10 +130,55 @@ def grade_class_on_ray(a, tree, xml: str) -> int:
                 ray.wait(refs, num_returns=len(refs), timeout=CANCEL_WAIT)
             except BaseException:
                 pass
-        run.write_csv(results)
+        if begun or stopped is not None:
+            run.write_csv(results)
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     return run.summary(results, stopped)
+
+
+def _grade(ray, run: ClassRun, a, tree, xml: str, nodes: dict[str, float], results: dict, pending: dict) -> None:
+    """The class's tasks on the cluster's nodes (their CPUs), a window of them in flight; each verdict recorded as
+    its task returns. pending: the tasks in flight, for the caller to cancel when stopped."""
+    smallest = min(nodes.values())
+    cpus = smallest / a.jobs if a.jobs else 1.0        # --jobs: students per node at once (the smallest node's)
+    cores = max(1.0, cpus)
+    total = sum(nodes.values())
+    run.prepare_reports()
+    each = f'{a.jobs} per node' if a.jobs else 'one per CPU'
+    run.header(a, tree, f'on the Ray cluster at {a.ray} ({len(nodes)} nodes, {total:g} CPUs, {each})',
+               f'at most {cores:g} cores', 1)
+    model_xml = ray.put(xml)              # once for the class: every task reads it
+    task = ray.remote(grade_on_node).options(num_cpus=cpus, max_retries=MAX_RETRIES, retry_exceptions=False)
+    window = max(2, int(IN_FLIGHT_PER_CPU * total / cpus))
+    waiting = list(enumerate(run.students))
+    while waiting or pending:
+        while waiting and len(pending) < window:
+            index, student = waiting.pop(0)
+            shown_folder = os.path.join(run.folder, student)
+            t = time.time()
+            try:
+                packed = sandbox.pack_folder(shown_folder)
+            except (sandbox.SandboxError, OSError) as e:      # as a local run's copy says it
+                result = candidates.Result(
+                    sandbox.printable(student), f'FAIL: its folder cannot be graded: {sandbox.printable(str(e))}',
+                    run.judging.none_right, '', time.time() - t)
+                _record(run, results, index, student, result, b'')
+                continue
+            ref = task.remote(run.judging, index, student, shown_folder, packed, cores, model_xml)
+            pending[ref] = (index, student, t)
+        done, _ = ray.wait(list(pending), num_returns=1, timeout=1.0) if pending else ([], [])
+        for ref in done:
+            index, student, t = pending.pop(ref)
+            try:
+                result, report = ray.get(ref)
+            except ray.exceptions.RayError as e:     # its retries spent, or an error of the task's own
+                why = sandbox.printable(str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__)
+                line = f'{NOT_GRADED}: its Ray task failed ({type(e).__name__}: {why})'
+                result, report = candidates.Result(sandbox.printable(student), line, '', '', time.time() - t), \
+                    (line + '\n').encode()
+            if result is not None:
+                _record(run, results, index, student, result, report)
 
 
 def _record(run: ClassRun, results: dict, index: int, student: str, result: candidates.Result,
