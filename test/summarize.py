@@ -14,7 +14,7 @@ import sys
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 
-WHY_LINES = 12        # lines of each failure's text printed after the summary (a CI log shows its end)
+WHY_LINES = 12        # lines of each failure's text printed after the summary (what a CI log shows)
 WHY_TOTAL = 80        # and of all of them
 
 
@@ -43,8 +43,10 @@ def parse(path: str):
 
 
 def last_lines(text: str, n: int = WHY_LINES) -> list[str]:
-    """The last n non-blank lines of a failure's text: where an assertion names what it met."""
-    return [l.rstrip() for l in text.splitlines() if l.strip()][-n:]
+    """A failure's text in at most n lines: its first (rosunit's message) and its last (pytest's and unittest's
+    assertion), where either names what the test met."""
+    lines = [l.rstrip() for l in text.splitlines() if l.strip()]
+    return lines if len(lines) <= n else [lines[0], '...'] + lines[2 - n:]
 
 
 def count(path: str) -> Counts:
@@ -112,7 +114,7 @@ def main(result_dir: str) -> int:
         if printed >= WHY_TOTAL:
             print(f'    (the rest of the failures: in the JUnit files of {result_dir})')
             break
-        print(f'why {name} failed (the end of its failure):')
+        print(f'why {name} failed:')
         for line in text or ['(no text)']:
             print(f'    {line}')
         printed += 1 + max(1, len(text))
