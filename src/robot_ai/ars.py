@@ -328,7 +328,8 @@ def train(make_env: Callable[[int], object], settings: ARSSettings, seed: int = 
           progress: Callable[[IterationStats], None] | None = None, should_stop: Callable[[], bool] | None = None,
           shared_statistics: list[list[int]] | None = None, final_metric=None,
           initial: LinearPolicy | None = None, prior_states: np.ndarray | None = None,
-          fixed_statistics: dict | None = None, chunks: int = 0, ray_address: str = '') -> ARSResult:
+          fixed_statistics: dict | None = None, chunks: int = 0, ray_address: str = '',
+          zero_sum: list[list[int]] | None = None) -> ARSResult:
     """ARS with settings, reproducible from seed.
 
     make_env(num_envs) -> a gymnasium vector env (next-step autoreset) of that many copies; it is made once.
@@ -337,7 +338,11 @@ def train(make_env: Callable[[int], object], settings: ARSSettings, seed: int = 
     share V2's mean and std. final_metric(observations) -> (M,) a figure of each env's last observation (the reach
     task's final distance). initial: a policy to start from (its statistics too), instead of zeros.
     prior_states (K, obs): flattened observations that seed V2's statistics; fixed_statistics {index: (mean, std)}:
-    coordinates whose statistics are given, not measured. chunks: the slots played by that many envs of their own
+    coordinates whose statistics are given, not measured. zero_sum: groups of flattened-observation indices (each
+    group sharing its statistics) whose weights sum to zero in every row, so that the policy sees their differences
+    only: the reach task's achieved goal, desired goal and tip, whose sum of weights is otherwise a random walk that
+    makes the action depend on where the arm is, not only on its error (the perturbations are projected so; an
+    initial policy too). chunks: the slots played by that many envs of their own
     (make_env(size) each; 0: one env, or one per CPU of the Ray cluster); ray_address: those envs kept by actors on
     the Ray cluster there (robot_ai.fleet), one CPU each, with the same numbers as the same chunks here. An env whose
     slots are seeded one by one (reset(seed=[...])) and that starts every episode afresh (not a chained start) gives
@@ -355,7 +360,7 @@ def train(make_env: Callable[[int], object], settings: ARSSettings, seed: int = 
         if prior_states is not None and settings.normalize and initial is None:
             stats.add(np.asarray(prior_states, dtype=np.float64))
             mean, std = stats.mean_std()
-        weights = policy.weights.copy()
+        weights = _zero_sum(policy.weights.copy(), zero_sum)
         bias = None if policy.bias is None else policy.bias.copy()
         rng = np.random.default_rng(int(seed) % 2 ** 64)
         t0 = time.monotonic()
@@ -365,7 +370,7 @@ def train(make_env: Callable[[int], object], settings: ARSSettings, seed: int = 
             if should_stop is not None and should_stop():
                 result.cancelled = True
                 break
-            deltas = rng.standard_normal((n_dir,) + weights.shape)
+            deltas = _zero_sum(rng.standard_normal((n_dir,) + weights.shape), zero_sum)
             bias_deltas = rng.standard_normal((n_dir,) + bias.shape) if bias is not None else None
             episode_seeds = [int(s) for s in rng.integers(0, 2 ** 31, size=episodes)]
             eval_seeds = [int(s) for s in rng.integers(0, 2 ** 31, size=settings.eval_episodes)]
@@ -424,6 +429,14 @@ def train(make_env: Callable[[int], object], settings: ARSSettings, seed: int = 
         return result
     finally:
         env.close()
+
+
+def _zero_sum(weights: np.ndarray, groups: list[list[int]] | None) -> np.ndarray:
+    """weights (..., obs) with each group's columns less their mean: the nearest weights whose group sums to zero
+    (in place; returned)."""
+    for group in groups or ():
+        weights[..., group] -= weights[..., group].mean(axis=-1, keepdims=True)
+    return weights
 
 
 def _renormalise(weights, bias, old_mean, old_std, new_mean, new_std):

@@ -268,6 +268,31 @@ def test_a_short_ars_run_learns_to_reach_is_reproducible_and_its_file_drives_the
     assert 'reach_arm7' in str(e.value) and 'robot_ai_ur5_arm' in str(e.value) and '\n' not in str(e.value)
 
 
+@pytest.mark.parametrize('goal', ['position', 'pose'])
+def test_the_learned_action_depends_on_the_error_not_on_where_the_goal_is(goal):
+    """The weights of the achieved goal, the desired goal and the tip (x, y and z apart) sum to zero in every row, all
+    through training: moving goal and tip together does not change the action. Free, their sum random-walked, and
+    a 2.7 m KUKA KR210's policy stopped 5-13 cm short of goals (ARS 97.9 % from random starts; 100 % so)."""
+    training = learn.train(dict(model=XACRO_ARM, goal=goal), replace(learn.SETTINGS, iterations=5), seed=1,
+                           evaluate_episodes=0)
+    n = training.setup.arm.n
+    policy = training.policy
+    for i in range(3):
+        group = [i, 3 + i] if goal == 'pose' else [i, 3 + i, 6 + n + i]
+        sums = (policy.weights[:, group] / policy.obs_std[group]).sum(axis=1)
+        assert np.abs(sums).max() < 1e-9 * np.abs(policy.weights).max(), sums
+    env = ReachVectorEnv(20, model=XACRO_ARM, goal=goal)
+    obs = env.reset(seed=0)[0]
+    shifted = {k: v.copy() for k, v in obs.items()}
+    for key in ('achieved_goal', 'desired_goal'):
+        shifted[key][:, :3] += [0.3, -0.2, 0.1]
+    if goal == 'position':
+        shifted['observation'][:, n:] += [0.3, -0.2, 0.1]
+    flat = [ars.flatten_batch(env.single_observation_space, o) for o in (obs, shifted)]
+    assert not np.allclose(flat[0], flat[1])
+    np.testing.assert_allclose(training.policy.act_batch(flat[1]), training.policy.act_batch(flat[0]), atol=1e-12)
+
+
 def test_ars_cancel_keeps_the_best_policy_so_far():
     calls = []
     settings = ars.ARSSettings(iterations=50, directions=8, top_directions=4, step_size=0.1, noise=0.1, episodes=2,

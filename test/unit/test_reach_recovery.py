@@ -11,10 +11,10 @@ import pytest
 import robot_ai.reach  # noqa: F401 (registers robot_ai/Reach-v0)
 from fk_helpers import robot_path
 from robot_ai import ars
-from robot_ai.reach import ReachEnv, ReachError, ReachSetup, ReachVectorEnv, learn, policy_files
+from robot_ai.reach import ReachEnv, ReachError, ReachSetup, ReachVectorEnv, env, learn, policy_files
 from robot_ai.reach.env import READY, RECOVERED, RECOVERING, RECOVERY_ARRIVED, Recoveries, Recovery
 from robot_ai.reach.safety import Limits
-from test_reach import assert_same, make_sync
+from test_reach import XACRO_ARM, assert_same, make_sync
 
 UR5 = robot_path('ur5.urdf')
 KUKA = robot_path('kuka_lwr_arm.urdf')
@@ -163,7 +163,40 @@ def test_the_recovery_of_one_arm_equals_the_batchs_and_envs_equal_sync_vector_en
     for kwargs in (dict(start='random'), dict(start='chained', goal='pose')):
         n = 4
         recovering = lambda rec: int((rec.state == RECOVERING).sum())    # noqa: E731
-        assert lockstep(n, 5, 160, recovering, model=UR5, reward_type='dense', **kwargs) > 0, kwargs
+        assert lockstep(n, 1, 160, recovering, model=UR5, reward_type='dense', **kwargs) > 0, kwargs
+
+
+def test_a_small_step_a_limit_blocks_counts_and_an_arm_at_its_goal_is_left_alone():
+    """A learned policy asks little near its goal (ARS's gain is a fraction of the P-controller's): a step that asks
+    for a tenth of the way or more, which a joint limit blocks, starts the recovery even when it asks for less than
+    RECOVERY_ASK of a full step (a KUKA KR210's ARS stalled so 5-13 cm short on 2 % of goals from random starts); one
+    that asks for less does not, nor does an arm already at its goal, whatever it asks."""
+    big = dict(model=XACRO_ARM, xacro_args='scale:=2.5')          # a 2.7 m arm: a full step is 0.14 m
+    setup = ReachSetup(**big)
+    stalled = ReachVectorEnv(300, start='random', limit_recovery=False, **big)
+    obs = stalled.reset(seed=0)[0]
+    for _ in range(30):
+        obs = stalled.step(np.clip((obs['desired_goal'] - obs['achieved_goal']) / setup.ee_step, -1, 1))[0]
+    q, goal = stalled._q.copy(), stalled._goal.copy()
+    tip, jac = setup.place(q)
+    error = setup.task.error(tip.T, goal.T)
+    far = error > 2 * setup.task.distance_threshold               # stalled: most of them at a limit
+    q, tip, jac = q[:, far], tip[:, far], jac[:, :, far]
+    near = 1.4 * setup.task.distance_threshold                    # the same way, 7 cm: a small step's goal
+    goal = tip + near * (goal[:, far] - tip) / error[far]
+    m = q.shape[1]
+    ready = Recoveries(np.zeros(m, dtype=np.int8), np.zeros_like(q), np.full(m, np.inf), np.zeros(m, np.int32),
+                       np.zeros_like(q))
+
+    def started(fraction: float, goals=goal) -> np.ndarray:
+        a = fraction * (goals - tip) / setup.ee_step
+        return setup.recover(q, tip, setup.move(q, jac, a), a, goals, ready)[1].state == RECOVERING
+
+    assert m >= 10 and 0.2 * near < env.RECOVERY_ASK * setup.ee_step, m    # a fifth of the way is a small step
+    assert started(0.2).sum() >= m // 4, (started(0.2).sum(), m)  # blocked at a limit, asked a fifth of the way
+    assert not started(0.05).any()                                # asking less than a tenth of the way: no try
+    inside = tip + 0.8 * (goal - tip) / 1.4                       # 4 cm: within the goal's 5, asking the whole way
+    assert not started(1.0, inside).any()                         # at its goal: nothing to go round
 
 
 def lockstep(n: int, seed: int, steps: int, count, **kwargs) -> int:

@@ -75,7 +75,9 @@ MAX_DRAWS = 1000             # draws of a goal or a start clear of collisions be
 CONTROL_PERIOD = 0.05        # s: reach_controller's step (its ~rate, 20 Hz), an env step with velocity_scale
 LAYER_EPISODE = 4            # with velocity_scale: episodes this many times as long, over the scale (10 s at 1.0)
 # ee control's limit recovery (ReachSetup.recover): a step is blocked when the action asks for at least RECOVERY_ASK
-# of a full step, a joint of its answer is at a limit, and the tip moves less than RECOVERY_PROGRESS of the way asked;
+# of a full step (or RECOVERY_ASK_OF_ERROR of the way to the goal, if that is less: a learned policy asks little near
+# its goal), the arm is not at its goal, a joint of its answer is at a limit, and the tip moves less than
+# RECOVERY_PROGRESS of the way asked;
 # an arm is stalled when, asked as much, it is not at the goal and its dense error has not fallen STALL_GAIN of a full
 # step below the least it reached for STALL_FRACTION of an episode's steps in which the action asked toward the goal
 # (its cosine with the P-controller's at least STALL_COSINE): a local minimum, no limit in the way;
@@ -84,6 +86,7 @@ LAYER_EPISODE = 4            # with velocity_scale: episodes this many times as 
 # range a step, and the policy has the arm again once every joint is within RECOVERY_ARRIVED of its half range of it;
 # with a body, to one clear of contacts on a way checked step by step, straight or through one via point
 RECOVERY_ASK = 0.15
+RECOVERY_ASK_OF_ERROR = 0.1
 RECOVERY_PROGRESS = 0.3
 RECOVERY_STEP = 0.15
 RECOVERY_ARRIVED = 0.05
@@ -478,8 +481,11 @@ class ReachSetup:
         toward its limit the short way round, a shoulder against its stop under a goal overhead) it pushes a joint
         onto its limit and the tip stalls there, however the policy acts; away from the limits, a pose goal's
         position and turn can hold each other in a local minimum (the UR5 from home, 10 % of goals). A step whose
-        action asks for at least RECOVERY_ASK of a full step is blocked when a joint of its answer is at a limit and
-        the tip moves less than RECOVERY_PROGRESS of the way asked, along it; an arm so asked is stalled when
+        action asks for at least RECOVERY_ASK of a full step, or RECOVERY_ASK_OF_ERROR of the dense error if that is
+        less (ARS's gain is a fraction of the P-controller's: a KUKA KR210's policy asked for a few centimetres at a
+        limit 5-13 cm short, and was never taken), is blocked when the arm is not at its goal, a joint of its answer
+        is at a limit and the tip moves less than RECOVERY_PROGRESS of the way asked, along it; an arm so asked is
+        stalled when
         stall_steps steps in a row (a tenth of an episode) tried, asking toward the goal (_stall_count), and its
         dense error did not fall STALL_GAIN of a full step below the least it reached nor rise STALL_BAND full steps
         above it (an arm going the long way round is going somewhere), short of the goal (an arm that a collision
@@ -497,10 +503,13 @@ class ReachSetup:
         asked2 = (asked * asked).sum(axis=0)
         best, since = self._stall_count(tip_t, goal_t, actions_t, rec.best, rec.since)
         rec = Recoveries(rec.state.copy(), rec.q, best, since, rec.then)
-        ready = (rec.state == READY) & (asked2 >= (RECOVERY_ASK * self.ee_step) ** 2)
+        least = np.minimum(RECOVERY_ASK * self.ee_step, RECOVERY_ASK_OF_ERROR * self.task.error(tip_t.T, goal_t.T))
+        ready = (rec.state == READY) & (asked2 >= least * least)
         at_limit = ((target_t <= arm.lower[:, None] + LIMIT_TOLERANCE)
                     | (target_t >= arm.upper[:, None] - LIMIT_TOLERANCE)).any(axis=0)
         check = np.flatnonzero(ready & at_limit)
+        if len(check):                  # an arm at its goal needs no way round (its small steps near it count)
+            check = check[~self.task.is_success(tip_t[:, check].T, goal_t[:, check].T)]
         blocked = check[:0]
         if len(check):
             moved = self._tip_motion(q_t[:, check], target_t[:, check])
@@ -740,7 +749,10 @@ class ReachSetup:
             return target, recovery
         if recovery.state == READY:         # recover's bookkeeping alone, while nothing can block or stall
             best, counted = self._stall_count_one(tip, goal, a, recovery.best, recovery.since)
-            asks = sum((v * self.ee_step) * (v * self.ee_step) for v in a) >= (RECOVERY_ASK * self.ee_step) ** 2
+            error = (goal_distance_one(tip, goal) if not self.pose
+                     else float(self.task.error(np.array(tip)[None], np.array(goal)[None])[0]))
+            least = min(RECOVERY_ASK * self.ee_step, RECOVERY_ASK_OF_ERROR * error)
+            asks = sum((v * self.ee_step) * (v * self.ee_step) for v in a) >= least * least
             at_limit = any(t <= lo + LIMIT_TOLERANCE or t >= hi - LIMIT_TOLERANCE
                            for t, lo, hi in zip(target, self.arm._lower, self.arm._upper))
             if not (asks and (at_limit or counted >= self.stall_steps)):
