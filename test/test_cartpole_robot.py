@@ -5,6 +5,7 @@ up (a minute at real time, episodes at real_time_factor 5 as long as ~evaluate's
 the sim resets, a policy file drives it, and so does an ONNX model."""
 import math
 import os
+import shutil
 import queue
 import subprocess
 import sys
@@ -222,7 +223,9 @@ class TestCartPoleRobot(unittest.TestCase):
         result = q_learning.train(training, 0)
         best = result.best_learner()
         self.assertGreater(result.greedy_averages[0], 190)
-        path = os.path.join(tempfile.mkdtemp(), 'agent.npz')
+        folder = tempfile.mkdtemp()
+        self.addCleanup(shutil.rmtree, folder, True)
+        path = os.path.join(folder, 'agent.npz')
         policies.save(path, result.agents[best], 'CartPole-v0', 0, training.settings(), result.figures_of(best))
         controller = subprocess.Popen(['rosrun', 'robot_ai', 'cartpole_controller', '__ns:=/file',
                                        f'_policy:={path}'], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
@@ -255,6 +258,7 @@ class TestCartPoleRobot(unittest.TestCase):
         import onnx_models
         weights = np.array([0.02, 0.35, 1.0, 0.55], np.float32)
         folder = tempfile.mkdtemp()
+        self.addCleanup(shutil.rmtree, folder, True)
         path = onnx_models.save(onnx_models.cartpole_integer(weights), os.path.join(folder, 'ppo_like.onnx'))
         bad = onnx_models.cartpole_integer(weights)
         bad.graph.node.append(onnx_models.helper.make_node('Run', ['obs'], ['x'], domain='com.evil'))

@@ -4,6 +4,7 @@ fails a node that rotates by euler angles axis * q on a URDF with a tilted axis 
 same node where every axis is along x, y or z, and gives a clear verdict for a node that crashes or stays silent."""
 import glob
 import os
+import shutil
 import resource
 import signal
 import socket
@@ -326,6 +327,7 @@ class TestCheckFk(unittest.TestCase):
     def test_bad_input_is_one_line_with_status_2(self):
         kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
         folder = tempfile.mkdtemp()
+        self.addCleanup(shutil.rmtree, folder, True)
         xacro = os.path.join(folder, 'arm.urdf.xacro')
         with open(xacro, 'w') as f:
             f.write('<robot name="r" xmlns:xacro="http://www.ros.org/wiki/xacro"><link name="a"/>'
@@ -347,6 +349,7 @@ class TestCheckFk(unittest.TestCase):
     def test_a_xacro_model_with_find_and_arguments(self):
         """Issue 25: --model FILE.xacro --xacro-args: $(find pkg) through ROS_PACKAGE_PATH, the arguments passed."""
         folder = tempfile.mkdtemp()
+        self.addCleanup(shutil.rmtree, folder, True)
         write_xacro_package(folder)
         arm = os.path.join(folder, 'my_arm_description', 'urdf', 'arm.urdf.xacro')
         saved = os.environ.get('ROS_PACKAGE_PATH', '')

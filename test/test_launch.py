@@ -424,6 +424,7 @@ class TestLaunch(unittest.TestCase):
         import tempfile
         from fk_helpers import write_xacro_package
         folder = tempfile.mkdtemp()
+        self.addCleanup(shutil.rmtree, folder, True)
         arm = write_xacro_package(folder)
         env = dict(os.environ, ROS_PACKAGE_PATH=folder + os.pathsep + os.environ.get('ROS_PACKAGE_PATH', ''))
         proc = launch([f'model:={arm}', 'xacro_args:=hand=true'], env=env, launch_file='forward_kinematics.launch')
@@ -450,7 +451,9 @@ class TestLaunch(unittest.TestCase):
         of range is one line."""
         import shutil
         import tempfile
-        folder = os.path.join(tempfile.mkdtemp(), "it's \"here\"")
+        top = tempfile.mkdtemp()
+        self.addCleanup(shutil.rmtree, top, True)
+        folder = os.path.join(top, "it's \"here\"")
         os.makedirs(folder)
         here = os.path.dirname(os.path.realpath(__file__))
         for name in ('reach_arm7.urdf.xacro', 'reach_segment.xacro'):

@@ -5,6 +5,7 @@ arm_sim's velocity limit and bad commands; reach_controller reaching points clic
 another frame, saying when it cannot, and going home; an ONNX model loaded into it drives it, models of another env or
 with foreign operators are refused."""
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -364,6 +365,7 @@ class TestReachRos(unittest.TestCase):
         from robot_ai.srv import LoadPolicy
         setup = ReachSetup()
         folder = tempfile.mkdtemp()
+        self.addCleanup(shutil.rmtree, folder, True)
         meta = dict(env_id='robot_ai/Reach-v0', env_kwargs=dict(tip=setup.arm.tip, control='ee'),
                     robot=setup.model.tree.name, joints=list(setup.arm.joints))
         good = onnx_models.save(onnx_models.linear_clip(learn.p_controller(setup).weights.T, meta),

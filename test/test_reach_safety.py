@@ -5,6 +5,7 @@ and hostile ones (always +1, oscillating, random) never make the arm pass a posi
 joint_states (the controller's come through this test, which stops passing them on), a NaN and ~stop stop the arm
 within its limits and it goes on afterwards."""
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -137,6 +138,7 @@ class TestReachSafety(unittest.TestCase):
         """The ARS policy trained at start, then ONNX models that answer always +1, an action that turns at every
         sub-millimetre of motion, and random actions: 3 goals each."""
         folder = tempfile.mkdtemp()
+        self.addCleanup(shutil.rmtree, folder, True)
         n_in = self.setup.arm.n + 3 + 3 + 3
         meta = dict(env_id='robot_ai/Reach-v0', env_kwargs=dict(tip=self.setup.arm.tip, control='ee'),
                     robot=self.setup.model.tree.name, joints=list(self.setup.arm.joints))
