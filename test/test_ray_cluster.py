@@ -5,6 +5,7 @@ hostile students into the local run's CSV and reports, also when a node is kille
 learners and ARS's rollouts give the local numbers bit for bit. Skipped, saying why, where Ray is not installed
 (make test installs it: requirements-ray.txt)."""
 import csv
+import glob
 import os
 import re
 import subprocess
@@ -22,6 +23,7 @@ from fk_helpers import ROBOTS_DIR  # noqa: E402
 from test_check_fk import HOSTILE_FORGER  # noqa: E402
 
 from robot_ai import fleet  # noqa: E402
+from robot_ai.grading import on_ray  # noqa: E402
 
 HERE = os.path.dirname(os.path.realpath(__file__))
 KUKA = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
@@ -169,6 +171,7 @@ class TestRayCluster(unittest.TestCase):
         with tempfile.TemporaryDirectory() as folder:
             klass = self.write_class(folder)
             local_csv, ray_csv = os.path.join(folder, 'local.csv'), os.path.join(folder, 'ray.csv')
+            since = time.time()
             code, local_lines = self.grade(klass, local_csv, '--jobs', '2')
             self.assertEqual(code, 0, '\n'.join(local_lines))
             killed = []
@@ -202,7 +205,7 @@ class TestRayCluster(unittest.TestCase):
             for name in local_reports:
                 self.assertEqual(report_text(os.path.join(folder, 'ray_reports', name)),
                                  report_text(os.path.join(folder, 'local_reports', name)), name)
-            self.assert_nothing_left(klass)
+            self.assert_nothing_left(klass, since)
 
     def test_4_a_signal_stops_the_class_and_writes_the_csv(self):
         """SIGINT once the first verdict is in: the tasks are cancelled (their judges with them), the CSV holds every
@@ -213,6 +216,7 @@ class TestRayCluster(unittest.TestCase):
         with tempfile.TemporaryDirectory() as folder:
             klass = self.write_class(folder)
             ray_csv = os.path.join(folder, 'ray.csv')
+            since = time.time()
             proc = subprocess.Popen(['rosrun', 'robot_ai', 'check_fk', '--model', KUKA, '--candidates', klass,
                                      '--configurations', '3', '--timeout', '3', '--csv', ray_csv, '--ray',
                                      self.address], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -236,7 +240,8 @@ class TestRayCluster(unittest.TestCase):
             rows = read_csv(ray_csv)
             self.assertEqual(len(rows), 8, out)
             self.assertTrue(any(r['verdict'] == 'not graded (check_fk was stopped)' for r in rows), out)
-            self.assert_nothing_left(klass)
+            self.assert_nothing_left(klass, since)
+            self.assert_no_dead_workers_folder()
 
     def test_5_a_node_grades_the_model_it_is_sent_not_a_file_it_may_not_have(self):
         """A node of a real cluster need not have the model file (nor its xacro includes) at the grader's path: the
@@ -260,10 +265,11 @@ class TestRayCluster(unittest.TestCase):
         self.assertEqual(result.verdict, 'PASS', report.decode(errors='replace'))
         self.assertIn(f'check_fk: {alice}/solution.py on /nowhere/on/the/node/arm.urdf.xacro (', report.decode())
 
-    def assert_nothing_left(self, klass: str) -> None:
+    def assert_nothing_left(self, klass: str, since: float) -> None:
         """No judge of this class runs (a judge's command names its student's folder; its students die with its
-        namespaces), and no control group outlives the process that made it (other tests' classes may be graded
-        beside this one: theirs are alive)."""
+        namespaces), no control group outlives the process that made it (other tests' classes may be graded
+        beside this one: theirs are alive), and no judge killed since `since` left the mount point of its logs in
+        /tmp (judges make it in their grader's work folder)."""
         deadline = time.time() + 30
         while True:          # the killed node's judge ends with its worker (its death signal)
             left = [l for l in subprocess.run(['ps', '-eo', 'pid=,args='], capture_output=True,
@@ -277,6 +283,20 @@ class TestRayCluster(unittest.TestCase):
             names = [d for d in os.listdir(groups) if d.startswith('check_fk_')] if os.path.isdir(groups) else []
             stale = [d for d in names if not os.path.exists(f'/proc/{d.split("_")[2]}')]
             self.assertEqual(stale, [], hierarchy)
+        left = [d for d in glob.glob(os.path.join(tempfile.gettempdir(), 'check_fk_judge_*'))
+                if os.path.getmtime(d) >= since]
+        self.assertEqual(left, [])
+
+    def assert_no_dead_workers_folder(self) -> None:
+        """No task's work folder (a student's copy) of a worker that is gone: a task sweeps those of workers killed
+        before their clean-up (test_3's node), and a cancelled task removes its own."""
+        deadline = time.time() + 30
+        while True:
+            stale = on_ray.dead_workers_folders()
+            if not stale or time.time() > deadline:
+                break
+            time.sleep(0.5)
+        self.assertEqual(stale, [])
 
 
 if __name__ == '__main__':

@@ -105,3 +105,20 @@ def test_a_signal_while_connecting_writes_the_csv_and_ends_with_its_status(signu
         ('alice', 'not graded (check_fk was stopped)'), ('bob', 'not graded (check_fk was stopped)')]
     assert 'check_fk: stopped: 0 of 2 graded (0 PASS)' in capsys.readouterr().out
     assert {s: signal.getsignal(s) for s in before} == before
+
+
+def test_a_task_sweeps_the_folders_of_workers_killed_before_their_clean_up(tmp_path, monkeypatch):
+    """A Ray worker killed mid-task (its node removed, OOM) leaves its work folder, a student's copy in it: the next
+    task on the machine removes those whose worker is gone, and no other."""
+    monkeypatch.setattr(on_ray.tempfile, 'tempdir', str(tmp_path))
+    dead = subprocess.Popen(['true'])
+    dead.wait()
+    gone = tmp_path / f'{on_ray.WORK_PREFIX}{dead.pid}_x1'
+    alive = tmp_path / f'{on_ray.WORK_PREFIX}{os.getpid()}_x2'
+    other = tmp_path / f'{on_ray.WORK_PREFIX}abc'              # not a task's name: left alone
+    for folder in (gone, alive, other):
+        (folder / 'submitted').mkdir(parents=True)
+        (folder / 'submitted' / 'fk.py').write_text('# a student\n')
+    assert on_ray.dead_workers_folders() == [str(gone)]
+    on_ray._sweep()
+    assert not gone.exists() and alive.exists() and other.exists()

@@ -35,10 +35,11 @@ def sandboxed(a) -> bool:
     return a.judge_uid >= 0
 
 
-def judge_env() -> dict:
-    """A judge's environment: ROS on loopback (its network namespace has nothing else)."""
+def judge_env(work: str) -> dict:
+    """A judge's environment: ROS on loopback (its network namespace has nothing else); work: the grader's folder
+    (removed by the grader) where the judge makes the mount point of its logs (sandbox.private_ros_home)."""
     env = {k: v for k, v in os.environ.items() if k not in ('ROS_IP', 'ROS_HOSTNAME', 'ROS_MASTER_URI')}
-    env.update(ROS_HOSTNAME='127.0.0.1', ROS_MASTER_URI='http://127.0.0.1:11311')
+    env.update(ROS_HOSTNAME='127.0.0.1', ROS_MASTER_URI='http://127.0.0.1:11311', **{sandbox.JUDGE_DIR: work})
     return env
 
 
@@ -66,7 +67,7 @@ def reexec_in_namespaces(a, argv) -> int:
         words = argv + ['--candidate', candidate]   # the last --candidate is argparse's: the copy
         cmd = sandbox.judge_prefix() + [sys.executable, '-c', JUDGE] + words + [
             '--judge-uid', str(uid), '--judge-folder', folder, '--judge-hide', work, '--judge-shown', a.candidate]
-        proc = subprocess.Popen(cmd, env=judge_env())
+        proc = subprocess.Popen(cmd, env=judge_env(work))
         try:
             return proc.wait()
         except BaseException:
@@ -220,7 +221,7 @@ class Judges:
                 '--candidate', found, '--judge-uid', str(uid), '--judge-shown', node, '--judge-folder', copy]
             for folder in hide:
                 cmd += ['--judge-hide', folder]
-            env = judge_env()
+            env = judge_env(self.work)
             if self.share:
                 group = cgroups.Group.create(f'check_fk_{os.getpid()}_{index}', self.cores,
                                              j.limits.memory_bytes + JUDGE_MEMORY, GROUP_TASKS)

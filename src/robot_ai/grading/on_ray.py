@@ -15,6 +15,7 @@ are in flight, so the class's folders are never all in memory at once.
 """
 from __future__ import annotations
 
+import glob
 import os
 import shutil
 import signal
@@ -32,6 +33,7 @@ MAX_RETRIES = 3           # runs of a student's task after the first when its no
 IN_FLIGHT_PER_CPU = 2     # tasks submitted ahead per CPU of the cluster
 CANCEL_WAIT = 10.0        # seconds the cancelled tasks are given to end their judges before the CSV is written
 NOT_GRADED = 'not graded'
+WORK_PREFIX = 'check_fk_ray_'   # a task's work folder in the node's /tmp: check_fk_ray_<worker pid>_<random>
 
 
 def grade_on_node(judging: Judging, index: int, student: str, shown_folder: str, packed: sandbox.Packed,
@@ -45,7 +47,8 @@ def grade_on_node(judging: Judging, index: int, student: str, shown_folder: str,
     if problem:
         line = f'{NOT_GRADED}: Ray node {socket.gethostname()} cannot grade in a sandbox: {problem}'
         return candidates.Result(shown, line, '', '', time.time() - t), (line + '\n').encode()
-    work = tempfile.mkdtemp(prefix='check_fk_ray_')
+    _sweep()
+    work = tempfile.mkdtemp(prefix=f'{WORK_PREFIX}{os.getpid()}_')
     os.chmod(work, 0o711)
     judges = Judges(judging, cores, work, die_with_parent=True)
     try:
@@ -64,6 +67,22 @@ def grade_on_node(judging: Judging, index: int, student: str, shown_folder: str,
     finally:                     # done, cancelled (a KeyboardInterrupt) or failed: no judge or group outlives the task
         judges.stop()
         shutil.rmtree(work, ignore_errors=True)
+
+
+def dead_workers_folders() -> list[str]:
+    """The work folders (a student's copy, a judge's mount point) of this machine's tasks whose worker is gone: killed
+    before its clean-up (a worker or a node killed mid-class)."""
+    out = []
+    for folder in glob.glob(os.path.join(tempfile.gettempdir(), WORK_PREFIX + '*')):
+        pid = os.path.basename(folder)[len(WORK_PREFIX):].split('_')[0]
+        if pid.isdigit() and not os.path.exists(f'/proc/{pid}'):
+            out.append(folder)
+    return out
+
+
+def _sweep() -> None:
+    for folder in dead_workers_folders():
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def _on_this_machine(judging: Judging, model_xml: str, work: str) -> Judging:
