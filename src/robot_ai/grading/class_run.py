@@ -35,12 +35,26 @@ def sandboxed(a) -> bool:
     return a.judge_uid >= 0
 
 
-def judge_env(work: str) -> dict:
-    """A judge's environment: ROS on loopback (its network namespace has nothing else); work: the grader's folder
-    (removed by the grader) where the judge makes the mount point of its logs (sandbox.private_ros_home)."""
+def judge_env(home: str) -> dict:
+    """A judge's environment: ROS on loopback (its network namespace has nothing else); home: the mount point of its
+    logs (sandbox.private_ros_home), which the grader made (judge_home)."""
     env = {k: v for k, v in os.environ.items() if k not in ('ROS_IP', 'ROS_HOSTNAME', 'ROS_MASTER_URI')}
-    env.update(ROS_HOSTNAME='127.0.0.1', ROS_MASTER_URI='http://127.0.0.1:11311', **{sandbox.JUDGE_DIR: work})
+    env.update(ROS_HOSTNAME='127.0.0.1', ROS_MASTER_URI='http://127.0.0.1:11311', **{sandbox.JUDGE_HOME: home})
     return env
+
+
+def judge_home(work: str) -> str:
+    """A judge's mount point for its logs, made by its grader in its work folder: the judge mounts a tmpfs there in
+    its own mount namespace, so that here it stays an empty folder, removed with the work folder however the judge
+    ended (a judge that made its own in /tmp and was killed mid-grade left it there)."""
+    return tempfile.mkdtemp(prefix='check_fk_judge_', dir=work)
+
+
+def remove_judge_home(home: str) -> None:
+    try:
+        os.rmdir(home)
+    except OSError:
+        pass
 
 
 def reexec_in_namespaces(a, argv) -> int:
@@ -48,6 +62,7 @@ def reexec_in_namespaces(a, argv) -> int:
     (its own master, the candidate as a user of its own, a copy of its folder); its exit status."""
     uid = sandbox.uid_for(os.getpid(), 0)
     work = tempfile.mkdtemp(prefix='check_fk_sandbox_')
+    home = judge_home(work)
     candidate, folder = a.candidate, ''
     try:
         if os.path.isfile(a.candidate):
@@ -67,7 +82,7 @@ def reexec_in_namespaces(a, argv) -> int:
         words = argv + ['--candidate', candidate]   # the last --candidate is argparse's: the copy
         cmd = sandbox.judge_prefix() + [sys.executable, '-c', JUDGE] + words + [
             '--judge-uid', str(uid), '--judge-folder', folder, '--judge-hide', work, '--judge-shown', a.candidate]
-        proc = subprocess.Popen(cmd, env=judge_env(work))
+        proc = subprocess.Popen(cmd, env=judge_env(home))
         try:
             return proc.wait()
         except BaseException:
@@ -194,7 +209,7 @@ class Judges:
         t = time.time()         # from the first look at the folder: the CSV's seconds are the student's whole cost
         shown = sandbox.printable(student)
         no_node = 'FAIL: no node found (no Python file that calls rospy.init_node)'
-        cmd, env, copy = [sys.executable, '-c', JUDGE] + list(j.options), None, ''
+        cmd, env, copy, home = [sys.executable, '-c', JUDGE] + list(j.options), None, '', ''
         if not j.sandboxed:
             node = candidates.find_node(original)
             if node is None:
@@ -221,7 +236,8 @@ class Judges:
                 '--candidate', found, '--judge-uid', str(uid), '--judge-shown', node, '--judge-folder', copy]
             for folder in hide:
                 cmd += ['--judge-hide', folder]
-            env = judge_env(self.work)
+            home = judge_home(self.work)
+            env = judge_env(home)
             if self.share:
                 group = cgroups.Group.create(f'check_fk_{os.getpid()}_{index}', self.cores,
                                              j.limits.memory_bytes + JUDGE_MEMORY, GROUP_TASKS)
@@ -232,6 +248,11 @@ class Judges:
         try:
             with self.lock:
                 if self.stopping:
+                    os.close(read_end)
+                    if copy:
+                        shutil.rmtree(copy, ignore_errors=True)
+                    if home:
+                        remove_judge_home(home)
                     return None
                 # a Ray worker that is killed takes its judge (and with unshare's --kill-child, the namespaces)
                 proc = subprocess.Popen(cmd + ['--result-fd', str(write_end)], env=env, stdout=subprocess.PIPE,
@@ -270,6 +291,8 @@ class Judges:
             if group is not None:     # whatever its judge or the student left: ended, and the group removed
                 group.kill()
                 group.remove()
+            if home:
+                remove_judge_home(home)
         result = read_result(read_end)
         if copy:
             shutil.rmtree(copy, ignore_errors=True)

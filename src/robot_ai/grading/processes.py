@@ -77,7 +77,8 @@ def signal_group(pgid: int, sig: int) -> None:
 
 
 class Output:
-    """A process's stdout and stderr, drained by a thread into a log file (bounded), its last lines kept."""
+    """A process's stdout and stderr, drained by a thread into a log file (bounded; none where path is ''), its last
+    lines kept."""
 
     def __init__(self, stream, path: str):
         self.path = path
@@ -90,7 +91,7 @@ class Output:
         included): the log is cut at LOG_BYTES, a line kept for the tail at TAIL_CHARS."""
         written, line = 0, b''
         try:
-            log = open(self.path, 'wb')
+            log = open(self.path, 'wb') if self.path else None
         except OSError:
             log, self.path = None, ''
         fd = stream.fileno()

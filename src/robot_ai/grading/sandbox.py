@@ -113,18 +113,20 @@ def loopback_up() -> None:
 JUDGE_LOG_BYTES = 32 * 1024 ** 2     # a judge's ROS_HOME: its master's and rosout's logs (rosout quotes the student)
 
 
-JUDGE_DIR = 'ROBOT_AI_JUDGE_DIR'     # names the grader's folder where a judge makes its logs' mount point
+JUDGE_HOME = 'ROBOT_AI_JUDGE_HOME'   # names the mount point its grader made for a judge's logs (and removes)
 
 
 def private_ros_home(size: int = JUDGE_LOG_BYTES) -> str:
     """A ROS_HOME of its own for this judge, on a tmpfs of `size` bytes mounted in the judge's own mount namespace:
     whatever the student sends through the judge's rosout fills it, never the grader's ROS_HOME, and it is gone with
     the namespace. ROS_HOME and ROS_LOG_DIR name it for the processes the judge starts; its path (end_private_ros_home
-    removes the mount point). The mount point is made in the folder $ROBOT_AI_JUDGE_DIR names where it is set (the
-    grader's work folder, which the grader removes: a judge killed mid-grade leaves no empty folder in /tmp)."""
+    removes the mount point). The mount point is the folder $ROBOT_AI_JUDGE_HOME names where it is set: the grader
+    made it and removes it, so that a judge killed mid-grade leaves no empty folder in /tmp."""
     import subprocess
     import tempfile
-    folder = tempfile.mkdtemp(prefix='check_fk_judge_', dir=os.environ.get(JUDGE_DIR) or None)
+    folder = os.environ.get(JUDGE_HOME, '')
+    if not folder or not os.path.isdir(folder):
+        folder = tempfile.mkdtemp(prefix='check_fk_judge_')
     subprocess.run([tool('mount'), '-t', 'tmpfs', '-o', f'size={size},mode=0700', 'tmpfs', folder], check=True,
                    capture_output=True)
     os.environ['ROS_HOME'] = folder

@@ -330,7 +330,10 @@ def main(argv=None) -> int:
             env['ROS_HOSTNAME'] = '127.0.0.1'
         proc = subprocess.Popen(command + remaps, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, preexec_fn=os.setsid, env=env)
-        output = Output(proc.stdout, log_path((a.judge_shown or a.candidate).strip('/').replace(os.sep, '_')))
+        # a sandboxed judge's logs are on a tmpfs gone with its namespace: its report holds the output's last lines,
+        # and names no file that will not be there
+        output = Output(proc.stdout, '' if sandboxed(a) else
+                        log_path((a.judge_shown or a.candidate).strip('/').replace(os.sep, '_')))
         pub = rospy.Publisher(ns + '/joint_states', JointState, queue_size=10)
         t0 = time.time()
         print(f'check_fk: {sandbox.printable(a.judge_shown or a.candidate)} on {a.judge_model or a.model} '
