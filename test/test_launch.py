@@ -81,6 +81,21 @@ def descendants(pid):
     return out
 
 
+def without_interpreter_startup(text):
+    """text less CPython's own report of a Ctrl-C that came while a node's interpreter was still starting (importing
+    site, before any code of the node's, the package's or ROS's ran): 'Fatal Python error: init_import_site' up to
+    its KeyboardInterrupt line. No program can catch that one; a loaded machine can take half a second to get there."""
+    out, skipping = [], False
+    for line in text.splitlines():
+        if line.startswith('Fatal Python error: init_import_site'):
+            skipping = True
+        if not skipping:
+            out.append(line)
+        elif line.startswith('KeyboardInterrupt'):
+            skipping = False
+    return '\n'.join(out)
+
+
 def tracebacks(text):
     """The tracebacks in a launch's output, each as its frame lines (up to the first line that is not indented)."""
     found, lines = [], text.splitlines()
@@ -278,7 +293,9 @@ class TestLaunch(unittest.TestCase):
     def test_ctrl_c_prints_no_traceback(self):
         """A terminal's Ctrl-C: SIGINT to roslaunch and every node, while they serve and while they work. The waits
         count from the moment roslaunch has started the nodes: on a loaded machine roslaunch itself can take more
-        than 1.5 s to import its modules (and then prints its own KeyboardInterrupt, not the package's)."""
+        than 1.5 s to import its modules (and then prints its own KeyboardInterrupt, not the package's), and a node's
+        interpreter can still be importing site half a second after its start (CPython's own fatal error, which no
+        program catches: without_interpreter_startup)."""
         for launch_file, wait in (('cartpole_search.launch', 6), ('forward_kinematics.launch', 6),
                                   ('cartpole_search.launch', 0.5), ('cartpole_q_learning.launch', 1.0),
                                   ('demo.launch', 2), ('demo.launch', 4)):
@@ -298,8 +315,9 @@ class TestLaunch(unittest.TestCase):
             text = early.decode(errors='replace') + ended_output(proc)
             print(f'{launch_file} {wait} s: nodes started {started - t0:.1f} s after the launch, ended '
                   f'{time.time() - started - wait:.1f} s after the Ctrl-C', flush=True)
-            self.assertEqual(tracebacks(text), [], f'{launch_file} {wait} s after its nodes started:\n{text[-3000:]}')
-            self.assertNotIn('KeyboardInterrupt', text, launch_file)
+            ours = without_interpreter_startup(text)
+            self.assertEqual(tracebacks(ours), [], f'{launch_file} {wait} s after its nodes started:\n{text[-3000:]}')
+            self.assertNotIn('KeyboardInterrupt', ours, launch_file)
 
     def test_ctrl_c_at_any_moment_of_the_start_prints_no_traceback_of_the_package(self):
         """Issue 23: a Ctrl-C while a node was still importing (or inside init_node) printed a KeyboardInterrupt or
