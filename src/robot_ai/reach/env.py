@@ -501,9 +501,10 @@ class ReachSetup:
         arm = self.arm
         asked = actions_t * self.ee_step
         asked2 = (asked * asked).sum(axis=0)
-        best, since = self._stall_count(tip_t, goal_t, actions_t, rec.best, rec.since)
+        error = self.task.error(tip_t.T, goal_t.T)
+        best, since = self._stall_count(error, tip_t, goal_t, actions_t, rec.best, rec.since)
         rec = Recoveries(rec.state.copy(), rec.q, best, since, rec.then)
-        least = np.minimum(RECOVERY_ASK * self.ee_step, RECOVERY_ASK_OF_ERROR * self.task.error(tip_t.T, goal_t.T))
+        least = np.minimum(RECOVERY_ASK * self.ee_step, RECOVERY_ASK_OF_ERROR * error)
         ready = (rec.state == READY) & (asked2 >= least * least)
         at_limit = ((target_t <= arm.lower[:, None] + LIMIT_TOLERANCE)
                     | (target_t >= arm.upper[:, None] - LIMIT_TOLERANCE)).any(axis=0)
@@ -694,13 +695,12 @@ class ReachSetup:
         turn = rotation_error(tip_t.T, goal_t.T).T / self.angle_step
         return np.concatenate((move, np.minimum(np.maximum(turn, -most), most)))
 
-    def _stall_count(self, tip_t: np.ndarray, goal_t: np.ndarray, actions_t: np.ndarray, best: np.ndarray,
-                     since: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """recover's (best, since) after a step from tips tip_t toward goal_t (size, N) with actions_t (a, N): the
-        count goes on while the action tries, asking toward the goal (its cosine with the P-controller's, unclipped,
-        at least STALL_COSINE: random actions seldom do, and seldom stall_steps in a row), and the dense error stays
-        between best less STALL_GAIN of a full step and best plus STALL_BAND full steps."""
-        error = self.task.error(tip_t.T, goal_t.T)
+    def _stall_count(self, error: np.ndarray, tip_t: np.ndarray, goal_t: np.ndarray, actions_t: np.ndarray,
+                     best: np.ndarray, since: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """recover's (best, since) after a step from tips tip_t toward goal_t (size, N), their dense error (N,), with
+        actions_t (a, N): the count goes on while the action tries, asking toward the goal (its cosine with the
+        P-controller's, unclipped, at least STALL_COSINE: random actions seldom do, and seldom stall_steps in a row),
+        and the dense error stays between best less STALL_GAIN of a full step and best plus STALL_BAND full steps."""
         lower = error < best - STALL_GAIN * self.ee_step
         toward = self._p_action(tip_t, goal_t, np.inf)
         dot, tt, aa = toward[0] * actions_t[0], toward[0] * toward[0], actions_t[0] * actions_t[0]
@@ -712,16 +712,15 @@ class ReachSetup:
         away = error > best + STALL_BAND * self.ee_step
         return np.where(lower, error, best), np.where(lower | ~trying | away, 0, since + 1).astype(np.int32)
 
-    def _stall_count_one(self, tip: list, goal: list, a: list, best: float,
+    def _stall_count_one(self, error: float, tip: list, goal: list, a: list, best: float,
                          since: int) -> tuple[float, int]:
-        """_stall_count's numbers for one arm, in floats for position goals (the same operations in the same
-        order), through a batch of one for pose goals."""
+        """_stall_count's numbers for one arm (error: its dense error, _error_one's), in floats for position goals
+        (the same operations in the same order), through a batch of one for pose goals."""
         if self.pose:
             column = lambda v: np.array(v, dtype=np.float64)[:, None]     # noqa: E731
-            b, n = self._stall_count(column(tip), column(goal), column(a), np.array([best]),
+            b, n = self._stall_count(np.array([error]), column(tip), column(goal), column(a), np.array([best]),
                                      np.array([since], dtype=np.int32))
             return float(b[0]), int(n[0])
-        error = goal_distance_one(tip, goal)
         lower = error < best - STALL_GAIN * self.ee_step
         toward = [(g - t) / self.ee_step for g, t in zip(goal, tip)]
         dot, tt, aa = toward[0] * a[0], toward[0] * toward[0], a[0] * a[0]
@@ -732,6 +731,13 @@ class ReachSetup:
         trying = dot > 0 and dot >= STALL_COSINE * math.sqrt(tt * aa)
         away = error > best + STALL_BAND * self.ee_step
         return (error if lower else best), (0 if lower or not trying or away else since + 1)
+
+    def _error_one(self, tip: list, goal: list) -> float:
+        """task.error's number for one arm: in floats for position goals, through a batch of one for pose goals."""
+        if self.pose:
+            column = lambda v: np.array(v, dtype=np.float64)[:, None]     # noqa: E731
+            return float(self.task.error(column(tip).T, column(goal).T)[0])
+        return goal_distance_one(tip, goal)
 
     def _tip_motion(self, q_t: np.ndarray, target_t: np.ndarray) -> np.ndarray:
         """(3 or 6, N): how the tip moves from q_t to target_t, in the action's units times ee_step (pose goals:
@@ -748,9 +754,8 @@ class ReachSetup:
         if not self.limit_recovery or recovery.state == RECOVERED:
             return target, recovery
         if recovery.state == READY:         # recover's bookkeeping alone, while nothing can block or stall
-            best, counted = self._stall_count_one(tip, goal, a, recovery.best, recovery.since)
-            error = (goal_distance_one(tip, goal) if not self.pose
-                     else float(self.task.error(np.array(tip)[None], np.array(goal)[None])[0]))
+            error = self._error_one(tip, goal)
+            best, counted = self._stall_count_one(error, tip, goal, a, recovery.best, recovery.since)
             least = min(RECOVERY_ASK * self.ee_step, RECOVERY_ASK_OF_ERROR * error)
             asks = sum((v * self.ee_step) * (v * self.ee_step) for v in a) >= least * least
             at_limit = any(t <= lo + LIMIT_TOLERANCE or t >= hi - LIMIT_TOLERANCE
