@@ -23,6 +23,8 @@ ROS Parameters
     ~rate (float, 100): ticks per second of ROS time (free-running).
     ~real_time_factor (float, 1.0): simulated seconds per second of ROS time.
     ~lockstep (bool, false): true = one step per command, reached at once (no clock, no velocity limit).
+    ~nice (int, -10): the scheduling priority the sim asks for, as a real arm's controller runs real-time (root or
+        CAP_SYS_NICE; otherwise it runs as started, and says so); 0 leaves it (robot_ai.priority).
 
 ROS Subscribers
     joint_group_position_controller/command (std_msgs/Float64MultiArray): target positions, in ~joints order.
@@ -48,7 +50,9 @@ from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
 from robot_ai.lease import Lease, caller_of
-from robot_ai.nodes.params import bool_param, init_node, number_param, numpy_service, publish, quiet_on_shutdown
+from robot_ai.nodes.params import (bool_param, init_node, int_param, number_param, numpy_service, publish,
+                                   quiet_on_shutdown)
+from robot_ai.priority import NICE, raise_priority
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach.arm import joint_limits, joint_velocity
 from robot_ai.reach.trajectory import Follower, TrajectoryError
@@ -74,6 +78,7 @@ class ArmSim:
         self.rate = number_param('~rate', 100.0, 'a positive number of ticks per second', lambda v: 0 < v <= 10000)
         self.real_time_factor = number_param('~real_time_factor', 1.0, 'a positive number', lambda v: 0 < v <= 1000)
         self.lockstep = bool_param('~lockstep', False)
+        self.nice = int_param('~nice', NICE, 'a whole number from -20 to 19', lambda v: -20 <= v <= 19)
         self.positions = self._home_param(tree)
         self.command = self.positions.copy()
         self.speeds = np.zeros(len(self.joints))
@@ -96,10 +101,11 @@ class ArmSim:
                                                queue_size=100, tcp_nodelay=True)   # none dropped, late ones said
         self.services = [rospy.Service('~set_state', numpy_service(SetJointPositions), self._on_set_state),
                          rospy.Service('~lease', LeaseService, self.lease.handle)]
+        priority = raise_priority(self.nice) if self.nice < 0 else f'at its own priority (~nice {self.nice})'
         mode = ('lockstep: one step per command, reached at once' if self.lockstep else
                 f'{self.rate * self.real_time_factor:g} ticks per second of ROS time, at the URDF velocity limits')
         rospy.loginfo(f'arm_sim ready: {len(self.joints)} joints ({", ".join(self.joints)}), {mode}; commands on '
-                      f'{rospy.resolve_name(COMMAND_TOPIC)} and {rospy.resolve_name(TRAJECTORY_TOPIC)}')
+                      f'{rospy.resolve_name(COMMAND_TOPIC)} and {rospy.resolve_name(TRAJECTORY_TOPIC)}; {priority}')
 
     # --------------------------------------------------------------------------------------------- parameters
     @staticmethod

@@ -57,6 +57,9 @@ ROS Parameters
         within it already, only motions that would touch are refused, so that it can move out).
     ~state_timeout (float, 0.2): joint_states older than this (seconds of ROS time): the arm stops and holds.
     ~enabled (bool, true): whether commands go out at start (false: after ~enable true).
+    ~nice (int, -10): the scheduling priority it asks for once trained, so that its commands reach the arm's
+        controller within the layer's lead on a loaded machine (root or CAP_SYS_NICE; otherwise it runs as started,
+        and says so); 0 leaves it (robot_ai.priority).
     ~obstacles (str or list, ""): obstacles in the arm's base frame, a YAML file (or a list parameter) of
         {box: [sx, sy, sz], position: [x, y, z], rpy: [r, p, y]} or {sphere: r, position: [x, y, z]}; empty: the
         world the policy file learned in, if any; rviz draws them (~obstacle_markers).
@@ -113,7 +116,9 @@ from visualization_msgs.msg import (InteractiveMarker, InteractiveMarkerControl,
 
 from robot_ai import ars
 from robot_ai import policies
-from robot_ai.nodes.params import bool_param, init_node, number_param, publish, quiet_on_shutdown, str_param
+from robot_ai.nodes.params import (bool_param, init_node, int_param, number_param, publish, quiet_on_shutdown,
+                                   str_param)
+from robot_ai.priority import NICE, raise_priority
 from robot_ai.srv import LoadPolicy, LoadPolicyResponse
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.reach import learn, policy_files
@@ -260,12 +265,15 @@ class ReachController:
                          rospy.Service('~load_policy', LoadPolicy, self._on_load_policy),
                          rospy.Service('~enable', SetBool, self._on_enable)]
         rospy.on_shutdown(self._on_shutdown)
+        # after the training at start, which must not take the processor from the rest of the machine
+        nice = int_param('~nice', NICE, 'a whole number from -20 to 19', lambda v: -20 <= v <= 19)
+        priority = raise_priority(nice) if nice < 0 else f'at its own priority (~nice {nice})'
         self.timer = rospy.Timer(rospy.Duration(1.0 / self.rate), self._step)
         rospy.loginfo(f'reach_controller ready: {arm.describe()}; {self.rate:g} steps/s; {self.command_kind} commands '
                       f'on {rospy.resolve_name(topic)}, {self.layer.limits.describe()}'
                       f'{"" if self.enabled else "; disabled until ~enable"}; {self.setup.task.goal} goals: click a '
                       f'point in rviz (Publish Point), drag and release the marker {rospy.resolve_name("~pose_marker")}'
-                      f', or publish {rospy.resolve_name("~goal")} or {rospy.resolve_name("~goal_pose")}')
+                      f', or publish {rospy.resolve_name("~goal")} or {rospy.resolve_name("~goal_pose")}; {priority}')
 
     def _safety_layer(self, tree, xml: str) -> SafetyLayer:
         """~joint_limits, ~velocity_scale, ~acceleration_scale, ~collision and ~collision_margin as a SafetyLayer."""
