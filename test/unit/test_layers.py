@@ -14,7 +14,7 @@ PACKAGE = SRC / 'robot_ai'
 
 # Lowest first. The parts of one layer are siblings: none imports another.
 LAYERS = [
-    ['text', 'child_process', 'fleet'],                        # plain helpers; the fleet engine (Ray, optional)
+    ['text', 'child_process', 'fleet', 'priority'],            # plain helpers; the fleet engine (Ray, optional)
     ['kinematics', 'tf_wire'],                                 # robots: URDF -> kinematic tree -> frames; wire formats
     ['urdf_source', 'artifacts'],                              # robot files (xacro); a run's output files
     ['urdf_compat', 'policies'],                               # course nodes' URDF parser; policy files of every kind

@@ -535,14 +535,21 @@ class ReachController:
         self._on_pose(feedback.header.frame_id, feedback.pose)
 
     def _on_load_policy(self, req) -> LoadPolicyResponse:
-        try:
-            policy, _, note = policy_files.load(req.path, self.setup)
-        except (policies.PolicyError, ReachError) as e:
-            return LoadPolicyResponse(success=False, message=f'{e}; still driving with the policy it had')
-        with self.lock:
-            self.policy = policy.actor
-        self._announce(policy.describe(), policy.metadata.get('success_rate'))
-        self._predict(policy.actor)
+        """Another policy, loaded and its prediction made between two control steps: no command goes out meanwhile,
+        and the arm comes to rest along the stop its last command ends in. Loading and predicting take the processor
+        for seconds, and a command made meanwhile would reach the controller late (one came 734 ms after its start
+        under load, spliced in with a jolt)."""
+        with self.step_lock:
+            try:
+                policy, _, note = policy_files.load(req.path, self.setup)
+            except (policies.PolicyError, ReachError) as e:
+                return LoadPolicyResponse(success=False, message=f'{e}; still driving with the policy it had')
+            with self.lock:
+                self.policy = policy.actor
+            self._announce(policy.describe(), policy.metadata.get('success_rate'))
+            self._predict(policy.actor)
+            with self.lock:
+                self._restart_stall_clock()       # the time it took is no stall
         return LoadPolicyResponse(success=True, message=f'driving with {policy.describe()}' + (f' ({note})' if note
                                                                                                   else ''))
 
