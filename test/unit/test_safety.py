@@ -284,6 +284,52 @@ def test_a_stale_state_a_stop_or_a_nan_state_holds_along_the_stop_already_sent()
     np.testing.assert_allclose(nan.rest(), moving.rest(), atol=1e-12)
 
 
+def test_a_plan_made_too_slowly_is_not_sent_and_the_stop_that_goes_on_instead_is_harmless_however_late():
+    """A plan whose making (its collision checks on a loaded machine) ate most of the lead would reach the arm after
+    its start: a joint_trajectory_controller (the Follower) splices it in from where the arm is, past the
+    acceleration limit. With a clock the layer holds instead: the previous plan's stop, the path the arm is on, so
+    that even coming late it changes nothing."""
+    setup = setup_of('kuka_lwr_arm')
+    limits = Limits.of(setup.arm, velocity_scale=0.5)
+    target = setup.home + 0.9 * (setup.arm.upper - setup.home)
+
+    def moving(layer):          # up to speed, every plan taken by the arm in time
+        arm, q, now = Follower(setup.home), setup.home.copy(), 0.0
+        for _ in range(8):
+            plan = layer.plan(now, target, q, clock=lambda: now + 0.001)
+            assert not plan.held
+            arm.take(now + 0.001, plan.start, *plan.points(PERIOD))
+            now += PERIOD
+            q = arm.state_at(now)[0]
+        return arm, q, now
+
+    def motion(arm, since, until):
+        times = np.arange(since, until, 0.002)
+        return violations(times, np.array([arm.state_at(t)[0] for t in times]), limits)
+
+    far = np.clip(target + 0.3, setup.arm.lower, setup.arm.upper)    # a new target: the plan differs from the stop
+    # without the clock the late plan is sent, and taken 30 ms after its start: a jolt
+    layer = SafetyLayer(limits, PERIOD)
+    arm, q, now = moving(layer)
+    plan = layer.plan(now, far, q)
+    arm.take(plan.start + 0.03, plan.start, *plan.points(PERIOD))
+    jolt = motion(arm, now, now + 2.0)
+    assert jolt.acceleration > 0 and jolt.worst['acceleration'][0] > 1.5, jolt
+    # with it, the plan that took 90 ms to make is a hold, which comes as late and changes nothing
+    layer = SafetyLayer(limits, PERIOD)
+    arm, q, now = moving(layer)
+    before = layer.last
+    held = layer.plan(now, far, q, clock=lambda: now + 0.09)
+    assert 'took 90 ms to make' in held.held and not held.contacts
+    for t in np.linspace(held.start, held.end + 0.5, 40):
+        np.testing.assert_allclose(held.state_at(t)[0], before.state_at(t)[0], atol=1e-12)
+    arm.take(held.start + 0.03, held.start, *held.points(PERIOD))
+    found = motion(arm, now, now + 2.0)
+    assert found.total == 0, found
+    # and one made within READY_WITHIN of the lead is sent
+    assert not layer.plan(now + PERIOD, far, arm.state_at(now + PERIOD)[0], clock=lambda: now + PERIOD + 0.05).held
+
+
 def test_an_arm_that_is_not_where_its_commands_put_it_is_planned_from_where_it_stands():
     setup = setup_of('ur5')
     layer = SafetyLayer(Limits.of(setup.arm), PERIOD)

@@ -88,7 +88,8 @@ ROS Services
     ~enable (std_srvs/SetBool): false: the arm stops within its limits and holds, no command goes out once it is
         at rest; true: it goes on.
     ~load_policy (robot_ai/LoadPolicy): drive with another reach policy file or ONNX model of this robot, tip and
-        control; a bad file, or one of another robot or tip, changes nothing.
+        control; a bad file, or one of another robot or tip, changes nothing. No command goes out while it loads
+        and predicts (the arm comes to rest along its last command's stop).
 
 Parameters it sets: ~policy_info (str): the policy that drives, in one line; ~success_rate (float): its success rate
 over fresh goals (held-out) as its file or its training says, -1 when unknown; ~predicted_success_rate (float): its
@@ -601,7 +602,8 @@ class ReachController:
         measured: the arm's state at measured_at (None, a hold: the plans sent go on)."""
         with self.output_lock:
             now = self._now()
-            plan = self.layer.plan(now, target, measured, velocity, why_not=why_not, measured_at=measured_at)
+            plan = self.layer.plan(now, target, measured, velocity, why_not=why_not, measured_at=measured_at,
+                                   clock=self._now)
             self._send(plan, joints, final)
             return plan
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -50,6 +51,8 @@ POSITION_TOLERANCE = 1e-9
 LEAD_PERIODS = 2                   # a plan starts this many control periods after it is made: a command that reaches
                                    # the arm later than that is spliced in from where the arm is, with a jolt
 SHORTER = (0.5, 0.25, 0.1)         # a step that would touch is tried again toward these shares of its target
+READY_WITHIN = 0.6                 # of the lead: a plan made later than this after its `now` (its collision checks
+                                   # slowed by a loaded machine) is not sent: the rest of the lead is for the delivery
 
 
 @dataclass(frozen=True)
@@ -397,10 +400,12 @@ class SafetyLayer:
         return start, p, v, why
 
     def plan(self, now: float, target, measured, measured_velocity=None, why_not: str = '',
-             measured_at: float | None = None) -> Plan:
+             measured_at: float | None = None, clock: Callable[[], float] | None = None) -> Plan:
         """The plan to send at time now toward target (joint positions; None, or why_not given: stop and hold),
         the arm measured at `measured` at time measured_at (now when None; measured None: not measured, from the
-        plans sent). Never raises on numbers: a NaN anywhere stops the arm."""
+        plans sent). Never raises on numbers: a NaN anywhere stops the arm. clock: the time now, read once the plan
+        is made: a plan not made within READY_WITHIN of the lead would reach the arm after its start, spliced in
+        with a jolt, so the previous plan's stop goes on instead (a hold: the same path, harmless however late)."""
         if measured is None and self.last is None:
             raise ReachError('the arm has not been measured and there is no plan to hold: nothing to send')
         if measured is not None:
@@ -434,6 +439,11 @@ class SafetyLayer:
             held = self._hold(start, refused)
             held.contacts = contacts
             return held
+        if clock is not None:
+            took = clock() - now
+            if took > READY_WITHIN * self.lead:
+                return self._hold(start, f'the plan took {1000 * took:.0f} ms to make (a loaded machine), too late to '
+                                         f'reach the arm before its start')
         self._commit(plan)
         return plan
 
