@@ -519,7 +519,9 @@ class ReachController:
                 q = _unit((x, z, y, 1.0))
                 control.orientation.x, control.orientation.y, control.orientation.z, control.orientation.w = q
                 marker.controls.append(control)
-        self.markers.insert(marker, self._on_marker, InteractiveMarkerFeedback.MOUSE_UP)
+        # every feedback comes to _on_marker (the server's default callback): with only MOUSE_UP's given, each
+        # POSE_UPDATE of a drag in rviz raised inside interactive_markers (its default callback None)
+        self.markers.insert(marker, self._on_marker)
         self.markers.applyChanges()
 
     def _place_marker(self) -> None:
@@ -532,8 +534,10 @@ class ReachController:
             self._offer_marker(tip)
 
     def _on_marker(self, feedback) -> None:
-        """The marker released: its pose is the goal."""
-        self._on_pose(feedback.header.frame_id, feedback.pose)
+        """The marker's feedback: released (MOUSE_UP), its pose is the goal; dragged, clicked or pressed, nothing
+        (the arm does not chase the marker; the server moves it)."""
+        if feedback.event_type == InteractiveMarkerFeedback.MOUSE_UP:
+            self._on_pose(feedback.header.frame_id, feedback.pose)
 
     def _on_load_policy(self, req) -> LoadPolicyResponse:
         """Another policy, loaded and its prediction made between two control steps: no command goes out meanwhile,
