@@ -52,8 +52,8 @@ from trajectory_msgs.msg import JointTrajectory
 from robot_ai.lease import Lease, caller_of
 from robot_ai.nodes.params import (bool_param, init_node, int_param, number_param, numpy_service, publish,
                                    quiet_on_shutdown)
-from robot_ai.priority import NICE, raise_priority
 from robot_ai.nodes.robot_description import wait_for_tree
+from robot_ai.priority import NICE, raise_priority
 from robot_ai.reach.arm import joint_limits, joint_velocity
 from robot_ai.reach.trajectory import Follower, TrajectoryError
 from robot_ai.srv import Lease as LeaseService

@@ -119,9 +119,9 @@ from robot_ai import ars
 from robot_ai import policies
 from robot_ai.nodes.params import (bool_param, init_node, int_param, number_param, publish, quiet_on_shutdown,
                                    str_param)
-from robot_ai.priority import NICE, raise_priority
 from robot_ai.srv import LoadPolicy, LoadPolicyResponse
 from robot_ai.nodes.robot_description import wait_for_tree
+from robot_ai.priority import NICE, raise_priority
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.collision import CollisionModel
