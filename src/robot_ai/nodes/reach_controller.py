@@ -126,7 +126,7 @@ from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.collision import CollisionModel
 from robot_ai.reach.env import RECOVERING, READY, ReachSetup, Recovery
-from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, Limits, Plan, SafetyLayer
+from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, SAMPLE_STEP, Limits, Plan, SafetyLayer
 from robot_ai.reach.task import GOALS, goal_angle, goal_distance_one, why_unreached
 from robot_ai.text import percent
 
@@ -238,6 +238,7 @@ class ReachController:
         self.retried = False                      # the goal's one retry from home was made
         self.recovery = Recovery()                # the goal's limit recovery (ReachSetup.recover), as the env's
         self.homing_since = 0.0
+        self.route_home = False                   # the way home of this retry chosen (_shortcut)
         self.blocked = ''                         # the contacts that refused the last motion ('' when it was sent)
         self.trail: list[list[float]] = []        # with a body: the configurations the arm came by, clear of contacts
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(10))
@@ -842,7 +843,7 @@ class ReachController:
             if not reached and self.blocked and kind != 'beyond':
                 kind, why = 'collision', f'blocked {distance:.3f} m away by a collision ({self.blocked})'
             if not reached and kind != 'beyond' and not self.retried:    # stalled within reach: home, once more
-                self.homing, self.retried, self.homing_since = True, True, now
+                self.homing, self.retried, self.homing_since, self.route_home = True, True, now, False
                 rospy.loginfo(f'{why}: going home to try again from there')
                 return
             self.said = True
@@ -866,11 +867,18 @@ class ReachController:
             self.recovery = dataclasses.replace(self.recovery, since=0)
 
     def _home_target(self, goal: list[float], q: list[float]) -> list[float] | None:
-        """On the way home for a retry: home (with a body, back the way the arm came first: the configurations it
-        passed, each clear of contacts) until every joint is there (or the stall window has passed twice without
-        getting there); then None, and the policy drives again from home, its stall clock started afresh."""
+        """On the way home for a retry: home (with a body, along _way_home: straight where that is clear of
+        contacts, else back the way the arm came first) until every joint is there (or the stall window has passed
+        twice without getting there); then q, and the policy drives again from there, its stall clock started
+        afresh."""
         home = self.setup.home.tolist()
         there = max(abs(a - b) for a, b in zip(q, home)) < AT_HOME
+        with self.lock:
+            trail = None if self.route_home else list(self.trail)
+        if trail is not None:           # once a retry: the way home, shortened where a straight way is clear
+            way = self._way_home(q, trail)
+            with self.lock:
+                self.route_home, self.trail = True, way
         with self.lock:
             if there or time.monotonic() - self.homing_since > 2 * self.stall_window + 30.0:
                 self.homing = False
@@ -881,6 +889,28 @@ class ReachController:
             while self.trail and max(abs(a - b) for a, b in zip(q, self.trail[-1])) < 2 * TRAIL_STEP:
                 self.trail.pop()          # passed: the next one back
             return self.trail[-1] if self.trail else home
+
+    def _way_home(self, q: list[float], trail: list[list[float]]) -> list[list[float]]:
+        """The way home of a retry as a trail to follow back (oldest first, the last one next): the straight way in
+        joint space when it is clear of contacts (the layer's margin kept), else the way the arm came (trail) up to
+        the oldest configuration of it whose straight way from q is (of a dozen tried, spread evenly), then straight
+        from there; all of the way it came when none is. A straight way is given as configurations TRAIL_STEP apart,
+        as the arm's own trail is, so that the arm keeps to the line that was checked. Retracing all the way it came
+        took 45 s at velocity_scale 0.25, after a way round, in silence."""
+        body = self.layer.body
+        if body is None or not trail:
+            return trail
+        here = np.array(q)
+        padding = self.layer.padding(here)
+        for k in dict.fromkeys([-1, *np.linspace(0, len(trail) - 1, min(len(trail), 12)).astype(int).tolist()]):
+            end = self.setup.home if k < 0 else np.array(trail[k])
+            n = min(400, max(2, math.ceil(np.abs(end - here).max() / SAMPLE_STEP) + 1))
+            line = here + np.linspace(0.0, 1.0, n)[:, None] * (end - here)
+            if not body.in_collision(line, padding).any():
+                steps = max(1, math.ceil(np.abs(end - here).max() / TRAIL_STEP))
+                back = end + np.linspace(0.0, 1.0, steps + 1)[:-1, None] * (here - end)   # end first, q not
+                return trail[:k + 1] + back.tolist() if k >= 0 else back.tolist()
+        return trail
 
 
 @quiet_on_shutdown
