@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from robot_ai.nodes.reach_controller import TRAIL_STEP, ReachController
+from robot_ai.nodes.reach_controller import AT_HOME, TRAIL_STEP, ReachController
 from robot_ai.reach.env import ReachSetup
 from robot_ai.reach.safety import Limits, SafetyLayer
 
@@ -46,7 +46,7 @@ def test_a_clear_straight_way_home_is_taken_whatever_way_the_arm_came(node):
         trail = line(home, detour) + line(detour, q)
         if clear(node, trail) and clear(node, line(q, home)) and len(trail) > 3 * len(line(q, home)):
             break
-    way = ReachController._way_home(node, q.tolist(), [p.tolist() for p in trail])
+    way, came = ReachController._way_home(node, q.tolist(), [p.tolist() for p in trail])
     path = followed(way, q, home)
     np.testing.assert_allclose(way[0], home, atol=1e-12)
     assert len(way) < len(trail) / 2                                 # not back the way it came
@@ -64,7 +64,7 @@ def test_where_the_straight_way_touches_it_goes_back_the_way_it_came_as_far_as_i
             break
     else:
         pytest.fail('no configuration of the KUKA among test/world.yaml whose straight way home touches')
-    way = ReachController._way_home(node, q.tolist(), [p.tolist() for p in trail])
+    way, came = ReachController._way_home(node, q.tolist(), [p.tolist() for p in trail])
     path = followed(way, q, home)
     assert clear(node, path)
     assert max(np.abs(b - a).max() for a, b in zip(path, path[1:])) <= TRAIL_STEP + 1e-9
@@ -74,4 +74,26 @@ def test_where_the_straight_way_touches_it_goes_back_the_way_it_came_as_far_as_i
 def test_without_a_body_the_way_is_the_trail_as_it_was(node):
     bare = SimpleNamespace(setup=node.setup, layer=SafetyLayer(node.layer.limits, 0.05))
     trail = [node.setup.home.tolist(), (node.setup.home + 0.1).tolist()]
-    assert ReachController._way_home(bare, trail[-1], trail) == trail
+    assert ReachController._way_home(bare, trail[-1], trail) == (trail, 2)
+
+
+def test_the_ways_of_earlier_goals_are_not_retraced(node):
+    """The trail holds every goal's way since the arm was last at home: an earlier goal's detour out and back is
+    skipped when a straight way reaches the trail after it."""
+    home = node.setup.home
+    rng = np.random.default_rng(2)
+    draw = lambda: rng.uniform(node.setup.arm.lower, node.setup.arm.upper)   # noqa: E731
+    for _ in range(20000):
+        a, b, q = draw(), draw(), draw()
+        detour = line(home, a) + line(a, home)           # an earlier goal, there and back
+        trail = detour + line(home, b) + line(b, q)
+        if not clear(node, line(q, home)) and clear(node, trail) and clear(node, line(q, b)):
+            break
+    else:
+        pytest.fail('no such ways among test/world.yaml')
+    way, came = ReachController._way_home(node, q.tolist(), [p.tolist() for p in trail])
+    path = followed(way, q, home)
+    assert clear(node, path)
+    assert max(np.abs(b - a).max() for a, b in zip(path, path[1:])) <= TRAIL_STEP + 1e-9
+    at_home = [i for i, p in enumerate(path) if np.abs(p - home).max() < AT_HOME]   # where the retry starts
+    assert at_home and at_home[0] <= len(line(home, b)) + len(line(b, q)), (at_home[:1], len(detour), len(trail))

@@ -140,6 +140,7 @@ MAX_GOAL = 1000.0         # m from the base: a goal farther out is a mistake (a 
 
 TRAIL_STEP = 0.02          # rad between the configurations kept of the way the arm came
 MAX_TRAIL = 5000           # configurations kept (the oldest go first)
+REROUTE = 25               # configurations of the way home passed before a straighter way is looked for again
 PREDICTION_GOALS = 200     # fresh goals of the in-process prediction through the safety layer (a second or two)
 
 
@@ -238,7 +239,8 @@ class ReachController:
         self.retried = False                      # the goal's one retry from home was made
         self.recovery = Recovery()                # the goal's limit recovery (ReachSetup.recover), as the env's
         self.homing_since = 0.0
-        self.route_home = False                   # the way home of this retry chosen (_shortcut)
+        self.route_home = False                   # the way home chosen (_way_home) from where the arm is
+        self.route_came = 0                       # the way home is chosen again when this much of it is left
         self.blocked = ''                         # the contacts that refused the last motion ('' when it was sent)
         self.trail: list[list[float]] = []        # with a body: the configurations the arm came by, clear of contacts
         self.tf_buffer = tf2_ros.Buffer(cache_time=rospy.Duration(10))
@@ -875,10 +877,10 @@ class ReachController:
         there = max(abs(a - b) for a, b in zip(q, home)) < AT_HOME
         with self.lock:
             trail = None if self.route_home else list(self.trail)
-        if trail is not None:           # once a retry: the way home, shortened where a straight way is clear
-            way = self._way_home(q, trail)
-            with self.lock:
-                self.route_home, self.trail = True, way
+        if trail is not None:           # the way home, shortened where a straight way is clear: at the start of
+            way, came = self._way_home(q, trail)      # a retry, and again where it is back on the way it came
+            with self.lock:      # chosen again once past the straight part and REROUTE more of the way on
+                self.route_home, self.trail, self.route_came = True, way, min(came, len(way) - REROUTE)
         with self.lock:
             if there or time.monotonic() - self.homing_since > 2 * self.stall_window + 30.0:
                 self.homing = False
@@ -888,29 +890,40 @@ class ReachController:
                 return q
             while self.trail and max(abs(a - b) for a, b in zip(q, self.trail[-1])) < 2 * TRAIL_STEP:
                 self.trail.pop()          # passed: the next one back
+            if 0 < len(self.trail) <= self.route_came:
+                self.route_home = False   # back on the way it came: a straighter way from here, next step
             return self.trail[-1] if self.trail else home
 
-    def _way_home(self, q: list[float], trail: list[list[float]]) -> list[list[float]]:
-        """The way home of a retry as a trail to follow back (oldest first, the last one next): the straight way in
-        joint space when it is clear of contacts (the layer's margin kept), else the way the arm came (trail) up to
-        the oldest configuration of it whose straight way from q is (of a dozen tried, spread evenly), then straight
-        from there; all of the way it came when none is. A straight way is given as configurations TRAIL_STEP apart,
-        as the arm's own trail is, so that the arm keeps to the line that was checked. Retracing all the way it came
-        took 45 s at velocity_scale 0.25, after a way round, in silence."""
+    def _way_home(self, q: list[float], trail: list[list[float]]) -> tuple[list[list[float]], int]:
+        """(the way home of a retry as a trail to follow back (oldest first, the last one next), how much of it is
+        the way the arm came). The trail runs from where the arm was last at home (or its oldest kept) to q; the way
+        is the shortest of: straight home in joint space, or straight to a configuration of the trail (two dozen
+        tried, spread evenly) and back along the trail from there, counting steps of TRAIL_STEP, among those whose
+        straight part is clear of contacts (the layer's margin kept); all of the trail when none is. A straight part
+        is given as configurations TRAIL_STEP apart, as the arm's own trail is, so that the arm keeps to the line
+        checked. Retracing all the way it came took 45 s at velocity_scale 0.25 after a way round, in silence: the
+        trail holds every goal's way since the arm was last at home."""
         body = self.layer.body
         if body is None or not trail:
-            return trail
+            return trail, len(trail)
         here = np.array(q)
         padding = self.layer.padding(here)
-        for k in dict.fromkeys([-1, *np.linspace(0, len(trail) - 1, min(len(trail), 12)).astype(int).tolist()]):
+        best = None
+        for k in dict.fromkeys([-1, *np.linspace(0, len(trail) - 1, min(len(trail), 24)).astype(int).tolist()]):
             end = self.setup.home if k < 0 else np.array(trail[k])
+            steps = max(1, math.ceil(np.abs(end - here).max() / TRAIL_STEP))
+            cost = steps + (k + 1 if k >= 0 else 0)
+            if best is not None and cost >= best[0]:
+                continue
             n = min(400, max(2, math.ceil(np.abs(end - here).max() / SAMPLE_STEP) + 1))
             line = here + np.linspace(0.0, 1.0, n)[:, None] * (end - here)
             if not body.in_collision(line, padding).any():
-                steps = max(1, math.ceil(np.abs(end - here).max() / TRAIL_STEP))
-                back = end + np.linspace(0.0, 1.0, steps + 1)[:-1, None] * (here - end)   # end first, q not
-                return trail[:k + 1] + back.tolist() if k >= 0 else back.tolist()
-        return trail
+                best = cost, k, end, steps
+        if best is None:
+            return trail, len(trail)
+        _, k, end, steps = best
+        back = end + np.linspace(0.0, 1.0, steps + 1)[:-1, None] * (here - end)      # end first, q not
+        return trail[:k + 1] + back.tolist(), k + 1
 
 
 @quiet_on_shutdown
