@@ -38,6 +38,16 @@ def followed(way, q, home):
     return [np.array(q)] + [np.array(p) for p in reversed(way)] + [home]
 
 
+def way_home(node, q, trail):
+    """(the way home from q, the configurations the arm goes through on it), checked clear of contacts with the
+    layer's margin and never more than TRAIL_STEP between two."""
+    way, _ = ReachController._way_home(node, q.tolist(), [p.tolist() for p in trail])
+    path = followed(way, q, node.setup.home)
+    assert clear(node, path)
+    assert max(np.abs(b - a).max() for a, b in zip(path, path[1:])) <= TRAIL_STEP + 1e-9
+    return way, path
+
+
 def test_a_clear_straight_way_home_is_taken_whatever_way_the_arm_came(node):
     home = node.setup.home
     rng = np.random.default_rng(0)
@@ -46,12 +56,9 @@ def test_a_clear_straight_way_home_is_taken_whatever_way_the_arm_came(node):
         trail = line(home, detour) + line(detour, q)
         if clear(node, trail) and clear(node, line(q, home)) and len(trail) > 3 * len(line(q, home)):
             break
-    way, came = ReachController._way_home(node, q.tolist(), [p.tolist() for p in trail])
-    path = followed(way, q, home)
+    way, _ = way_home(node, q, trail)
     np.testing.assert_allclose(way[0], home, atol=1e-12)
     assert len(way) < len(trail) / 2                                 # not back the way it came
-    assert clear(node, path)
-    assert max(np.abs(b - a).max() for a, b in zip(path, path[1:])) <= TRAIL_STEP + 1e-9
 
 
 def test_where_the_straight_way_touches_it_goes_back_the_way_it_came_as_far_as_it_must(node):
@@ -64,10 +71,7 @@ def test_where_the_straight_way_touches_it_goes_back_the_way_it_came_as_far_as_i
             break
     else:
         pytest.fail('no configuration of the KUKA among test/world.yaml whose straight way home touches')
-    way, came = ReachController._way_home(node, q.tolist(), [p.tolist() for p in trail])
-    path = followed(way, q, home)
-    assert clear(node, path)
-    assert max(np.abs(b - a).max() for a, b in zip(path, path[1:])) <= TRAIL_STEP + 1e-9
+    way, path = way_home(node, q, trail)
     assert len(way) <= len(trail) + 1
 
 
@@ -91,9 +95,6 @@ def test_the_ways_of_earlier_goals_are_not_retraced(node):
             break
     else:
         pytest.fail('no such ways among test/world.yaml')
-    way, came = ReachController._way_home(node, q.tolist(), [p.tolist() for p in trail])
-    path = followed(way, q, home)
-    assert clear(node, path)
-    assert max(np.abs(b - a).max() for a, b in zip(path, path[1:])) <= TRAIL_STEP + 1e-9
+    way, path = way_home(node, q, trail)
     at_home = [i for i, p in enumerate(path) if np.abs(p - home).max() < AT_HOME]   # where the retry starts
     assert at_home and at_home[0] <= len(line(home, b)) + len(line(b, q)), (at_home[:1], len(detour), len(trail))
