@@ -214,6 +214,7 @@ class ReachController:
                                                   # 1970 keeps only 0.2 us: it shows in an acceleration)
         self.lock = threading.Lock()
         self.output_lock = threading.Lock()
+        self.sent: Plan | None = None             # the last trajectory sent (trajectory commands)
         self.step_lock = threading.Lock()         # one control step at a time
         self.joints: dict[str, float] = {}
         self.speeds: dict[str, float] = {}
@@ -619,6 +620,9 @@ class ReachController:
         position it commands one step on (final: where it comes to rest)."""
         if self.command_kind == 'trajectory':
             times, positions, velocities = plan.points(self.layer.period)
+            if plan.held and self._on_controller(plan.start + times, positions, velocities):
+                return        # the stop of the trajectory the controller has: sending it again changes nothing,
+                              # and late it would be one more splice to count
             msg = JointTrajectory(joint_names=list(self.command_joints))
             msg.header.stamp = self.epoch + rospy.Duration.from_sec(plan.start)
             fixed = [joints.get(n, 0.0) for n in self.command_joints]
@@ -629,12 +633,23 @@ class ReachController:
                     point.positions[slot], point.velocities[slot] = float(p[k]), float(v[k])
                 msg.points.append(point)
             publish(self.command_pub, msg)
+            self.sent = plan
             return
         at = plan.rest() if final else plan.state_at(plan.start)[0]
         positions = [joints.get(n, 0.0) for n in self.command_joints]
         for k, value in zip(self.slot, at):
             positions[k] = float(value)
         publish(self.command_pub, Float64MultiArray(data=positions))
+
+    def _on_controller(self, times, positions, velocities) -> bool:
+        """Whether the last trajectory sent goes through these points (positions and velocities at these times)."""
+        if self.sent is None:
+            return False
+        for t, p, v in zip(times, positions, velocities):
+            q, w = self.sent.state_at(float(t))
+            if np.abs(q - p).max() > 1e-9 or np.abs(w - v).max() > 1e-9:
+                return False
+        return True
 
     def _draw_obstacles(self) -> None:
         markers = MarkerArray()
