@@ -7,7 +7,8 @@ and on every joint_states publishes one tfMessage with PARENT -> link for every 
 rospy.Time.now(), the transforms computed with tf.transformations. PARENT is the environment's COURSE_FK_PARENT
 ('world' by default; the course's skeleton says 'world_link'). COURSE_FK_MISTAKE picks what a student got wrong:
   none       right
-  sleep      right, but its callback sleeps 0.1 s (a slow student node)
+  sleep      right, but its callback sleeps COURSE_FK_SLEEP seconds (0.1 by default: a slow student node)
+  every_other  right, but it answers every other joint_states only (a node that drops messages)
   first      ignores the first moving joint's angle
   order      applies a joint's motion before its origin (rotation and translation in the wrong order)
   rpy_order  composes each origin's rpy in the wrong order (z, y, x about the moving axes of the wrong kind)
@@ -88,6 +89,8 @@ def main():
     moving = [j.name for j in joints if j.type != 'fixed']
     pub = rospy.Publisher('/tf', TFMessage, queue_size=10)
     sent = []      # the flood's messages so far
+    pause = float(os.environ.get('COURSE_FK_SLEEP', '0.1'))
+    calls = [0]
 
     def origin(j):
         xyz = j.origin.xyz if j.origin is not None and j.origin.xyz is not None else [0, 0, 0]
@@ -105,7 +108,10 @@ def main():
 
     def callback(msg):
         if mistake == 'sleep':
-            time.sleep(0.1)
+            time.sleep(pause)
+        calls[0] += 1
+        if mistake == 'every_other' and calls[0] % 2:
+            return
         if mistake == 'raise':
             rospy.logerror('computing the transforms')
         if mistake == 'chatty':
