@@ -7,9 +7,11 @@ everything the candidate leaves behind ended. No rospy.
 """
 import collections
 import os
+import re
 import signal
 import socket
 import subprocess
+import sys
 import threading
 import time
 
@@ -18,6 +20,7 @@ from robot_ai.grading import sandbox
 
 TAIL_LINES = 20         # lines of the candidate's output quoted in a verdict
 TAIL_CHARS = 300        # characters kept of each of them
+EXCEPTION_LINE = re.compile(r'^[A-Za-z_][\w.]*(Error|Exception|Exit|Interrupt)(: |$)')   # a traceback's last line
 LOG_BYTES = 10 * 1024 * 1024   # the candidate's log file stops growing here (its output is still drained)
 CHUNK = 64 * 1024              # bytes of the candidate's output read at a time
 
@@ -32,17 +35,23 @@ MASTER_MEMORY = 2 * 1024 ** 3    # bytes of address space of the roscore a check
 
 
 def start_master():
-    """The roscore process this starts, or None when a master already runs (ROS_MASTER_URI). Its master and rosout
-    have MASTER_MEMORY of address space each: a student that stores a gigabyte of parameters in its judge's master
-    meets a refusal there, not the grader's memory (and in a class, its control group holds them too)."""
+    """The roscore process this starts (robot_ai.grading.master: ROS's master and rosout, its parameters bounded), or
+    None when a master already runs (ROS_MASTER_URI). It has MASTER_MEMORY of address space (and rosout, its child,
+    too); `core.refused_file` is where it says who it refused a parameter (robot_ai.grading.master.read_refused)."""
     import rosgraph
     if rosgraph.is_master_online():
         return None
     port = free_port()
     os.environ['ROS_MASTER_URI'] = f'http://127.0.0.1:{port}'
     limit = [sandbox.tool('prlimit'), f'--as={MASTER_MEMORY}', '--'] if sandbox.tool('prlimit') else []
-    return subprocess.Popen(limit + ['roscore', '-p', str(port)], stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL, preexec_fn=os.setsid)
+    folder = os.path.join(os.environ.get('ROS_HOME') or os.path.expanduser('~/.ros'), 'log')
+    os.makedirs(folder, exist_ok=True)
+    refused = os.path.join(folder, f'check_fk_master_{os.getpid()}_{port}.json')
+    core = subprocess.Popen(limit + [sys.executable, '-m', 'robot_ai.grading.master', str(port), refused],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
+                            preexec_fn=os.setsid)
+    core.refused_file = refused
+    return core
 
 
 def wait_for_master(core) -> None:
@@ -119,6 +128,16 @@ class Output:
         text = line.decode(errors='replace').rstrip()
         if text:    # escaped: a carriage return or an escape sequence in it cannot rewrite a line of the report
             self.tail.append(sandbox.printable(text, TAIL_CHARS))
+
+    def exception(self) -> str:
+        """The last line of the last Python traceback in its output (`ValueError: 'tool' is not in list`), or ''."""
+        self.thread.join(1.0)
+        lines = list(self.tail)
+        for i in range(len(lines) - 1, -1, -1):
+            if EXCEPTION_LINE.match(lines[i]) and any(l.startswith('Traceback (most recent call last)')
+                                                      or l.startswith('  File ') for l in lines[:i]):
+                return lines[i]
+        return ''
 
     def lines(self) -> list[str]:
         """The last lines of its output, indented, and where the whole output is; [] if there was none."""
