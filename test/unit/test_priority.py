@@ -5,10 +5,13 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 
 import pytest
 
 SRC = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', 'src')
+SYSTEM_PYTHON = getattr(sys, '_base_executable', '') or '/usr/bin/python3'   # outside the venv: a folder the user
+                                                                              # may not read
 PROBE = f"""
 import json, os, sys, threading
 sys.path.insert(0, {os.path.realpath(SRC)!r})
@@ -33,8 +36,25 @@ print(json.dumps(dict(note=note, threads=threads, later=after['nice'])))
 
 
 def probe(nice: int, *prefix: str) -> dict:
-    out = subprocess.run([*prefix, sys.executable, '-c', PROBE, str(nice)], capture_output=True, text=True,
-                         timeout=60, cwd='/')
+    if not prefix:
+        out = subprocess.run([sys.executable, '-c', PROBE, str(nice)], capture_output=True, text=True, timeout=60,
+                             cwd='/')
+        assert out.returncode == 0, out.stderr
+        return json.loads(out.stdout)
+    # another user runs the probe: the checkout (and the venv in it) may be a folder only its owner reads (a
+    # `mktemp -d` clone), so the module goes to a world-readable folder of its own and the system's Python runs it
+    with tempfile.TemporaryDirectory() as folder:
+        os.chmod(folder, 0o755)
+        package = os.path.join(folder, 'robot_ai')
+        os.mkdir(package)
+        open(os.path.join(package, '__init__.py'), 'w').close()
+        shutil.copy(os.path.join(SRC, 'robot_ai', 'priority.py'), package)
+        for root, dirs, files in os.walk(folder):
+            for name in dirs + files:
+                os.chmod(os.path.join(root, name), 0o755 if name in dirs else 0o644)
+        probe_text = PROBE.replace(repr(os.path.realpath(SRC)), repr(folder))
+        out = subprocess.run([*prefix, SYSTEM_PYTHON, '-c', probe_text, str(nice)], capture_output=True, text=True,
+                             timeout=60, cwd='/')
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout)
 
