@@ -15,6 +15,7 @@ import time
 import unittest
 
 import rostest
+from robot_ai.grading import sandbox
 
 sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
 from fk_helpers import ROBOTS_DIR, write_xacro_package  # noqa: E402
@@ -225,10 +226,12 @@ class TestCheckFk(unittest.TestCase):
                 rows = {r['student']: r for r in csv.DictReader(f)}
             # issue 41: a report names the student's own file, never the sandbox's copy, and has a score line
             reports = os.path.join(folder, 'grades_reports')
+            texts = {}
             for report in sorted(os.listdir(reports)):
                 with open(os.path.join(reports, report)) as f:
                     text = f.read()
                 name = report.split('_', 1)[1][:-len('.txt')]
+                texts[name] = text
                 self.assertIn(os.path.join(folder, 'class', name, 'src', 'solution.py'), text, report)
                 self.assertNotIn('check_fk_class_', text, report)
                 self.assertEqual(len([l for l in text.splitlines() if l.startswith('score: ')]), 1, text)
@@ -251,6 +254,15 @@ class TestCheckFk(unittest.TestCase):
         for r in rows.values():
             float(r['seconds'])
         self.assertIn('1 of 8 PASS', proc.stdout)
+        # issue 56: a numeric grade (0-100, the share of link poses right), an id, a crash named by its exception,
+        # one duration per student (the CSV's, the line's and the report's)
+        self.assertEqual((rows['alice']['grade'], rows['alice']['id']), ('100.0', 'alice'))
+        for name in ('bob', 'erin', 'frank', 'dave'):
+            self.assertEqual(rows[name]['grade'], '0.0', rows[name])
+        self.assertTrue(0.0 < float(rows['carol']['grade']) < 100.0, rows['carol'])
+        self.assertIn("exited with status 1: ValueError: 'tool_mount' is not in list", rows['dave']['verdict'])
+        self.assertIn(f"alice: PASS [8/8 links, 5/5 configurations] ({rows['alice']['seconds']} s)", proc.stdout)
+        self.assertIn(f"(graded in {rows['alice']['seconds']} s)", texts['alice'])
 
     # ------------------------------------------------------------------- course-style nodes (test/course_fk.py)
     def test_correct_course_style_nodes_pass_fast_or_slow(self):
@@ -267,6 +279,27 @@ class TestCheckFk(unittest.TestCase):
         # the course's own name for the parent: the KUKA's root is world_link, so the node publishes the root
         self.assert_verdict(kuka, 'robot_ai/course_fk.py', 0, 'PASS', '--configurations', '10', mistake='none',
                             parent='world_link')
+
+    def test_slow_and_dropping_correct_nodes_pass_and_a_slow_wrong_one_is_named(self):
+        """Issue 56: correct course nodes that sleep 0.4 and 1 s in their callback, and one that answers every other
+        joint_states, PASS (a 0.4 s node failed with 'rotation off by 3.04 rad ... check joint shoulder_pan_joint'); a
+        slow node with a wrong joint is failed on that joint, in the configuration where it shows."""
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        for model, mistake, pause, count in ((kuka, 'sleep', '0.4', '50'), (TILTED, 'sleep', '1', '12'),
+                                             (kuka, 'every_other', '0', '50')):
+            env = dict(os.environ, COURSE_FK_MISTAKE=mistake, COURSE_FK_SLEEP=pause)
+            proc = subprocess.run(['rosrun', 'robot_ai', 'check_fk', '--model', model, '--candidate',
+                                   'robot_ai/course_fk.py', '--configurations', count], capture_output=True,
+                                  text=True, timeout=600, env=env)
+            self.assertEqual(proc.returncode, 0, (mistake, pause, proc.stdout[-3000:], proc.stderr[-2000:]))
+            self.assertEqual(proc.stdout.strip().splitlines()[-1], 'PASS')
+            self.assertIn(f'{count} configurations compared', proc.stdout)
+        fast = self.assert_verdict(TILTED, 'robot_ai/course_fk.py', 1, 'FAIL: shoulder,', '--configurations', '12',
+                                   mistake='first')
+        slow = subprocess.run(['rosrun', 'robot_ai', 'check_fk', '--model', TILTED, '--candidate',
+                               'robot_ai/course_fk.py', '--configurations', '12'], capture_output=True, text=True,
+                              timeout=600, env=dict(os.environ, COURSE_FK_MISTAKE='first', COURSE_FK_SLEEP='0.4'))
+        self.assertEqual(slow.stdout.strip().splitlines()[-1], fast[-1])      # the same verdict, slow or not
 
     def test_wrong_course_style_nodes_fail_naming_the_first_wrong_link(self):
         kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
@@ -513,12 +546,14 @@ class TestCheckFk(unittest.TestCase):
             csv_path = os.path.join(folder, 'grades.csv')
             before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
             t = time.time()
-            proc = subprocess.run(['rosrun', 'robot_ai', 'check_fk', '--model', kuka, '--candidates', klass,
-                                   '--configurations', '3', '--timeout', '3', '--budget', '45', '--csv', csv_path],
-                                  capture_output=True, timeout=600)
+            proc = subprocess.Popen(['rosrun', 'robot_ai', 'check_fk', '--model', kuka, '--candidates', klass,
+                                     '--configurations', '3', '--timeout', '3', '--budget', '45', '--csv', csv_path],
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+            stdout, stderr = proc.communicate(timeout=600)
+            grader = proc.pid                # rosrun execs check_fk: its groups and uids are named by this pid
             elapsed = time.time() - t
-            out = proc.stdout.decode(errors='replace')
-            self.assertEqual(proc.returncode, 0, out + proc.stderr.decode(errors='replace')[-3000:])
+            out = stdout.decode(errors='replace')
+            self.assertEqual(proc.returncode, 0, out + stderr.decode(errors='replace')[-3000:])
             lines = out.splitlines()
             import csv
             with open(csv_path, newline='') as f:
@@ -535,13 +570,15 @@ class TestCheckFk(unittest.TestCase):
             self.assertTrue(rows[name]['verdict'].startswith('FAIL: '), rows[name])
             self.assertNotIn('\n', rows[name]['verdict'])
             self.assertEqual(len([l for l in lines if l.startswith(name + ': FAIL')]), 1, (name, lines))
-        self.assertIn('did not end within its budget of 45 s', rows['slow']['verdict'])
+        self.assertTrue(rows['slow']['verdict'].startswith('FAIL: too slow ('), rows['slow'])
+        self.assertIn('within the budget of 45 s, --budget', rows['slow']['verdict'])
         # issue 40: the hog's 60 busy loops, each in a session of its own, are its own group's: the right nodes beside
         # it still PASS (above), the class is told so, and no group is left behind
         self.assertIn('each student and its judge in a control group of their own', out)
-        for hierarchy in ('cpu', 'memory', 'pids', 'unified'):
+        for hierarchy in ('cpu', 'memory', 'pids', 'unified'):   # this run's (another class may be graded meanwhile)
             folder = f'/sys/fs/cgroup/{hierarchy}/robot_ai_grading'
-            left = [d for d in os.listdir(folder) if d.startswith('check_fk_')] if os.path.isdir(folder) else []
+            left = [d for d in os.listdir(folder) if d.startswith(f'check_fk_{grader}_')] \
+                if os.path.isdir(folder) else []
             self.assertEqual(left, [], hierarchy)
         self.assertLess(elapsed, 300)
         # nothing written where the student must not write, nothing of theirs left running
@@ -549,10 +586,128 @@ class TestCheckFk(unittest.TestCase):
         for path in planted:
             self.assertFalse(os.path.exists(path), path)
         leftover = subprocess.run(['ps', '-eo', 'uid=,args='], capture_output=True, text=True).stdout.splitlines()
-        self.assertEqual([l for l in leftover if int(l.split()[0]) >= 3_000_000_000], [])
+        theirs = {sandbox.uid_for(grader, i) for i in range(len(hostile))}
+        self.assertEqual([l for l in leftover if int(l.split()[0]) % 2 ** 32 in theirs], [])   # ps: signed uids
         # the grader's memory: the 600 MB of output never were in it
         peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
         self.assertLess(max(peak, before) // 1024, 600, f'a process of the class run peaked at {peak // 1024} MB')
+
+    def test_a_grader_killed_with_sigkill_loses_no_verdict_and_leaves_nothing_running(self):
+        """Issue 56: a class run killed with SIGKILL (an out-of-memory kill) mid-class: its CSV holds the header and
+        every verdict it printed; its judges, their roscores and their students end within seconds, not grading on
+        for nobody; the next class run removes the work folder and control groups it left."""
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        with open(os.path.join(HERE, 'course_fk.py')) as f:
+            course = f.read()
+        default = "os.environ.get('COURSE_FK_MISTAKE', 'none')"
+        students = {'a_fast': course.replace(default, "'none'"), 'b_fast': course.replace(default, "'none'"),
+                    'c_slow': course.replace(default, "'sleep'"), 'd_slow': course.replace(default, "'sleep'")}
+        with tempfile.TemporaryDirectory() as folder:
+            klass = os.path.join(folder, 'class')
+            for name, text in students.items():
+                os.makedirs(os.path.join(klass, name))
+                with open(os.path.join(klass, name, 'fk.py'), 'w') as f:
+                    f.write(text.replace("float(os.environ.get('COURSE_FK_SLEEP', '0.1'))", '2.0'))
+            csv_path = os.path.join(folder, 'grades.csv')
+            proc = subprocess.Popen(['rosrun', 'robot_ai', 'check_fk', '--model', kuka, '--candidates', klass,
+                                     '--configurations', '10', '--jobs', '2', '--csv', csv_path],
+                                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            grader = proc.pid
+            printed, deadline = [], time.time() + 400
+            while not printed and time.time() < deadline:
+                line = proc.stdout.readline()
+                if not line:
+                    break
+                if line.split(':')[0] in students:
+                    printed.append(line.strip())
+            self.assertTrue(printed, 'no student was graded')
+            mine = {sandbox.uid_for(grader, i) for i in range(len(students))}
+            t = time.time()                        # the slow students' judges start them
+            while not processes_of_uids(mine) and time.time() - t < 120:
+                time.sleep(0.2)
+            before = processes_of_uids(mine)
+            proc.kill()
+            proc.wait()
+            import csv
+            with open(csv_path, newline='') as f:
+                rows = list(csv.DictReader(f))
+            self.assertGreaterEqual(len(rows), len(printed), rows)
+            for line in printed:
+                name = line.split(':')[0]
+                self.assertTrue(any(r['student'] == name and line.startswith(f"{name}: {r['verdict']}")
+                                    for r in rows), (line, rows))
+            self.assertTrue(before, 'no student was running when the grader was killed: the test is wrong')
+            t = time.time()
+            while processes_of_uids(mine) and time.time() - t < 30:
+                time.sleep(0.2)
+            self.assertEqual(processes_of_uids(mine), [], 'the killed grader\'s students go on')
+            self.assertEqual([l for l in processes_matching(klass)], [], 'its judges go on')
+            left = glob.glob(f'/tmp/check_fk_class_{grader}_*')
+            self.assertTrue(left, 'the killed run left no work folder: the test is wrong')
+            # the next run (a class of one) removes what the killed one left
+            os.makedirs(os.path.join(folder, 'next', 'alice'))
+            with open(os.path.join(folder, 'next', 'alice', 'fk.py'), 'w') as f:
+                f.write(students['a_fast'])
+            done = subprocess.run(['rosrun', 'robot_ai', 'check_fk', '--model', kuka, '--candidates',
+                                   os.path.join(folder, 'next'), '--configurations', '3',
+                                   '--csv', os.path.join(folder, 'next.csv')], capture_output=True, text=True,
+                                  timeout=600)
+            self.assertEqual(done.returncode, 0, done.stdout[-2000:] + done.stderr[-2000:])
+            self.assertEqual(glob.glob(f'/tmp/check_fk_class_{grader}_*'), [])
+            for hierarchy in ('cpu', 'memory', 'pids', 'unified'):
+                groups = f'/sys/fs/cgroup/{hierarchy}/robot_ai_grading'
+                if os.path.isdir(groups):
+                    self.assertEqual([d for d in os.listdir(groups) if d.startswith(f'check_fk_{grader}_')], [])
+
+    def test_grades_in_the_columns_moodle_and_canvas_import(self):
+        """Issue 56: Moodle's download (a folder per student, `Full Name_N_assignsubmission_file_`) graded into
+        Moodle's grading worksheet, Canvas's (one file per student, `lastfirst_N_M_name.py`) into Canvas's gradebook
+        import; a student that stores a gigabyte of parameters in its judge's master is refused and named."""
+        kuka = os.path.join(ROBOTS_DIR, 'kuka_lwr_arm.urdf')
+        with open(os.path.join(HERE, 'course_fk.py')) as f:
+            course = f.read()
+        default = "os.environ.get('COURSE_FK_MISTAKE', 'none')"
+        import csv
+        with tempfile.TemporaryDirectory() as folder:
+            moodle = os.path.join(folder, 'moodle')
+            for name, text in (('Jane Doe_1001_assignsubmission_file_', course.replace(default, "'none'")),
+                               ('Bob Roe_1002_assignsubmission_file_', course.replace(default, "'first'")),
+                               ('Max Hog_1003_assignsubmission_file_', HOSTILE_PARAMETERS)):
+                os.makedirs(os.path.join(moodle, name))
+                with open(os.path.join(moodle, name, 'fk_node.py'), 'w') as f:
+                    f.write(text)
+            proc = subprocess.run(['rosrun', 'robot_ai', 'check_fk', '--model', kuka, '--candidates', moodle,
+                                   '--configurations', '3', '--csv-format', 'moodle',
+                                   '--csv', os.path.join(folder, 'moodle.csv')], capture_output=True, text=True,
+                                  timeout=600)
+            self.assertEqual(proc.returncode, 0, proc.stdout[-3000:] + proc.stderr[-2000:])
+            with open(os.path.join(folder, 'moodle.csv'), newline='') as f:
+                rows = list(csv.reader(f))
+            self.assertEqual(rows[0], ['Identifier', 'Full name', 'Grade', 'Maximum Grade', 'Feedback comments'])
+            by_id = {r[0]: r for r in rows[1:]}
+            self.assertEqual(sorted(by_id), ['Participant 1001', 'Participant 1002', 'Participant 1003'])
+            self.assertEqual(by_id['Participant 1001'][1:4], ['Jane Doe', '100.0', '100'])
+            self.assertTrue(0 < float(by_id['Participant 1002'][2]) < 100, by_id)
+            self.assertTrue(by_id['Participant 1002'][4].startswith('FAIL: lwr_arm_1_link'), by_id)
+            self.assertIn('asked its master to hold more than 64 MiB of parameters', by_id['Participant 1003'][4])
+            canvas = os.path.join(folder, 'canvas')
+            os.makedirs(canvas)
+            for name, text in (('doejane_2001_777_fk.py', course.replace(default, "'none'")),
+                               ('roebob_LATE_2002_778_fk.py', course.replace(default, "'first'"))):
+                with open(os.path.join(canvas, name), 'w') as f:
+                    f.write(text)
+            proc = subprocess.run(['rosrun', 'robot_ai', 'check_fk', '--model', kuka, '--candidates', canvas,
+                                   '--configurations', '3', '--csv-format', 'canvas', '--id-from', 'file',
+                                   '--assignment', 'FK node (4711)', '--csv', os.path.join(folder, 'canvas.csv')],
+                                  capture_output=True, text=True, timeout=600)
+            self.assertEqual(proc.returncode, 0, proc.stdout[-3000:] + proc.stderr[-2000:])
+            with open(os.path.join(folder, 'canvas.csv'), newline='') as f:
+                rows = list(csv.reader(f))
+        self.assertEqual(rows[0], ['Student', 'ID', 'SIS User ID', 'SIS Login ID', 'Section', 'FK node (4711)'])
+        by_id = {r[1]: r for r in rows[1:]}
+        self.assertEqual(by_id['2001'][0], 'doejane')
+        self.assertEqual(by_id['2001'][5], '100.0')
+        self.assertTrue(0 < float(by_id['2002'][5]) < 100, by_id)
 
     def test_every_option_reaches_every_student_and_the_header_says_what_is_graded(self):
         """--xacro-args reach each student's check (the reference and the robot_description are the xacro's with
@@ -607,10 +762,20 @@ class TestCheckFk(unittest.TestCase):
             t = time.time()
             code, lines, err = check_fk(kuka, slow, '--budget', '25', '--timeout', '3')
             self.assertEqual(code, 1, '\n'.join(lines) + err[-2000:])
-            self.assertTrue(lines[-1].startswith('FAIL: grading did not end within its budget of 25 s (--budget)'),
+            self.assertTrue(lines[-1].startswith('FAIL: too slow (') and 'the budget of 25 s, --budget)' in lines[-1],
                             lines[-1])
             self.assertLess(time.time() - t, 60)
 
+
+
+def processes_of_uids(uids):
+    out = subprocess.run(['ps', '-eo', 'uid=,pid=,args='], capture_output=True, text=True).stdout.splitlines()
+    return [l for l in out if l.split() and int(l.split()[0]) % 2 ** 32 in uids]     # ps prints uids as signed
+
+
+def processes_matching(text):
+    out = subprocess.run(['ps', '-eo', 'pid=,args='], capture_output=True, text=True).stdout.splitlines()
+    return [l for l in out if text in l and 'ps -eo' not in l]
 
 
 def descendants_of(pid):
@@ -708,6 +873,19 @@ rospy.init_node('hog')
 rospy.spin()
 """
 
+HOSTILE_PARAMETERS = """#!/usr/bin/env python3
+import rospy
+from sensor_msgs.msg import JointState
+rospy.init_node('fk')   # joint_states
+for i in range(120):    # 1,200 MiB of parameters in its judge's master
+    try:
+        rospy.set_param('/junk/%d' % i, 'x' * (10 * 1024 * 1024))
+    except Exception as e:
+        print('refused after', i, e)
+        break
+rospy.spin()
+"""
+
 HOSTILE_SLOW = """#!/usr/bin/env python3
 import time
 import rospy, tf2_ros
@@ -730,7 +908,9 @@ while not rospy.is_shutdown():     # a new wrong pose every 2.5 s, just inside -
 # check_fk_class.test, the others as check_fk.test: make test runs the two side by side (each case alone in either).
 CLASS_CASES = ('test_a_class_at_once', 'test_a_class_in_sandboxes_no_student_can_forge_or_escape',
                'test_every_option_reaches_every_student_and_the_header_says_what_is_graded',
-               'test_a_single_candidate_in_a_sandbox_and_its_budget')
+               'test_a_single_candidate_in_a_sandbox_and_its_budget',
+               'test_a_grader_killed_with_sigkill_loses_no_verdict_and_leaves_nothing_running',
+               'test_grades_in_the_columns_moodle_and_canvas_import')
 
 
 if __name__ == '__main__':

@@ -3,9 +3,11 @@ import math
 import os
 
 import numpy as np
+
 from tf import transformations as tft
 
 from fk_helpers import robot_path
+from robot_ai.grading.gradebook import grade_of
 from robot_ai.grading.fk import Grade, comparison_frame, configurations, rotation_error
 from robot_ai.kinematics import KinematicTree
 
@@ -168,8 +170,14 @@ def test_a_missed_mimic_joint_is_named_and_the_score_counts_links_and_configurat
     assert 'check joint finger_joint2 (mimic of finger_joint1, multiplier -1, prismatic' in grade.verdict()
     right = sum(1 for q in configs if q['finger_joint1'] == 0.0)      # the zero pose
     assert grade.score() == f'score: 2/3 links, {right}/6 configurations'
-    assert grade.report()[-2] == grade.score() and grade.report()[-1] == grade.verdict()
+    assert grade.report()[-3] == grade.score() and grade.report()[-1] == grade.verdict()
+    # the grade: link poses right over links x configurations (two links right everywhere, finger2 in the zero pose)
+    assert grade.report()[-2] == grade.grade_line() == (f'grade: {grade_of(2 * 6 + right, 3, 6):.1f} '
+                                                        f'({2 * 6 + right} of 18 link poses right: 3 links x 6 '
+                                                        'configurations)')
+    assert 0 < grade_of(2 * 6 + right, 3, 6) < 100
     ok = Grade(tree, 'base', 1e-6)
     for k, q in enumerate(configs):
         ok.add(k, q, tree.link_poses(q), tree.link_poses(q))
     assert ok.score() == 'score: 3/3 links, 6/6 configurations' and ok.verdict() == 'PASS'
+    assert ok.grade_line().startswith('grade: 100.0 (18 of 18 ')

@@ -139,6 +139,7 @@ def find_node(folder: str, max_files: int = MAX_FILES) -> str | None:
     return min(found)[2] if found else None
 
 
+GRADE_LINE = re.compile(r'grade: (\d{1,3}(?:\.\d+)?) ')     # robot_ai.grading.gradebook.grade_line
 WRONG_LINK_AT = ('publish a transform for ', '')     # where a verdict names its link: 'FAIL: <link>, ...', ...
 
 
@@ -164,7 +165,9 @@ class Result:
     verdict: str          # PASS, FAIL: ..., or why nothing could be graded
     score: str            # "5/7 links, 18/20 configurations", or ''
     first_wrong_link: str
-    seconds: float
+    seconds: float        # the one duration of its grading: its judge's, or the class run's where none ran
+    grade: float | None = None    # 0-100 (robot_ai.grading.gradebook.grade_of); None: not graded
+    source: str = ''      # the node's file name, as the student named it
 
     @classmethod
     def of(cls, student: str, output: str, seconds: float, links: list[str]) -> Result:
@@ -174,7 +177,9 @@ class Result:
         verdicts = [line for line in lines if line.startswith(('PASS', 'FAIL'))]
         verdict = verdicts[-1] if verdicts else (lines[-1] if lines else 'no verdict')
         score = next((line[len('score: '):] for line in reversed(lines) if line.startswith('score: ')), '')
-        return cls(student, verdict, score, first_wrong_link(verdict, links), seconds)
+        found = next((m for m in map(GRADE_LINE.match, reversed(lines)) if m), None)
+        grade = float(found[1]) if found and float(found[1]) <= 100.0 else None
+        return cls(student, verdict, score, first_wrong_link(verdict, links), seconds, grade)
 
     def line(self) -> str:
         score = f' [{self.score}]' if self.score else ''

@@ -21,14 +21,37 @@ from dataclasses import dataclass
 
 from robot_ai.child_process import PR_SET_PDEATHSIG, prctl
 from robot_ai.grading import candidates, cgroups, sandbox
+from robot_ai.grading.gradebook import Gradebook
 from robot_ai.grading.processes import CHUNK, LOG_BYTES, free_port, signal_group
-from robot_ai.grading.report import MAX_NAME, RESULT_BYTES, budget_of, nothing_graded, spreadsheet_cell
+from robot_ai.grading.report import MAX_NAME, RESULT_BYTES, budget_of, nothing_graded
 
 WALL_LIMIT_FACTOR = 3             # a judge is killed past this many times its budget of wall time, and a minute
 JUDGE_MEMORY = 1024 ** 3          # bytes a judge (check_fk, its roscore and rosout) may use beside its student's
 GROUP_TASKS = 1024                # processes and threads of a student's group: its own and its judge's
 REPORT_TAIL = 64 * 1024        # bytes of a judge's report a class run keeps in memory
 JUDGE = 'import sys; from robot_ai.nodes.check_fk import main; sys.exit(main(sys.argv[1:]))'
+CLASS_WORK = 'check_fk_class_'    # a class run's work folder in /tmp: check_fk_class_<grader pid>_<random>
+SANDBOX_WORK = 'check_fk_sandbox_'   # a --sandbox check's
+
+
+def work_folder(prefix: str) -> str:
+    """A work folder of this process's in /tmp (the students' copies, the judges' mount points), named with its pid so
+    that a later run removes it if this one is killed before it can (dead_work_folders)."""
+    for folder in dead_work_folders(prefix):
+        shutil.rmtree(folder, ignore_errors=True)
+    return tempfile.mkdtemp(prefix=f'{prefix}{os.getpid()}_')
+
+
+def dead_work_folders(prefix: str) -> list[str]:
+    """The work folders named `<prefix><pid>_...` in /tmp whose process is gone: a grader or a Ray worker killed (a
+    SIGKILL, an out-of-memory kill) before its clean-up."""
+    import glob
+    out = []
+    for folder in glob.glob(os.path.join(tempfile.gettempdir(), prefix + '*')):
+        pid = os.path.basename(folder)[len(prefix):].split('_')[0]
+        if pid.isdigit() and not os.path.exists(f'/proc/{pid}'):
+            out.append(folder)
+    return out
 
 
 def sandboxed(a) -> bool:
@@ -61,7 +84,7 @@ def reexec_in_namespaces(a, argv) -> int:
     """--candidate with --sandbox: this check again as a judge in a network, PID and mount namespace of its own
     (its own master, the candidate as a user of its own, a copy of its folder); its exit status."""
     uid = sandbox.uid_for(os.getpid(), 0)
-    work = tempfile.mkdtemp(prefix='check_fk_sandbox_')
+    work = work_folder(SANDBOX_WORK)
     home = judge_home(work)
     candidate, folder = a.candidate, ''
     try:
@@ -210,12 +233,22 @@ class Judges:
         shown = sandbox.printable(student)
         no_node = 'FAIL: no node found (no Python file that calls rospy.init_node)'
         cmd, env, copy, home = [sys.executable, '-c', JUDGE] + list(j.options), None, '', ''
+        if not os.path.isdir(original):      # a student that is one file (an LMS's flat download): a folder of it
+            alone = os.path.join(self.work, f'file_{index}')
+            try:
+                sandbox.unpack_folder(sandbox.pack_file(original), alone)
+            except (sandbox.SandboxError, OSError) as e:
+                shutil.rmtree(alone, ignore_errors=True)
+                return candidates.Result(shown, f'FAIL: its file cannot be graded: {sandbox.printable(str(e))}',
+                                         j.none_right, '', time.time() - t, 0.0)
+            original, shown_folder = alone, os.path.dirname(shown_folder)
         if not j.sandboxed:
             node = candidates.find_node(original)
             if node is None:
-                return candidates.Result(shown, no_node, j.none_right, '', time.time() - t)
+                return candidates.Result(shown, no_node, j.none_right, '', time.time() - t, 0.0)
             env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{free_port()}')   # none runs there: its own
             cmd += ['--candidate', node, '--judge-shown', os.path.join(shown_folder, os.path.relpath(node, original))]
+            source = os.path.basename(node)
         else:
             # the folder is counted and copied first (links kept as links, nothing else but files and folders), and
             # the node is looked for in the copy: nothing of the student's is read before it is bounded
@@ -226,12 +259,13 @@ class Judges:
             except (sandbox.SandboxError, OSError) as e:
                 shutil.rmtree(copy, ignore_errors=True)
                 return candidates.Result(shown, f'FAIL: its folder cannot be graded: {sandbox.printable(str(e))}',
-                                         j.none_right, '', time.time() - t)
+                                         j.none_right, '', time.time() - t, 0.0)
             found = candidates.find_node(copy)
             if found is None:
                 shutil.rmtree(copy, ignore_errors=True)
-                return candidates.Result(shown, no_node, j.none_right, '', time.time() - t)
+                return candidates.Result(shown, no_node, j.none_right, '', time.time() - t, 0.0)
             node = os.path.join(shown_folder, os.path.relpath(found, copy))     # as the student named it
+            source = os.path.basename(found)
             cmd = sandbox.judge_prefix() + cmd + [
                 '--candidate', found, '--judge-uid', str(uid), '--judge-shown', node, '--judge-folder', copy]
             for folder in hide:
@@ -304,14 +338,21 @@ class Judges:
                        f'budget and a minute): ended' if timed_out
                        else f'FAIL: check_fk ended with status {proc.returncode} and no result: '
                             f'{reader.last_lines()}')
-            reader.append([f'score: {j.none_right}', verdict])
-            return candidates.Result(shown, verdict, j.none_right, '', seconds)
+            reader.append([f'score: {j.none_right}', 'grade: 0.0', verdict])
+            return candidates.Result(shown, verdict, j.none_right, '', seconds, 0.0, source)
         reader.thread.join(5.0)
         verdict = sandbox.printable(result['verdict'], 600, backslashes=False)
+        grade = result.get('grade')
+        grade = float(grade) if isinstance(grade, (int, float)) and 0 <= grade <= 100 else 0.0
         if verdict.startswith('PASS') != (proc.returncode == 0):
             verdict = f'FAIL: check_fk said {verdict[:200]} but ended with status {proc.returncode}'
+            grade = min(grade, 99.9)
+        judged = result.get('seconds')      # one duration per student: the judge's own, which its report says too
+        if isinstance(judged, (int, float)) and 0 <= judged <= seconds:
+            seconds = float(judged)
         return candidates.Result(shown, verdict, sandbox.printable(result['score'], 100, backslashes=False),
-                                 sandbox.printable(result['first_wrong_link'], MAX_NAME, backslashes=False), seconds)
+                                 sandbox.printable(result['first_wrong_link'], MAX_NAME, backslashes=False), seconds,
+                                 grade, source)
 
 
 _LIBC = ctypes.CDLL(None, use_errno=True)
@@ -339,14 +380,16 @@ class ClassRun:
     reports: str
     judging: Judging
     budget: float
+    book: Gradebook
 
     @classmethod
     def of(cls, a, tree) -> ClassRun | None:
         """check_fk's options -> the run; None (after one line on stderr) for a folder without student folders."""
         folder = os.path.abspath(a.candidates)
-        students = sorted(d for d in os.listdir(folder) if os.path.isdir(os.path.join(folder, d)) and d[0] != '.')
+        students = sorted(d for d in os.listdir(folder) if d[0] != '.' and (
+            os.path.isdir(os.path.join(folder, d)) or candidates.is_python(os.path.join(folder, d))))
         if not students:
-            print(f'check_fk: {folder} has no student folders', file=sys.stderr)
+            print(f'check_fk: {folder} has no student folders (nor Python files, one per student)', file=sys.stderr)
             return None
         budget = budget_of(a)
         path = a.csv or f'check_fk_{os.path.basename(folder)}.csv'
@@ -359,7 +402,9 @@ class ClassRun:
         judging = Judging(options, not a.no_sandbox, WALL_LIMIT_FACTOR * budget + 60.0,
                           sandbox.Limits(cpu_seconds=int(budget) + 60),
                           nothing_graded(tree, a.configurations)[len('score: '):])
-        return cls(folder, students, path, reports, judging, budget)
+        book = Gradebook(path, getattr(a, 'csv_format', 'robot_ai'), students, getattr(a, 'id_from', 'folder'),
+                         getattr(a, 'assignment', 'check_fk'))
+        return cls(folder, students, path, reports, judging, budget, book)
 
     def prepare_reports(self) -> None:
         os.makedirs(self.reports, exist_ok=True)
@@ -389,19 +434,19 @@ class ClassRun:
                   'check_fk: no control groups here (cgroup v1 or v2 with root): limits are per process')
         print(f'check_fk: reports in {self.reports}', flush=True)
 
+    def start_csv(self) -> None:
+        """The CSV's header, on disk before any student is graded; rows follow as verdicts come (record)."""
+        self.book.start()
+
+    def record(self, student: str, result: candidates.Result) -> None:
+        """A student's line, and its row in the CSV on disk: a grader killed from now on has lost none of it."""
+        print(result.line(), flush=True)
+        self.book.add(student, result)
+
     def write_csv(self, results: dict) -> None:
-        """The CSV: one row per student in the folder's sorted order; a student without a result: not graded."""
-        import csv
-        with open(self.csv_path, 'w', newline='') as f:
-            w = csv.writer(f)
-            w.writerow(['student', 'verdict', 'score', 'first_wrong_link', 'seconds'])
-            for student in self.students:
-                r = results.get(student)
-                if r is None:
-                    row = [sandbox.printable(student), 'not graded (check_fk was stopped)', '', '', '']
-                else:
-                    row = [r.student, r.verdict, r.score, r.first_wrong_link, f'{r.seconds:.1f}']
-                w.writerow([spreadsheet_cell(cell) for cell in row])
+        """The CSV at the end: one row per student in the folder's sorted order; a student without a result: not
+        graded."""
+        self.book.finish(results)
 
     def summary(self, results: dict, stopped: BaseException | None) -> int:
         """The last line (the students graded and not, when stopped) and the exit status; a stop is raised again."""
@@ -430,10 +475,11 @@ def grade_class(a, tree, argv) -> int:
         return 2
     jobs = a.jobs or os.cpu_count() or 1
     run.prepare_reports()
-    work = tempfile.mkdtemp(prefix='check_fk_class_')
+    work = work_folder(CLASS_WORK)
     os.chmod(work, 0o711)
     cores = max(1.0, (os.cpu_count() or 1) / jobs)          # each student's CPU share, at most
-    judges = Judges(run.judging, cores, work)
+    # a grader killed with SIGKILL (an out-of-memory kill) takes its judges along: none grades on for nobody
+    judges = Judges(run.judging, cores, work, die_with_parent=True)
     run.header(a, tree, f'{jobs} at a time', f'at most {cores:g} cores', judges.share)
     hide = [run.folder, run.reports, work]
 
@@ -445,12 +491,13 @@ def grade_class(a, tree, argv) -> int:
     pool = concurrent.futures.ThreadPoolExecutor(max_workers=jobs)
     stopped = None
     try:
+        run.start_csv()
         futures = {pool.submit(one, i, student): student for i, student in enumerate(run.students)}
         for future in concurrent.futures.as_completed(futures):
             result = future.result()
             if result is not None:
                 results[futures[future]] = result
-                print(result.line(), flush=True)
+                run.record(futures[future], result)
     except BaseException as e:   # a signal: the students being graded are stopped, none starts, the CSV is written
         stopped = e
     finally:

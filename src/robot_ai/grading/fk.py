@@ -97,6 +97,8 @@ class Grade:
         self.missing, self.extra, self.problems = {}, set(), []   # missing: {link: configurations without it}
         self.configurations = 0
         self.configurations_right = 0   # every graded link published and within the tolerance
+        self.poses_right = 0            # (link, configuration) pairs published, finite and within the tolerance
+        self.asked = 0                  # configurations the check asks for (the grade's denominator); 0: those compared
         self.non_finite = set()         # links published with NaN or inf
         self.seen = {}          # configuration index -> (joint values, {link: (reference, candidate)} of wrong links)
 
@@ -137,6 +139,8 @@ class Grade:
             rotation = rotation_error(got, want)
             if max(position, rotation) > self.tolerance:
                 wrong[link] = (want, got)
+            else:
+                self.poses_right += 1
             w = self.worst[link]
             if position > w[0]:
                 w[0], w[2] = position, index
@@ -236,8 +240,15 @@ class Grade:
         lines.extend(self.worst_configuration_lines())
         lines.extend(self.problems[1:6])
         lines.append(self.score())
+        lines.append(self.grade_line())
         lines.append(self.verdict())
         return lines
+
+    def grade_line(self) -> str:
+        """The grade, 0 to 100: the share of link poses right over the links graded and the configurations asked for
+        (robot_ai.grading.gradebook.grade_of); one not compared (a check ended early) counts as wrong."""
+        from robot_ai.grading.gradebook import grade_line
+        return grade_line(self.poses_right, len(self.links), max(self.asked, self.configurations))
 
     def score(self) -> str:
         """One line for course staff: links right out of links graded, configurations right out of those compared

@@ -15,7 +15,6 @@ are in flight, so the class's folders are never all in memory at once.
 """
 from __future__ import annotations
 
-import glob
 import os
 import shutil
 import signal
@@ -27,7 +26,7 @@ from dataclasses import replace
 
 from robot_ai import fleet
 from robot_ai.grading import candidates, sandbox
-from robot_ai.grading.class_run import ClassRun, Judges, Judging
+from robot_ai.grading.class_run import ClassRun, Judges, Judging, dead_work_folders
 
 MAX_RETRIES = 3           # runs of a student's task after the first when its node or worker dies
 IN_FLIGHT_PER_CPU = 2     # tasks submitted ahead per CPU of the cluster
@@ -72,12 +71,7 @@ def grade_on_node(judging: Judging, index: int, student: str, shown_folder: str,
 def dead_workers_folders() -> list[str]:
     """The work folders (a student's copy, a judge's mount point) of this machine's tasks whose worker is gone: killed
     before its clean-up (a worker or a node killed mid-class)."""
-    out = []
-    for folder in glob.glob(os.path.join(tempfile.gettempdir(), WORK_PREFIX + '*')):
-        pid = os.path.basename(folder)[len(WORK_PREFIX):].split('_')[0]
-        if pid.isdigit() and not os.path.exists(f'/proc/{pid}'):
-            out.append(folder)
-    return out
+    return dead_work_folders(WORK_PREFIX)
 
 
 def _sweep() -> None:
@@ -167,6 +161,7 @@ def _grade(ray, run: ClassRun, a, tree, xml: str, nodes: dict[str, float], resul
     each = f'{a.jobs} per node' if a.jobs else 'one per CPU'
     run.header(a, tree, f'on the Ray cluster at {a.ray} ({len(nodes)} nodes, {total:g} CPUs, {each})',
                f'at most {cores:g} cores', 1)
+    run.start_csv()
     model_xml = ray.put(xml)              # once for the class: every task reads it
     task = ray.remote(grade_on_node).options(num_cpus=cpus, max_retries=MAX_RETRIES, retry_exceptions=False)
     window = max(2, int(IN_FLIGHT_PER_CPU * total / cpus))
@@ -177,13 +172,16 @@ def _grade(ray, run: ClassRun, a, tree, xml: str, nodes: dict[str, float], resul
             shown_folder = os.path.join(run.folder, student)
             t = time.time()
             try:
-                packed = sandbox.pack_folder(shown_folder)
+                packed = sandbox.pack(shown_folder)        # a folder, or a student that is one file
             except (sandbox.SandboxError, OSError) as e:      # as a local run's copy says it
+                what = 'folder' if os.path.isdir(shown_folder) else 'file'
                 result = candidates.Result(
-                    sandbox.printable(student), f'FAIL: its folder cannot be graded: {sandbox.printable(str(e))}',
-                    run.judging.none_right, '', time.time() - t)
+                    sandbox.printable(student), f'FAIL: its {what} cannot be graded: {sandbox.printable(str(e))}',
+                    run.judging.none_right, '', time.time() - t, 0.0)
                 _record(run, results, index, student, result, b'')
                 continue
+            if not os.path.isdir(shown_folder):            # its file, unpacked there as a folder of it alone
+                shown_folder = run.folder
             ref = task.remote(run.judging, index, student, shown_folder, packed, cores, model_xml)
             pending[ref] = (index, student, t)
         done, _ = ray.wait(list(pending), num_returns=1, timeout=1.0) if pending else ([], [])
@@ -212,4 +210,4 @@ def _record(run: ClassRun, results: dict, index: int, student: str, result: cand
         except OSError:
             pass
     results[student] = result
-    print(result.line(), flush=True)
+    run.record(student, result)

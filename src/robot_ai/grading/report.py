@@ -42,25 +42,20 @@ def read_model(path: str, xacro_args: str = '') -> tuple[str, KinematicTree]:
     return xml, tree
 
 
-def nothing_graded(tree: KinematicTree, configurations: int) -> str:
-    """The score line of a check that ended before any configuration was graded (a Python 2 file, a node that died
-    or published nothing): none of the links a grade compares is right, as course staff's spreadsheets need it."""
+def graded_links(tree: KinematicTree) -> int:
+    """How many links a grade of this robot compares (every link but the root, or the floating base's)."""
     from robot_ai.grading.fk import Grade, comparison_frame
     try:
         frame, _ = comparison_frame(tree, set(tree.links), set())
-        links = len(Grade(tree, frame).links)
+        return len(Grade(tree, frame).links)
     except Exception:       # a tree the grade cannot frame: every link but the root
-        links = len(tree.links) - 1
-    return f'score: 0/{links} links, 0/{configurations} configurations'
+        return len(tree.links) - 1
 
 
-FORMULA_STARTS = ('=', '+', '-', '@', '\t', '\r')
-
-
-def spreadsheet_cell(text: str) -> str:
-    """A CSV cell no spreadsheet evaluates: text that starts as a formula would (a student folder named `=2+5` or
-    `@SUM(9+9)`) gets a leading apostrophe, as OWASP's CSV-injection advice says; other text is as it is."""
-    return "'" + text if text.startswith(FORMULA_STARTS) else text
+def nothing_graded(tree: KinematicTree, configurations: int) -> str:
+    """The score line of a check that ended before any configuration was graded (a Python 2 file, a node that died
+    or published nothing): none of the links a grade compares is right, as course staff's spreadsheets need it."""
+    return f'score: 0/{graded_links(tree)} links, 0/{configurations} configurations'
 
 
 def budget_of(a) -> float:
@@ -78,7 +73,7 @@ def result_of(lines: list[str], tree, status: int, seconds: float) -> dict:
     the exit status; from this process's own report, never from text the candidate wrote."""
     r = candidates.Result.of('', '\n'.join(lines), seconds, tree.links)
     return dict(verdict=r.verdict, score=r.score, first_wrong_link=r.first_wrong_link, status=status,
-                seconds=round(seconds, 3))
+                seconds=seconds, grade=r.grade)
 
 
 def write_junit(path: str, candidate: str, lines: list, seconds: float, expect: str = 'pass') -> None:

@@ -219,6 +219,30 @@ def pack_folder(source: str, max_bytes: int = MAX_COPY_BYTES, max_files: int = M
     return Packed(tuple(entries))
 
 
+def pack_file(source: str, max_bytes: int = MAX_COPY_BYTES) -> Packed:
+    """A student that is one file (an LMS's flat download: one file per student) as a Packed folder holding it alone;
+    a link, a FIFO or a device is SandboxError, and so is a file over max_bytes."""
+    try:
+        fd = os.open(source, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError as e:
+        raise SandboxError(f'its file cannot be read: {e.strerror}')
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise SandboxError('it is not a regular file')
+        data = read_fd(fd, max_bytes + 1)
+    finally:
+        os.close(fd)
+    if len(data) > max_bytes:
+        raise SandboxError(f'the file holds more than {max_bytes // 1024 ** 2} MiB')
+    return Packed(((os.path.basename(source), 'file', 0o755 if st.st_mode & 0o111 else 0o644, data),))
+
+
+def pack(source: str) -> Packed:
+    """A student's folder, or its one file, as a Packed (pack_folder, pack_file)."""
+    return pack_file(source) if not os.path.isdir(source) else pack_folder(source)
+
+
 def unpack_folder(packed: Packed, target: str) -> None:
     """Make the folder a Packed describes at target (which must not exist), owned by this process's user. An entry
     whose path is absolute, climbs with '..', or lies below anything but a folder made here is SandboxError: the data

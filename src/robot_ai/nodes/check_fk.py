@@ -22,24 +22,20 @@ import sys
 import tempfile
 import time
 
-import numpy as np
 
 from robot_ai.child_process import PR_SET_CHILD_SUBREAPER, prctl
 from robot_ai.grading import candidates, sandbox
 from robot_ai.grading.cgroups import BudgetClock
 from robot_ai.grading.class_run import grade_class, reexec_in_namespaces, sandboxed
 from robot_ai.grading.fk import Grade, comparison_frame, configurations
+from robot_ai.grading.pacing import STABLE, Answer, Pacer, same
 from robot_ai.grading.processes import Output, end_descendants, log_path, start_master, stop, wait_for_master
+from robot_ai.grading.gradebook import FORMATS, ID_FROM, grade_line
+from robot_ai.grading.master import read_refused
 from robot_ai.grading.report import (BUDGET_BASE, BUDGET_PER_CONFIGURATION, MAX_NAME, RESULT_BYTES, budget_of,
-                                     exit_status, nothing_graded, read_model, result_of, write_junit)
+                                     exit_status, graded_links, nothing_graded, read_model, result_of, write_junit)
 from robot_ai.kinematics import prefix_frame
 
-RESEND = 0.2            # seconds without a tf message after which the configuration is sent again
-STABLE = 3              # fresh tf messages in a row with the same poses: the candidate's answer
-QUIET = 0.03            # seconds without a tf message after an answer before the next send: a node that publishes
-                        # a message per link answers one send with a burst, which must not bring a send per message
-SAME_AS_BEFORE = 15     # fresh messages with the previous configuration's poses after which they are the answer
-MAX_MESSAGES = 400      # fresh messages for one configuration whose poses never settle: the last ones count
 STARTUP = 120.0         # seconds a candidate may take to register with the master (a loaded machine is slow)
 SUBSCRIBE = 10.0        # seconds from then to its joint_states subscription (it reads the URDF first)
 MAX_CONFIGURATIONS = 10000
@@ -148,6 +144,17 @@ def parse_args(argv):
                    'student), each in a sandbox of its own (see --no-sandbox), one line per student and a CSV')
     p.add_argument('--csv', default='', help='with --candidates: where the CSV goes (default: check_fk_<DIR>.csv '
                    'in the current folder); each student\'s report goes to a folder beside it')
+    p.add_argument('--csv-format', choices=FORMATS, default='robot_ai',
+                   help='with --candidates: the CSV\'s columns: robot_ai (student, id, grade, verdict, score, '
+                   'first_wrong_link, seconds), moodle (an assignment\'s grading worksheet, for "Upload grading '
+                   'worksheet") or canvas (the gradebook\'s import)')
+    p.add_argument('--id-from', choices=ID_FROM, default='folder',
+                   help='with --candidates: where a student\'s LMS id comes from: its folder\'s name (Moodle\'s '
+                   '"Full Name_N_assignsubmission_file_") or its node file\'s name (Canvas\'s '
+                   '"lastfirst_N_M_name.py")')
+    p.add_argument('--assignment', default='check_fk',
+                   help='with --csv-format canvas: the grade column\'s name, the assignment as Canvas\'s export '
+                   'names it ("FK node (1234)")')
     p.add_argument('--jobs', type=int, default=0, help='with --candidates: students graded at once (0: one per core)')
     p.add_argument('--ray', default='', metavar='ADDRESS',
                    help='with --candidates: grade the class on a Ray cluster (HOST:PORT of its head, ray://HOST:PORT, '
@@ -238,6 +245,9 @@ def finish(a, tree, lines: list[str], seconds: float) -> int:
     lines = [sandbox.printable(line, 2000, backslashes=False) for line in lines]
     if not any(line.startswith('score: ') for line in lines):   # ended before any configuration was graded
         lines.insert(len(lines) - 1, nothing_graded(tree, a.configurations))
+    if not any(line.startswith('grade: ') for line in lines):
+        lines.insert(len(lines) - 1, 'grade: 100.0 (nothing to compare)' if lines[-1].startswith('PASS') else
+                     grade_line(0, graded_links(tree), a.configurations))
     print('\n'.join(lines), flush=True)
     status = exit_status(lines[-1], a.expect)
     if a.gtest_output.startswith('xml:'):
@@ -340,7 +350,13 @@ def main(argv=None) -> int:
               f'({len(tree.links)} links, '
               f'{len(tree.active_joints)} driven joints), {a.configurations} configurations', flush=True)
         lines, _ = grade(tree, a, candidate, proc, output, pub, JointState, clock)
-        return finish(a, tree, lines[:-1] + [f'(graded in {time.time() - t0:.1f} s)', lines[-1]], time.time() - t0)
+        refused = read_refused(core.refused_file) if core is not None else None
+        if refused is not None:     # the candidate's, whatever else went wrong: the grader's own few are far below
+            lines = lines[:-1] + [f'FAIL: the candidate asked its master to hold more than '
+                                  f'{refused["limit"] // 1024 ** 2} MiB of parameters ({refused["what"]}): refused, '
+                                  f'a bound of check_fk\'s']
+        seconds = time.time() - t0        # one duration: the report's, the result's (the class's CSV) and rostest's
+        return finish(a, tree, lines[:-1] + [f'(graded in {seconds:.1f} s)', lines[-1]], seconds)
     finally:
         stopping.append('clean-up')
         stop(proc)
@@ -356,6 +372,11 @@ def main(argv=None) -> int:
             rospy.signal_shutdown('check_fk done')
         stop(core)
         end_descendants()
+        if core is not None:
+            try:
+                os.remove(core.refused_file)
+            except OSError:
+                pass
         if ros_home:
             sandbox.end_private_ros_home(ros_home)
 
@@ -373,54 +394,27 @@ def tf_name(link: str) -> str:
     return frame[1:] if frame.startswith('/') else frame
 
 
-def same(a: dict, b: dict, tolerance: float = 1e-9) -> bool:
-    return a.keys() == b.keys() and all(np.allclose(a[k], b[k], atol=tolerance, rtol=0) for k in a)
-
-
-def settle(candidate: TfTree, frame: str, links: dict, q: dict, previous: dict | None, changes: bool, pub,
-           JointState, timeout: float, dead, moving: bool = True) -> dict:
-    """The candidate's poses of links in frame, in answer to configuration q.
-
-    Paced by the candidate's own messages, not the clock, so that a loaded machine gives the verdict a quiet one
-    does: q is sent, and sent again only once a tf message has come since and QUIET seconds passed after it (one
-    send in flight: a slow node never queues a backlog of old configurations) or RESEND seconds passed without one.
-    The poses count once STABLE fresh messages in a row left them the same, and they differ from the previous
-    configuration's (a slow node may still answer a copy of it first) unless the reference's do not change
-    (`changes` false) or SAME_AS_BEFORE messages gave them (a node that ignores the joints). Only `timeout` seconds
-    without any tf message, or MAX_MESSAGES without settling, end the wait: then the poses it has."""
-    sent = -math.inf
-    answered = True                   # a tf message came after the last send
-    last, stable, same_as_before, messages = {}, 0, 0, 0
+def settle(candidate: TfTree, frame: str, links: dict, q: dict, pacer: Pacer, previous: dict | None,
+           changes: bool, pub, JointState, dead, moving: bool = True) -> Answer:
+    """The candidate's answer to configuration q: the poses of links in frame, once they are its own answer to q
+    (robot_ai.grading.pacing: paced by the candidate's own messages, not the clock, so that a slow node or a loaded
+    machine gives the verdict a quiet one does, and a slow node's old answers are never taken for a new one)."""
     received = candidate.received
-    heard = time.monotonic()
+    pacer.begin(time.monotonic(), previous, changes)
     while not dead():
-        now_t = time.monotonic()
-        if (answered and now_t - heard >= QUIET and now_t - sent >= QUIET) or now_t - sent >= RESEND:
+        now = time.monotonic()
+        if pacer.want_send(now):
             send(pub, JointState, q)
-            sent, answered = now_t, False
+            pacer.sent_at(now)
         time.sleep(0.01)
-        fresh = candidate.received > received or not moving
-        if not fresh:
-            if time.monotonic() - heard > timeout:
-                return last           # the candidate stopped answering: what it gave
-            continue
-        received, heard, answered = candidate.received, time.monotonic(), True
-        messages += 1
-        now = candidate.poses(frame, links)
-        if not now or not same(now, last):
-            last, stable = now, 1
-        else:
-            stable += 1
-        if messages >= MAX_MESSAGES:
-            return last
-        if stable < STABLE:
-            continue
-        if previous is not None and changes and same(now, previous):
-            same_as_before += 1
-            if same_as_before < SAME_AS_BEFORE:
-                continue
-        return now
-    return last
+        now = time.monotonic()
+        if candidate.received > received or not moving:
+            received = candidate.received
+            pacer.message(now, candidate.poses(frame, links))
+        pacer.tick(now)
+        if pacer.answer is not None:
+            return pacer.answer
+    return Answer(pacer.last, 'ended')
 
 
 def registered(node: str) -> bool:
@@ -448,9 +442,11 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState, clo
     def died():
         """The lines that end a grade stopped early: the candidate's output, then the verdict."""
         if over():
-            return output.lines() + [f'FAIL: grading did not end within its budget of {budget_of(a):g} s (--budget): '
-                                     f'{done[0]} of {a.configurations} configurations graded']
-        return output.lines() + [f'FAIL: the candidate node exited with status {proc.returncode}']
+            return output.lines() + [f'FAIL: too slow ({done[0]} of {a.configurations} configurations answered within '
+                                     f'the budget of {budget_of(a):g} s, --budget)']
+        exception = output.exception()
+        return output.lines() + [f'FAIL: the candidate node exited with status {proc.returncode}'
+                                 + (f': {exception}' if exception else '')]
 
     if len(tree.links) == 1:
         return [f'{tree.root} is a single link with no joint: there is no transform to publish or to grade',
@@ -465,6 +461,7 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState, clo
     while pub.get_num_connections() < 1 and time.monotonic() < deadline and not dead():
         time.sleep(0.05)
     configs = configurations(tree, a.configurations, a.seed)
+    pacer = Pacer(a.timeout)
     result, graded, previous, reference = None, None, None, None
     for k, q in enumerate(configs):
         before = reference                                   # one configuration's poses at a time
@@ -472,13 +469,23 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState, clo
         if result is None:       # the first configuration: wait for the candidate's frames, then choose the frame
             # until its set of frames stays the same over STABLE fresh messages (a node that publishes a message
             # per link sends them over a while), at least 1 s; nothing at all within the timeout is a verdict
-            start = time.monotonic()
-            known, unchanged, received = set(), 0, candidate.received
+            start = check = time.monotonic()
+            known, unchanged, received, heard = set(), 0, candidate.received, candidate.received
+            pacer.begin(start, None, True)
             while time.monotonic() < start + a.timeout or candidate.frames:
                 if dead():
                     break
-                send(pub, JointState, q)
-                time.sleep(0.1)
+                now = time.monotonic()
+                if pacer.want_send(now):      # paced as every configuration is: a slow node gets no backlog
+                    send(pub, JointState, q)
+                    pacer.sent_at(now)
+                time.sleep(0.01)
+                if candidate.received > heard:
+                    heard = candidate.received
+                    pacer.message(time.monotonic(), {})
+                if time.monotonic() - check < 0.1:
+                    continue
+                check = time.monotonic()
                 fresh = candidate.received > received or not tree.active_joints
                 received = candidate.received
                 if candidate.frames and time.monotonic() > start + 3 * a.timeout:
@@ -504,6 +511,7 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState, clo
             frame, note = comparison_frame(tree, {link_of.get(f, f) for f in candidate.frames},
                                            candidate.parentless())
             result = Grade(tree, None if frame is None else link_of.get(frame, frame), a.tolerance, note)
+            result.asked = a.configurations
             result.extra = {f for f in candidate.frames if f not in link_of} - {frame}
             if frame is None:
                 return result.report(), 1
@@ -511,15 +519,19 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState, clo
             graded = {link: names[link] for link in result.links}
         reference = result.reference_poses(q)       # from the root, or from a floating joint's child
         changes = before is None or not same(reference, before)
-        got = settle(candidate, frame_name, graded, q, previous, changes, pub, JointState, a.timeout, dead,
-                     moving=bool(tree.active_joints))
+        answer = settle(candidate, frame_name, graded, q, pacer, previous, changes, pub, JointState, dead,
+                        moving=bool(tree.active_joints))
         if dead():
             return result.report()[:-1] + died(), 1
         if candidate.non_finite:
             result.problems.append(f'the candidate published a non-finite (NaN or inf) transform for '
                                    f'{candidate.non_finite[0]}')
             return result.report(), 1
-        previous = got
+        if pacer.unanswered():      # a node that reads the joints went silent on an old answer: never a wrong joint
+            return result.report()[:-1] + [
+                f'FAIL: too slow ({k} of {a.configurations} configurations answered): no answer to configuration {k} '
+                f'and no tf message for {a.timeout:g} s (--timeout)'], 1
+        previous = got = answer.poses
         result.add(k, q, reference, got)
         done[0] = k + 1
     return result.report(), 0 if result.verdict() == 'PASS' else 1
