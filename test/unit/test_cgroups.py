@@ -17,12 +17,17 @@ def test_a_group_holds_what_its_process_starts_and_leaves_nothing():
         busy = 'import os, time\nfor _ in range(3):\n    os.fork()\nt = time.time()\nwhile time.time() < t + 30: pass\n'
         proc = subprocess.Popen(group.exec_prefix(sys.executable) + [sys.executable, '-c', busy],
                                 start_new_session=True)
-        time.sleep(2.0)
-        with open(os.path.join(group.folders[0], 'cgroup.procs')) as f:
-            members = [int(p) for p in f.read().split()]
+        deadline, members = time.monotonic() + 60, []       # the forks, however loaded the machine
+        while len(members) < 8 and time.monotonic() < deadline:
+            time.sleep(0.1)
+            with open(os.path.join(group.folders[0], 'cgroup.procs')) as f:
+                members = [int(p) for p in f.read().split()]
         assert proc.pid in members and len(members) == 8, members      # the process and the 7 it forked
-        used = group.cpu_seconds()
-        assert 0.3 < used < 1.6, used            # at most half a core (cfs quota) over 2 s, 8 busy processes
+        before, t = group.cpu_seconds(), time.monotonic()
+        time.sleep(2.0)
+        used, wall = group.cpu_seconds() - before, time.monotonic() - t
+        # 8 busy processes hold at most half a core (the cfs quota), loaded machine or not; they do run
+        assert 0.0 < used < 0.5 * wall + 0.3, (used, wall)
         clock = cgroups.BudgetClock(100.0, group.pressure_file)
         time.sleep(1.0)
         assert clock.used() < 0.9, clock.used()  # its processes were stalled by their own quota, then given less
