@@ -88,11 +88,39 @@ def main(argv=None) -> int:
     chosen = [(n, t) for n, t in targets() if a.only is None or n in a.only]
     t0 = time.monotonic()
     print(f'{len(chosen)} test targets, {a.jobs} at a time (load average {os.getloadavg()[0]:.1f})', flush=True)
+    load = LoadSampler()
     with concurrent.futures.ThreadPoolExecutor(a.jobs) as pool:
         done = list(pool.map(lambda nt: run(*nt, build, logs, t0), chosen))
-    print(f'all tests ended in {time.monotonic() - t0:.0f} s; alone they took {sum(s for _, _, s in done):.0f} s',
-          flush=True)
+    wall = time.monotonic() - t0
+    print(f'all tests ended in {wall:.0f} s; alone they took {sum(s for _, _, s in done):.0f} s', flush=True)
+    load.stop(build / 'test_results' / 'robot_ai' / LOAD_FILE, wall)
     return 0
+
+
+LOAD_FILE = 'load_average.txt'      # what the run's load was, for test/summarize.py's summary
+
+
+class LoadSampler:
+    """The machine's 1-minute load average every 5 s while the tests run (the tests' own load and anything else's):
+    a failure on a machine at ten times its cores' load reads differently from one on a quiet machine."""
+
+    def __init__(self, every: float = 5.0):
+        self.samples, self.done = [os.getloadavg()[0]], threading.Event()
+        self.thread = threading.Thread(target=self._sample, args=(every,), daemon=True)
+        self.thread.start()
+
+    def _sample(self, every: float) -> None:
+        while not self.done.wait(every):
+            self.samples.append(os.getloadavg()[0])
+
+    def stop(self, path: pathlib.Path, wall: float) -> None:
+        self.done.set()
+        self.thread.join()
+        line = (f'load average over the run: {sum(self.samples) / len(self.samples):.1f} mean, '
+                f'{max(self.samples):.1f} at most, on {os.cpu_count()} cores; the tests took {wall:.0f} s')
+        print(line, flush=True)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(line + '\n')
 
 
 if __name__ == '__main__':

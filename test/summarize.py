@@ -108,6 +108,11 @@ def main(result_dir: str) -> int:
         print(f'{label:<45} {c.passed:4d} passed {c.failed:3d} failed {c.skipped:3d} skipped  {status}')
         for n in c.names:
             print(f'    - {n}')
+    try:        # test/run_tests.py's: the load the tests ran under
+        with open(os.path.join(result_dir, 'load_average.txt')) as f:
+            print(f.read().strip())
+    except OSError:
+        pass
     print(f'summary: {totals.passed} passed, {totals.failed} failed, {totals.skipped} skipped')
     printed = 0
     for name, text in totals.why:

@@ -65,3 +65,20 @@ def test_each_failure_says_why_after_the_summary(tmp_path):
 def test_no_test_at_all_fails(tmp_path):
     status, lines = run(tmp_path)
     assert status == 1 and lines[-1].startswith('no test ran')
+
+
+def test_the_summary_names_the_load_the_tests_ran_under(tmp_path):
+    """Issue 57: a failure on a machine at ten times its cores' load reads differently from one on a quiet machine;
+    test/run_tests.py samples the load while the tests run, and the summary says it."""
+    sys.path.insert(0, os.path.dirname(SUMMARIZE))
+    import run_tests
+    sampler = run_tests.LoadSampler(every=0.05)
+    import time
+    time.sleep(0.2)
+    sampler.stop(tmp_path / run_tests.LOAD_FILE, 12.0)
+    junit(tmp_path / 'pytest-unit.xml', [('a', 'passed')])
+    status, lines = run(tmp_path)
+    assert status == 0
+    assert lines[-2].startswith('load average over the run: ') and lines[-2].endswith('the tests took 12 s')
+    assert f'on {os.cpu_count()} cores' in lines[-2]
+    assert lines[-1] == 'summary: 1 passed, 0 failed, 0 skipped'
