@@ -8,12 +8,22 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import signal
 import sys
 from typing import NoReturn
 
 from robot_ai import artifacts
+
+
+def command_parser(prog: str, description: str) -> tuple[argparse.ArgumentParser, argparse._SubParsersAction]:
+    """A CLI's parser and its commands' (python -m robot_ai.reach train ...): no option is taken from a prefix of
+    its name (argparse's default turned `--out reach.npz` into `--output-dir reach.npz`, a folder of that name); an
+    option misspelled is refused with the options there are."""
+    strict = functools.partial(argparse.ArgumentParser, allow_abbrev=False)
+    parser = strict(prog=prog, description=description)
+    return parser, parser.add_subparsers(dest='command', required=True, metavar='COMMAND', parser_class=strict)
 
 
 def whole_number(low: int, high: int):

@@ -21,8 +21,8 @@ from robot_ai import policies
 from robot_ai.cartpole import linear_search, outputs, policy_kinds, q_learning
 from robot_ai.cartpole.dynamics import SUPPORTED_ENVS, CartPoleDynamics, RequestError
 from robot_ai.cartpole.linear_search import LinearPolicy
-from robot_ai.cli import (add_ray, connect_ray, fraction_above_0, output_folder, positive_number, refuse, run_command,
-                          show_policy, whole_number, write_or_say)
+from robot_ai.cli import (add_ray, command_parser, connect_ray, fraction_above_0, output_folder, positive_number,
+                          refuse, run_command, show_policy, whole_number, write_or_say)
 from robot_ai.text import counted
 
 
@@ -335,15 +335,20 @@ def run_show(a, parser) -> int:
     return show_policy(a.policy, parser)
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog='python -m robot_ai.cartpole',
-                                     description='The course\'s CartPole agents, and their policy files, without ROS.')
-    sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
+def build_parser() -> tuple[argparse.ArgumentParser, argparse._SubParsersAction]:
+    """The command line's parser and its commands' (test_docs parses every command the docs show)."""
+    parser, sub = command_parser('python -m robot_ai.cartpole',
+                                 'The course\'s CartPole agents, and their policy files, without ROS.')
     random_search_parser(sub)
     q_learning_parser(sub)
     ars_parser(sub)
     evaluate_parser(sub)
     show_parser(sub)
+    return parser, sub
+
+
+def main(argv=None) -> int:
+    parser, sub = build_parser()
     return run_command(parser, sub, argv)
 
 

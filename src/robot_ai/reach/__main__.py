@@ -20,8 +20,8 @@ from dataclasses import replace
 
 from robot_ai import ars, artifacts
 from robot_ai import policies
-from robot_ai.cli import (add_ray, connect_ray, fraction, fraction_above_0, output_folder, positive_number, refuse,
-                          run_command, show_policy, whole_number, write_or_say)
+from robot_ai.cli import (add_ray, command_parser, connect_ray, fraction, fraction_above_0, output_folder,
+                          positive_number, refuse, run_command, show_policy, whole_number, write_or_say)
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import CONTROLS, STARTS, ReachSetup
@@ -304,13 +304,17 @@ def run_show(a, parser) -> int:
     return show_policy(a.policy, parser)
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog='python -m robot_ai.reach',
-                                     description='Any arm learns to reach (ARS), without ROS.')
-    sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
+def build_parser() -> tuple[argparse.ArgumentParser, argparse._SubParsersAction]:
+    """The command line's parser and its commands' (test_docs parses every command the docs show)."""
+    parser, sub = command_parser('python -m robot_ai.reach', 'Any arm learns to reach (ARS), without ROS.')
     train_parser(sub)
     evaluate_parser(sub)
     show_parser(sub)
+    return parser, sub
+
+
+def main(argv=None) -> int:
+    parser, sub = build_parser()
     return run_command(parser, sub, argv)
 
 
