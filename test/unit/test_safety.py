@@ -83,6 +83,23 @@ def test_a_bad_joint_limits_file_is_one_line(text, words):
     assert words in str(e.value) and '\n' not in str(e.value)
 
 
+def test_a_limit_without_its_has_flag_is_no_limit_as_moveit_reads_it():
+    """Issue 57: panda_moveit_config's joint_limits.yaml gives `max_acceleration: 0` beside
+    `has_acceleration_limits: false`, which MoveIt reads as no limit; it was refused as not a positive number."""
+    arm = setup_of('ur5').arm
+    j0, j1 = arm.joints[0], arm.joints[1]
+    given = read_joint_limits(f'''joint_limits:
+  {j0}: {{has_velocity_limits: true, max_velocity: 2.175, has_acceleration_limits: false, max_acceleration: 0}}
+  {j1}: {{max_velocity: -5, has_acceleration_limits: true, max_acceleration: 3.75}}
+''')
+    assert given[j0] == {'has_velocity_limits': True, 'max_velocity': 2.175, 'has_acceleration_limits': False}
+    assert given[j1] == {'has_acceleration_limits': True, 'max_acceleration': 3.75}
+    limits = Limits.of(arm, {'joint_limits': {j0: given[j0]}})
+    assert limits.acceleration[0] == pytest.approx(limits.velocity[0] / 0.25)    # the default: no limit was given
+    with pytest.raises(ReachError, match='positive number'):                    # with its flag, 0 is refused
+        read_joint_limits(f'joint_limits: {{{j0}: {{has_acceleration_limits: true, max_acceleration: 0}}}}')
+
+
 @pytest.mark.parametrize('scale', [0, -0.5, 1.5, float('nan'), True, 'fast'])
 def test_a_scale_outside_0_to_1_is_refused(scale):
     with pytest.raises(ReachError, match='velocity_scale'):

@@ -128,6 +128,9 @@ def read_joint_limits(source) -> dict[str, dict]:
                 if not isinstance(value, bool):
                     raise ReachError(f'joint_limits: {name}.{key} must be true or false, got {value!r}')
             elif key in ('max_velocity', 'max_acceleration', 'max_jerk', 'max_deceleration'):
+                if entry.get(f'has_{key[len("max_"):]}_limits') is not True:
+                    continue      # MoveIt's meaning: a value without its has_..._limits: true is no limit
+                                  # (panda_moveit_config's max_acceleration: 0 beside has_acceleration_limits: false)
                 if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < math.inf:
                     raise ReachError(f'joint_limits: {name}.{key} must be a positive number, got {value!r}')
             elif key in ('min_position', 'max_position'):
