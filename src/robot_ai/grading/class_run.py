@@ -105,7 +105,7 @@ def reexec_in_namespaces(a, argv) -> int:
         words = argv + ['--candidate', candidate]   # the last --candidate is argparse's: the copy
         cmd = sandbox.judge_prefix() + [sys.executable, '-c', JUDGE] + words + [
             '--judge-uid', str(uid), '--judge-folder', folder, '--judge-hide', work, '--judge-shown', a.candidate]
-        proc = subprocess.Popen(cmd, env=judge_env(home))
+        proc = subprocess.Popen(cmd, env=judge_env(home), preexec_fn=_as_a_fresh_process)   # dies with this one
         try:
             return proc.wait()
         except BaseException:
