@@ -74,6 +74,25 @@ def linear_clip(weights: np.ndarray, env=None) -> onnx.ModelProto:
                   numpy_helper.from_array(np.array(1, np.float32), 'hi')], env)
 
 
+def linear_nan_past(weights: np.ndarray, bound: float, env=None) -> onnx.ModelProto:
+    """linear_clip's actions, NaN for observations whose squared norm is over bound: a reach arm from random starts
+    (its joints anywhere in their ranges), and none of the loader's trial observations when bound is well over their
+    dimension (standard normal numbers). A model that passes the checks at load and answers NaN for some goals."""
+    n_in, n_out = weights.shape
+    nodes = [helper.make_node('MatMul', ['obs', 'W'], ['z']), helper.make_node('Clip', ['z', 'lo', 'hi'], ['clipped']),
+             helper.make_node('ReduceSumSquare', ['obs'], ['norm'], keepdims=1, axes=[1]),
+             helper.make_node('Sub', ['bound', 'norm'], ['room']), helper.make_node('Sqrt', ['room'], ['root']),
+             helper.make_node('Mul', ['root', 'zero'], ['nan_or_zero']),
+             helper.make_node('Add', ['clipped', 'nan_or_zero'], ['action'])]
+    return model(nodes, [tensor('obs', TensorProto.FLOAT, ['batch', n_in])],
+                 [tensor('action', TensorProto.FLOAT, ['batch', n_out])],
+                 [numpy_helper.from_array(weights.astype(np.float32), 'W'),
+                  numpy_helper.from_array(np.array(-1, np.float32), 'lo'),
+                  numpy_helper.from_array(np.array(1, np.float32), 'hi'),
+                  numpy_helper.from_array(np.array(bound, np.float32), 'bound'),
+                  numpy_helper.from_array(np.array(0, np.float32), 'zero')], env)
+
+
 def cartpole_seven_on_real_states(weights: np.ndarray) -> onnx.ModelProto:
     """The course's policy as an integer action (cartpole_integer), except action 7 for states whose every number is
     in (-0.1, 0.1) and not 0: every CartPole start state, and none of the loader's trial observations (zeros, and

@@ -305,6 +305,30 @@ def test_both_command_lines_evaluate_and_show_an_onnx_file_and_the_searches_refu
     assert r.returncode == 2 and 'com.evil' in r.stderr and 'Traceback' not in r.stderr
 
 
+def test_a_reach_model_that_answers_nan_for_some_goals_is_one_line_and_its_play_is_said(tmp_path):
+    """Issue 57: a refused ONNX reach policy printed five lines (the figures' heading, then the refusal), and an
+    ONNX model whose metadata names no limit_recovery was played without the recovery with no line saying so."""
+    setup = ReachSetup(model=PACKAGE_UR5)
+    weights = learn.p_controller(setup).weights.T
+    meta = dict(env_id='robot_ai/Reach-v0', env_kwargs=dict(model=PACKAGE_UR5, tip=setup.arm.tip, control='ee'),
+                robot=setup.model.tree.name, joints=list(setup.arm.joints))
+    nan = onnx_models.save(onnx_models.linear_nan_past(weights, 60.0, meta), str(tmp_path / 'nan.onnx'))
+    policy_files.load(nan)                                   # the loader's trial sees nothing wrong
+    r = run('robot_ai.reach', 'evaluate', nan, '--episodes', '50')
+    assert r.returncode == 1 and r.stdout == '', r.stdout
+    assert len(r.stderr.strip().splitlines()) == 1 and 'answers NaN or infinite actions' in r.stderr, r.stderr
+    good = reach_model(setup, weights, tmp_path)
+    r = run('robot_ai.reach', 'evaluate', good, '--episodes', '20', '--start', 'home')
+    played = next(line for line in r.stdout.splitlines() if line.startswith('played as'))
+    assert 'recovery from joint limits and blocked steps off' in played
+    assert 'metadata names no limit_avoidance nor limit_recovery' in played
+    named = reach_model(setup, weights, tmp_path, 'named.onnx', env_kwargs=dict(
+        model=PACKAGE_UR5, tip=setup.arm.tip, control='ee', limit_recovery=True, limit_avoidance=0.0))
+    r = run('robot_ai.reach', 'evaluate', named, '--episodes', '20', '--start', 'home')
+    played = next(line for line in r.stdout.splitlines() if line.startswith('played as'))
+    assert 'blocked steps on' in played and 'names no' not in played, played
+
+
 def test_every_action_is_checked_not_only_the_trial_ones(tmp_path):
     """Issue 40: a model that answers well on the loader's trial observations and 7 on every real state was accepted,
     and `cartpole evaluate` played 7 as "push left"; a (batch, 2) scores output that returns 3 columns always gave 2.
