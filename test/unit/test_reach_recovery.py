@@ -286,3 +286,18 @@ def test_ars_trained_from_home_reaches_from_random_starts_and_chained():
     for start in ('home', 'random', 'chained'):
         e = learn.evaluate(training.policy, training.setup, 300, start=start)
         assert e.success_rate >= 0.99, (start, e)
+
+
+def test_a_goal_inside_an_obstacle_is_neither_drawn_nor_taken_as_reach_controller_refuses_it():
+    """Issue 57: Reach-v0 took a goal inside the table (a reset option) that reach_controller ignores; the two agree
+    now, and no drawn goal is inside an obstacle either (its configuration was clear, a TCP tip need not be)."""
+    e = gymnasium.make('robot_ai/Reach-v0', model=KUKA, obstacles=WORLD)
+    setup = e.unwrapped.setup
+    with pytest.raises(ReachError, match=r'inside table: no tip reaches it'):
+        e.reset(seed=0, options={'goal': [0.3, 0.2, -0.03]})
+    obs, _ = e.reset(seed=0, options={'goal': [0.3, 0.2, 0.3]})            # beside it: taken
+    assert obs['desired_goal'].tolist() == [0.3, 0.2, 0.3]
+    for seed in range(300):
+        obs, _ = e.reset(seed=seed)
+        assert setup.obstacle_holding(obs['desired_goal']) is None, (seed, obs['desired_goal'])
+    e.close()

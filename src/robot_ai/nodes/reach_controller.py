@@ -452,7 +452,7 @@ class ReachController:
             rospy.logwarn(f'goal ({shown}) in {self.base} ignored: each coordinate must be a finite number of metres, '
                           f'at most {MAX_GOAL:g} from the base')
             return
-        inside = next((o.name for o in self.setup.obstacles if o.contains(goal[:3])), None)
+        inside = self.setup.obstacle_holding(goal)
         if inside is not None:
             rospy.logwarn(f'goal ({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f}) in {self.base} ignored: it is inside '
                           f'{inside}')

@@ -312,6 +312,11 @@ class ReachSetup:
             g[3:] = g[3:] / norm * (-1.0 if g[6] < 0 else 1.0)
         return g.tolist()
 
+    def obstacle_holding(self, goal) -> str | None:
+        """The name of the obstacle a goal's point is inside, or None (goals inside one are refused, by the env's
+        options and by reach_controller, and never drawn)."""
+        return next((o.name for o in self.obstacles if o.contains(goal[:3])), None)
+
     def reset_options(self, options: dict, goal: list, q: list) -> tuple[list, list]:
         """(goal, start configuration) of an episode with reset options: 'goal' (check_goal's) and 'q' (joint
         positions, as `configuration` takes them) replace the drawn ones."""
@@ -321,6 +326,10 @@ class ReachSetup:
                              f'{", ".join(map(str, unknown))}')
         if options.get('goal') is not None:
             goal = self.check_goal(options['goal'], 'options goal')
+            inside = self.obstacle_holding(goal)
+            if inside is not None:        # as reach_controller, which ignores such a goal: the two agree
+                raise ReachError(f'options goal ({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f}) is inside {inside}: '
+                                 f'no tip reaches it')
         if options.get('q') is not None:
             q = self.configuration(options['q'], 'options q').tolist()
         return goal, q
@@ -394,7 +403,8 @@ class ReachSetup:
     def first_states(self, rngs: list, where: list | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(goal configurations, start configurations), each (n, k), drawn from each env's np_random in turn.
         start 'chained': each env's start is where its arm stands (where[i], (n,)), home where that is None."""
-        goals = self._clear([lambda rng=rng: self.task.goal_configuration(self.arm, rng) for rng in rngs])
+        goals = self._clear([lambda rng=rng: self.task.goal_configuration(self.arm, rng) for rng in rngs],
+                            goal=True)
         starts = []
         for i, rng in enumerate(rngs):
             if self.start == 'random':
@@ -406,15 +416,20 @@ class ReachSetup:
         starts = self._clear(starts) if self.start == 'random' else [draw() for draw in starts]
         return np.ascontiguousarray(np.array(goals).T), np.ascontiguousarray(np.array(starts).T)
 
-    def _clear(self, draws: list) -> list:
+    def _clear(self, draws: list, goal: bool = False) -> list:
         """One configuration from each draw (a function of its env's generator), drawn again while the arm would be
-        in collision there (with a body): every env's draws come in the order a single env makes them."""
+        in collision there (with a body), or with goal, while its tip is inside an obstacle (a tip that is no body's
+        link, a TCP frame, can be clear of collisions there): every env's draws come in the order a single env makes
+        them."""
         out = [draw() for draw in draws]
         if self.body is None:
             return out
         waiting = list(range(len(out)))
         for _ in range(MAX_DRAWS):
             hits = self.body.in_collision(np.array([out[i] for i in waiting]))
+            if goal and self.obstacles:
+                tips = self.goals_of(np.array([out[i] for i in waiting]).T)
+                hits = [bool(hit) or self.obstacle_holding(tips[:, k]) is not None for k, hit in enumerate(hits)]
             waiting = [i for i, hit in zip(waiting, hits) if hit]
             if not waiting:
                 return out
