@@ -231,6 +231,7 @@ class ReachController:
         self.goal: list[float] | None = None
         self.goal_since = 0.0
         self.best = float('inf')
+        self.best_parts = (float('inf'), float('inf'))    # the closest's distance (m) and angle (rad)
         self.progress_mark = float('inf')         # the distance at the last progress of PROGRESS or more
         self.best_q: list[float] | None = None    # the arm's joints when it was closest to the goal
         self.improved_at = 0.0
@@ -277,8 +278,10 @@ class ReachController:
         rospy.loginfo(f'reach_controller ready: {arm.describe()}; {self.rate:g} steps/s; {self.command_kind} commands '
                       f'on {rospy.resolve_name(topic)}, {self.layer.limits.describe()}'
                       f'{"" if self.enabled else "; disabled until ~enable"}; {self.setup.task.goal} goals: click a '
-                      f'point in rviz (Publish Point), drag and release the marker {rospy.resolve_name("~pose_marker")}'
-                      f', or publish {rospy.resolve_name("~goal")} or {rospy.resolve_name("~goal_pose")}; {priority}')
+                      f'point in rviz (Publish Point), '
+                      + (f'drag and release the marker {rospy.resolve_name("~pose_marker")}, ' if self.setup.pose
+                         else '')      # position goals have no marker
+                      + f'or publish {rospy.resolve_name("~goal")} or {rospy.resolve_name("~goal_pose")}; {priority}')
 
     def _safety_layer(self, tree, xml: str) -> SafetyLayer:
         """~joint_limits, ~velocity_scale, ~acceleration_scale, ~collision and ~collision_margin as a SafetyLayer."""
@@ -846,7 +849,7 @@ class ReachController:
             if self.best_q is None or error < self.progress_mark - PROGRESS:
                 self.progress_mark, self.improved_at = error, now    # progress: the stall clock starts again
             if self.best_q is None or error < self.best:     # the closest configuration, however small the gain
-                self.best, self.best_q = error, q
+                self.best, self.best_q, self.best_parts = error, q, (distance, angle)
             reached = distance < task.distance_threshold and angle < task.angle_threshold
             stalled = now - self.improved_at > self.stall_window
             if not (reached or stalled):
@@ -865,15 +868,15 @@ class ReachController:
                 return
             self.said = True
             self.holding = not reached
-            since, best = self.goal_since, self.best
+            since, best, (best_distance, best_angle) = self.goal_since, self.best, self.best_parts
         where = f'({goal[0]:+.3f}, {goal[1]:+.3f}, {goal[2]:+.3f})'
         turned = f', {angle:.3f} rad' if self.setup.pose else ''
         if reached:
             rospy.loginfo(f'reached {where} in {now - since:.2f} s ({distance:.3f} m{turned})')
             return
         closest = f'{best:.3f} m'
-        if self.setup.pose:
-            closest += f' (distance + angle x {task.distance_threshold / task.angle_threshold:g} m/rad)'
+        if self.setup.pose:          # a distance and an angle, each in its unit (the error weighing both is no metre)
+            closest = f'{best_distance:.3f} m and {best_angle:.3f} rad'
         rospy.loginfo(f'not reached: closest {closest} to {where}: {why}; holding at the closest')
 
     def _restart_stall_clock(self) -> None:
