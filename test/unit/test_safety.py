@@ -63,7 +63,9 @@ def test_limits_are_the_urdf_s_scaled_and_joint_limits_yaml_only_narrows_them(tm
     assert given.velocity[0] == pytest.approx(0.25) and given.acceleration[0] == pytest.approx(0.5)
     assert given.lower[0] == -1.0 and given.upper[0] == arm.upper[0]          # narrowed, never widened
     assert given.velocity[1] == pytest.approx(arm.velocity[1] * 0.5)          # 99 > the URDF's: the URDF's
-    assert j0 not in given.notes[0] and j1 in given.notes[0]
+    acceleration = next(n for n in given.notes if 'no acceleration limit' in n)
+    assert j0 not in acceleration and j1 in acceleration
+    assert 'joint_limits: panda_finger_joint1 is no joint of this robot: left out' in given.notes   # issue 55: said
 
 
 @pytest.mark.parametrize('text, words', [
@@ -415,3 +417,71 @@ def test_a_trajectory_that_cannot_be_followed_is_refused_and_changes_nothing(tim
     with pytest.raises(TrajectoryError, match=words):
         arm.take(now, 0.0 if words == 'past' else now, times, positions, velocities)
     np.testing.assert_allclose([arm.state_at(t)[0] for t in (0.5, 2.0)], before)
+
+
+UR_STYLE = """# as ur_description's config/ur5e/joint_limits.yaml: names without _joint, angles in !degrees
+joint_limits:
+  shoulder_pan:
+    has_acceleration_limits: false
+    has_position_limits: true
+    has_velocity_limits: true
+    max_position: !degrees  360.0
+    max_velocity: !degrees  90.0
+    min_position: !degrees -360.0
+  elbow:
+    has_velocity_limits: true
+    max_velocity: !degrees  45.0
+  gripper_finger:
+    has_velocity_limits: true
+    max_velocity: 0.1
+"""
+
+
+def test_ur_description_s_own_file_is_read_and_names_no_joint_has_are_said(tmp_path):
+    """Issue 55: ur_description's joint_limits.yaml was refused for its !degrees tag, and its names (shoulder_pan
+    where the URDF says shoulder_pan_joint) matched no joint, so the joints ran at the URDF's limits without a word."""
+    arm = setup_of('ur5').arm
+    path = tmp_path / 'joint_limits.yaml'
+    path.write_text(UR_STYLE)
+    limits = Limits.of(arm, str(path), velocity_scale=1.0)
+    k, e = arm.joints.index('shoulder_pan_joint'), arm.joints.index('elbow_joint')
+    assert limits.velocity[k] == pytest.approx(np.pi / 2) and limits.velocity[e] == pytest.approx(np.pi / 4)
+    assert limits.lower[k] == pytest.approx(max(arm.lower[k], -2 * np.pi))
+    said = ' | '.join(limits.notes)
+    assert 'shoulder_pan -> shoulder_pan_joint' in said and 'elbow -> elbow_joint' in said
+    assert 'gripper_finger is no joint of this robot: left out' in said
+    with pytest.raises(ReachError, match=r'none of its names \(a, b\) is a joint of this robot'):
+        Limits.of(arm, 'joint_limits: {a: {has_velocity_limits: true, max_velocity: 1}, b: {}}')
+
+
+@pytest.mark.parametrize('value', ['5.0e-324', '1.0e-9', '1.0e+7'])
+def test_limits_no_plan_can_use_are_refused_at_start(value):
+    """Issue 55: max_acceleration 5e-324 made every plan raise on a NaN, 1e-9 held a stop 1.8e8 rad away."""
+    with pytest.raises(ReachError, match='outside what a plan can use') as e:
+        read_joint_limits(f'joint_limits: {{j: {{has_acceleration_limits: true, max_acceleration: {value}}}}}')
+    assert '\n' not in str(e.value)
+
+
+def test_files_that_are_no_regular_file_too_large_or_an_alias_bomb_are_one_line_at_once(tmp_path):
+    """Issue 55: a FIFO as the obstacles or joint_limits hung train, evaluate and the node; a file over 1 MiB was cut
+    at 1 MiB without a word (the obstacles after the cut vanished); 450 bytes of nested anchors took 100 s and
+    3.6 GB."""
+    import time
+    from robot_ai.reach.collision import parse_obstacles
+    fifo = tmp_path / 'world.yaml'
+    os.mkfifo(fifo)
+    big = tmp_path / 'big.yaml'
+    box = '  - {box: [0.1, 0.1, 0.1], position: [2, 2, 2]}\n'
+    big.write_text('obstacles:\n' + box * ((1 << 20) // len(box) + 10))
+    levels = ['a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1]'] + [
+        f'{chr(98 + i)}: &{chr(98 + i)} [' + ', '.join(['*' + chr(97 + i)] * 9) + ']' for i in range(8)]
+    bomb = '\n'.join(levels)
+    assert len(bomb) < 500
+    for source, words in ((str(fifo), 'not a regular file'), (str(big), 'more than 1 MiB: refused'),
+                          (bomb, 'aliases expanded: refused')):
+        t = time.monotonic()
+        with pytest.raises(ReachError, match=words) as e:
+            parse_obstacles(source)
+        assert '\n' not in str(e.value) and time.monotonic() - t < 5.0
+    with pytest.raises(ReachError, match='not a regular file'):
+        read_joint_limits(str(fifo))

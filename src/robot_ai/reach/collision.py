@@ -71,21 +71,101 @@ def _numbers(value, count: int, what: str) -> tuple[float, ...]:
     return values
 
 
+YAML_BYTES = 1 << 20        # a YAML file (obstacles, joint limits) is at most this; a larger one is refused, never cut
+YAML_ALIASES = 100          # aliases (*name) a YAML text may use: nested ones make a few bytes into gigabytes
+YAML_NODES = 1_000_000      # and the nodes it holds with every alias expanded (450 bytes of nested aliases took 100 s
+                            # and 3.6 GB to walk)
+
+
 def read_yaml(value: str, what: str):
-    """A YAML file's contents (a path: one line that names a file, or ends in .yaml or .yml; at most 1 MiB) or YAML
-    text's; ReachError of one line naming `what` for a file that cannot be read or text that is not YAML."""
-    import yaml
+    """A YAML file's contents (a path: one line that names a file, or ends in .yaml or .yml) or YAML text's; ReachError
+    of one line naming `what`, at once, for anything else: a file that cannot be read, is not a regular file (a FIFO
+    would block), or holds more than YAML_BYTES; text that is not YAML or uses more than YAML_ALIASES aliases.
+    `!degrees x` is x degrees in radians (ur_description's joint_limits.yaml), `!radians x` is x."""
     text = value
     if '\n' not in value and (value.endswith(('.yaml', '.yml')) or os.path.isfile(value)):
-        try:
-            with open(value, encoding='utf-8') as f:
-                text = f.read(1 << 20)
-        except OSError as e:
-            raise ReachError(f'{what}: cannot read {value}: {e.strerror}') from None
+        text = _read_regular(value, what)
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as e:
+        return _bounded_yaml(text)
+    except RecursionError:
+        raise ReachError(f'{what}: not YAML we read: nested too deep') from None
+    except _YamlError as e:
         raise ReachError(f'{what}: not YAML: {str(e).splitlines()[0]}') from None
+
+
+def _read_regular(path: str, what: str) -> str:
+    import stat
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            raise ReachError(f'{what}: {path} is not a regular file (a FIFO, a device or a folder is not read)')
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)     # swapped for a FIFO since: no wait for a writer
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise ReachError(f'{what}: {path} is not a regular file (a FIFO, a device or a folder is not read)')
+            data = b''
+            while len(data) <= YAML_BYTES:
+                chunk = os.read(fd, YAML_BYTES + 1 - len(data))
+                if not chunk:
+                    break
+                data += chunk
+        finally:
+            os.close(fd)
+    except OSError as e:
+        raise ReachError(f'{what}: cannot read {path}: {e.strerror}') from None
+    if len(data) > YAML_BYTES:
+        raise ReachError(f'{what}: {path} holds more than {YAML_BYTES >> 20} MiB: refused, not read in part')
+    try:
+        return data.decode('utf-8')
+    except UnicodeDecodeError:
+        raise ReachError(f'{what}: {path} is not UTF-8 text') from None
+
+
+try:
+    import yaml as _yaml
+    _YamlError = _yaml.YAMLError
+except ImportError:          # pragma: no cover (PyYAML is ROS's)
+    _yaml, _YamlError = None, Exception
+
+
+def _bounded_yaml(text: str):
+    """yaml.safe_load with at most YAML_ALIASES aliases, and the !degrees and !radians tags."""
+    class Loader(_yaml.SafeLoader):
+        aliases, sizes = 0, {}
+
+        def compose_node(self, parent, index):
+            if self.check_event(_yaml.AliasEvent):
+                Loader.aliases += 1
+                if Loader.aliases > YAML_ALIASES:
+                    raise _yaml.YAMLError(f'more than {YAML_ALIASES} aliases (*name): refused')
+            node = super().compose_node(parent, index)
+            if self.size(node) > YAML_NODES:
+                raise _yaml.YAMLError(f'more than {YAML_NODES:,} nodes with its aliases expanded: refused')
+            return node
+
+        def size(self, node) -> int:
+            """The nodes under node, aliases expanded (its children's sizes are known: composed before it)."""
+            known = Loader.sizes.get(id(node))
+            if known is None:
+                if isinstance(node, _yaml.SequenceNode):
+                    known = 1 + sum(self.size(c) for c in node.value)
+                elif isinstance(node, _yaml.MappingNode):
+                    known = 1 + sum(self.size(k) + self.size(v) for k, v in node.value)
+                else:
+                    known = 1
+                Loader.sizes[id(node)] = known
+            return known
+
+    def angle(factor):
+        def construct(loader, node):
+            text = loader.construct_scalar(node)
+            try:
+                return float(text) * factor
+            except ValueError:
+                raise _yaml.YAMLError(f'{node.tag} {text!r} is not a number') from None
+        return construct
+    Loader.add_constructor('!degrees', angle(math.pi / 180.0))
+    Loader.add_constructor('!radians', angle(1.0))
+    return _yaml.load(text, Loader=Loader)
 
 
 def parse_obstacles(value) -> tuple[Obstacle, ...]:

@@ -75,7 +75,7 @@ class Limits:
         velocity_scale = _scale('velocity_scale', velocity_scale)
         acceleration_scale = velocity_scale if acceleration_scale is None else _scale('acceleration_scale',
                                                                                         acceleration_scale)
-        given = read_joint_limits(joint_limits)
+        given, named = joint_names(read_joint_limits(joint_limits), list(arm.tree.joints))
         lower, upper = arm.lower.copy(), arm.upper.copy()
         velocity = arm.velocity.copy()
         acceleration = np.full(arm.n, np.nan)
@@ -93,8 +93,9 @@ class Limits:
                 acceleration[k] = entry['max_acceleration']
         missing = [n for n, a in zip(arm.joints, acceleration) if math.isnan(a)]
         acceleration = np.where(np.isnan(acceleration), velocity / DEFAULT_ACCELERATION_TIME, acceleration)
-        notes = (f'no acceleration limit for {", ".join(missing)}: full speed in {DEFAULT_ACCELERATION_TIME:g} s '
-                 f'assumed (give them in a joint_limits.yaml)',) if missing else ()
+        notes = named + ((f'no acceleration limit for {", ".join(missing)}: full speed in '
+                          f'{DEFAULT_ACCELERATION_TIME:g} s assumed (give them in a joint_limits.yaml)',)
+                         if missing else ())
         return cls(tuple(arm.joints), lower, upper, velocity * velocity_scale, acceleration * acceleration_scale,
                    velocity_scale, acceleration_scale, notes)
 
@@ -107,6 +108,36 @@ def _scale(name: str, value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value <= 1:
         raise ReachError(f'{name} must be a number in (0, 1], got {value!r}')
     return float(value)
+
+
+def joint_names(given: dict[str, dict], joints: list[str]) -> tuple[dict[str, dict], tuple[str, ...]]:
+    """(the joint limits keyed by the robot's joint names, notes of one line each): a name that is no joint but whose
+    `<name>_joint` is exactly one (ur_description's file says shoulder_pan for shoulder_pan_joint, or for
+    left_shoulder_pan_joint under a prefix) is taken for it, and said; names that are no joint are said and left out
+    (a gripper's joints beside an arm's are usual); a file none of whose names is a joint is ReachError."""
+    if not given:
+        return given, ()
+    known, out, mapped, unknown = set(joints), {}, [], []
+    for name, entry in given.items():
+        if name in known:
+            out[name] = entry
+            continue
+        found = [j for j in joints if j == f'{name}_joint' or j.endswith(f'_{name}_joint')]
+        if len(found) == 1 and found[0] not in given:
+            out[found[0]] = entry
+            mapped.append(f'{name} -> {found[0]}')
+        else:
+            unknown.append(name)
+    if not out:
+        raise ReachError(f'joint_limits: none of its names ({", ".join(sorted(given)[:8])}) is a joint of this robot '
+                         f'({", ".join(joints[:8])}{", ..." if len(joints) > 8 else ""})')
+    notes = ((f'joint_limits: names taken for the robot\'s joints: {", ".join(mapped)}',) if mapped else ()) + \
+        ((f'joint_limits: {", ".join(sorted(unknown))} {"is no joint" if len(unknown) == 1 else "are no joints"} of '
+          f'this robot: left out',) if unknown else ())
+    return out, notes
+
+
+MIN_LIMIT, MAX_LIMIT = 1e-6, 1e6    # a velocity or acceleration limit no plan can use outside these (rad/s, rad/s^2)
 
 
 def read_joint_limits(source) -> dict[str, dict]:
@@ -133,6 +164,9 @@ def read_joint_limits(source) -> dict[str, dict]:
                                   # (panda_moveit_config's max_acceleration: 0 beside has_acceleration_limits: false)
                 if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < math.inf:
                     raise ReachError(f'joint_limits: {name}.{key} must be a positive number, got {value!r}')
+                if not MIN_LIMIT <= value <= MAX_LIMIT:      # 5e-324 made every plan NaN, 1e-9 a stop of 1.8e8 rad
+                    raise ReachError(f'joint_limits: {name}.{key} {value!r} is outside what a plan can use '
+                                     f'({MIN_LIMIT:g} to {MAX_LIMIT:g})')
             elif key in ('min_position', 'max_position'):
                 if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                     raise ReachError(f'joint_limits: {name}.{key} must be a finite number, got {value!r}')
