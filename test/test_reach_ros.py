@@ -222,7 +222,7 @@ class TestReachRos(unittest.TestCase):
             while len(states) < 12 and time.monotonic() < deadline:     # ticks, however slow a loaded machine is
                 time.sleep(0.05)
             moving, said = list(states)[:-1], [np.abs(v).max() for v in list(velocities)[1:len(states) - 1] if len(v)]
-            limit = np.pi        # the UR5's URDF velocity limits
+            limit = float(np.max(ReachSetup().arm.velocity))        # the UR5's URDF velocity limits (3.2 rad/s)
             speeds = [np.abs(b - a).max() / (tb - ta) for (ta, a), (tb, b) in zip(moving, moving[1:]) if tb > ta]
             self.assertGreater(len(speeds), 10)
             self.assertLessEqual(max(speeds), limit * 1.05)      # never faster than the limit, in ROS time

@@ -485,3 +485,84 @@ def test_files_that_are_no_regular_file_too_large_or_an_alias_bomb_are_one_line_
         assert '\n' not in str(e.value) and time.monotonic() - t < 5.0
     with pytest.raises(ReachError, match='not a regular file'):
         read_joint_limits(str(fifo))
+
+
+def test_a_state_s_time_is_its_stamp_on_the_node_s_clock_and_its_arrival_otherwise_said_once():
+    """Issue 55: joint_states delivered 0.3-0.6 s late with their stamps kept were taken as fresh (their age from the
+    arrival): the layer planned from where the arm had been, and the arm moved at 4x its scaled velocity limit."""
+    from robot_ai.reach.safety import StampClock
+    clock = StampClock()
+    assert clock.time_of(99.98, 100.0) == (99.98, '')        # the first stamped state: on the node's clock
+    assert clock.time_of(99.4, 100.0) == (99.4, '')          # a state delivered 0.6 s late is 0.6 s old
+    assert clock.time_of(10.0, 100.0) == (10.0, '')          # however late: the stamps are ours
+    assert clock.time_of(100.2, 100.0) == (100.0, '')        # never from the future
+    other = StampClock()
+    at, note = other.time_of(1.7e9, 100.0)                   # wall-clock stamps where the node runs on sim time
+    assert at == 100.0 and 'another clock' in note and '\n' not in note
+    assert other.time_of(1.7e9 + 1, 101.0) == (101.0, '')    # said once
+    bare = StampClock()
+    at, note = bare.time_of(None, 5.0)
+    assert at == 5.0 and 'has no stamps' in note and bare.time_of(None, 6.0) == (6.0, '')
+
+
+def follow(layer: SafetyLayer, q: np.ndarray, target, steps: int, v=None):
+    """The layer driven toward target every period, the arm following each plan exactly from its start: the arm's
+    motion sampled every 5 ms, and the plans."""
+    arm, now, times, positions, plans = None, 0.0, [], [], []
+    for k in range(steps):
+        if arm is not None:
+            q, v = arm.state_at(now)
+        plan = layer.plan(now, target, q, v)
+        plans.append(plan)
+        arm = Follower(plan.positions[0]) if arm is None else arm
+        arm.take(now, plan.start, *plan.points(PERIOD))
+        for t in np.arange(now, now + PERIOD, 0.005):
+            times.append(t)
+            positions.append(arm.state_at(t)[0])
+        now += PERIOD
+    return np.array(times), np.array(positions), plans
+
+
+def test_an_arm_outside_a_narrowed_range_is_brought_back_within_the_limits_not_jumped():
+    """Issue 55: a joint_limits.yaml that narrows a joint the arm stands outside of: the measured position was
+    clipped into the range and the first trajectory jumped there (1 rad at once, 4x velocity, 90x acceleration)."""
+    setup = setup_of('ur5')
+    arm = setup.arm
+    j0 = arm.joints[0]
+    limits = Limits.of(arm, {'joint_limits': {j0: {'has_position_limits': True, 'min_position': -0.5,
+                                                    'max_position': 0.5}}}, velocity_scale=0.25)
+    q = setup.home.copy()
+    q[0] = 1.5                                                        # a radian outside the range
+    times, positions, plans = follow(SafetyLayer(limits, PERIOD), q, setup.home, 120)
+    np.testing.assert_allclose(plans[0].positions[0], q, atol=1e-12)   # from where it stands
+    assert not any(p.held for p in plans[1:]), [p.held for p in plans if p.held][:3]
+    assert -0.5 - 1e-9 <= positions[-1, 0] <= 0.5 + 1e-9                # back within the range
+    assert positions[:, 0].max() <= 1.5 + 1e-12                         # never farther out on its way
+    back = int(np.argmax(positions[:, 0] <= 0.5 + 1e-9))
+    assert np.all(np.abs(positions[back:, 0]) <= 0.5 + 1e-9)             # and in the range once back in it
+    inside = Limits.of(arm, velocity_scale=0.25)       # velocity and acceleration: the range's own joint's limits
+    found = violations(times, positions, inside)
+    assert found.velocity == 0 and found.acceleration == 0, found
+
+
+def test_a_state_moving_toward_a_limit_stops_within_it_where_the_arm_can_and_goes_on_after():
+    """Issue 55: the first plan, and each resync, was a stop from the measured state that was never checked: an arm
+    moving toward a limit got a trajectory 0.044 rad past the URDF's limit, and from then on every goal and ~home
+    were refused. Its stop brakes harder, up to the unscaled limit, where that keeps the joint inside; where even
+    that cannot, the plans after it only bring the joint back."""
+    setup = setup_of('ur5')
+    arm = setup.arm
+    limits = Limits.of(arm, velocity_scale=0.25)
+    q, v = setup.home.copy(), np.zeros(arm.n)
+    v[1] = limits.velocity[1]
+    q[1] = arm.upper[1] - 0.5 * v[1] ** 2 / limits.acceleration[1]       # half the scaled braking distance left
+    layer = SafetyLayer(limits, PERIOD)
+    times, positions, plans = follow(layer, q, setup.home, 240, v)
+    assert positions[:, 1].max() <= arm.upper[1] + 1e-9                 # braked harder: within the limit
+    assert not plans[-1].held and np.abs(positions[-1] - setup.home).max() < 1e-3      # and home after
+    fast = Limits.of(arm, velocity_scale=1.0)
+    q[1], v[1] = arm.upper[1] - 1e-3, fast.velocity[1]                   # too fast even for the unscaled limit
+    times, positions, plans = follow(SafetyLayer(limits, PERIOD), q, setup.home, 240, v)
+    over = positions[:, 1].max() - arm.upper[1]
+    assert 0 < over <= v[1] ** 2 / (2 * fast.acceleration[1]) + 1e-9      # the least it can pass it by
+    assert np.abs(positions[-1] - setup.home).max() < 1e-3               # and home after: nothing refused

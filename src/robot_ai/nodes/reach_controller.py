@@ -126,7 +126,8 @@ from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.collision import CollisionModel
 from robot_ai.reach.env import RECOVERING, READY, ReachSetup, Recovery
-from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, SAMPLE_STEP, Limits, Plan, SafetyLayer
+from robot_ai.reach.safety import (DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, SAMPLE_STEP, Limits, Plan, SafetyLayer,
+                                   StampClock)
 from robot_ai.reach.task import GOALS, goal_angle, goal_distance_one, why_unreached
 from robot_ai.text import percent
 
@@ -218,9 +219,9 @@ class ReachController:
         self.step_lock = threading.Lock()         # one control step at a time
         self.joints: dict[str, float] = {}
         self.speeds: dict[str, float] = {}
-        self.received: dict[str, float] = {}     # ROS time each joint's state last came
-        self.measured: dict[str, float] = {}     # and the time it describes (its stamp; the time it came when the
-                                                  # stamp is zero or not within ~state_timeout before that)
+        self.measured: dict[str, float] = {}     # the time each joint's last state describes (its stamp; the
+                                                  # time it came when it has none or is on another clock)
+        self.stamps = StampClock()                # whether they are on this node's clock: a late state is old
         self.enabled = bool_param('~enabled', True)
         self.going_home = False                   # ~home: the arm on its way home, no goal
         self.version = 0                          # one more at every goal and ~home: a step of an older one changes
@@ -378,12 +379,12 @@ class ReachController:
             rospy.logwarn_throttle(5.0, 'joint_states without as many names as positions skipped')
             return
         now = self._now()
-        stamp = (msg.header.stamp - self.epoch).to_sec() if not msg.header.stamp.is_zero() else now
-        if not now - self.state_timeout <= stamp <= now:   # another clock, or old: the time it came
-            stamp = now
+        stamp, note = self.stamps.time_of(None if msg.header.stamp.is_zero() else
+                                          (msg.header.stamp - self.epoch).to_sec(), now)
+        if note:
+            rospy.logwarn(note)
         with self.lock:
             self.joints.update(zip(msg.name, msg.position))
-            self.received.update(dict.fromkeys(msg.name, now))
             self.measured.update(dict.fromkeys(msg.name, stamp))
             if len(msg.velocity) == len(msg.name):
                 self.speeds.update(zip(msg.name, msg.velocity))
@@ -721,19 +722,20 @@ class ReachController:
         with self.lock:
             goal, joints, speeds, policy = self.goal, dict(self.joints), dict(self.speeds), self.policy
             holding, homing, enabled, going_home = self.holding, self.homing, self.enabled, self.going_home
-            received, measured_at, version = dict(self.received), dict(self.measured), self.version
+            measured_at, version = dict(self.measured), self.version
             recovery = self.recovery
         arm = self.setup.arm
         if not self.marker_placed and goal is None:
             self._place_marker()
         if goal is None and not going_home and self.layer.resting(now):
             return                                   # idle, at rest
-        if not all(n in joints for n in arm.joints):
-            missing = ', '.join(n for n in arm.joints if n not in joints)
-            rospy.logwarn_throttle(5.0, f'joint_states does not report {missing} yet')
+        if not all(n in joints for n in self.command_joints):      # the arm's, and the others the command holds
+            missing = ', '.join(n for n in self.command_joints if n not in joints)
+            rospy.logwarn_throttle(5.0, f'joint_states does not report {missing} (of ~command_joints) yet: nothing is '
+                                        f'sent until it does (a joint not reported would be commanded blind)')
             return
         measured = [float(joints[n]) for n in arm.joints]
-        age = now - min(received[n] for n in arm.joints)
+        age = now - min(measured_at[n] for n in arm.joints)     # from its stamp: a state delivered late is old
         if not all(math.isfinite(v) for v in measured):
             bad = ', '.join(n for n, v in zip(arm.joints, measured) if not math.isfinite(v))
             return self._hold(now, f'joint_states gives {bad} a NaN or infinite position', joints, kind='nan')

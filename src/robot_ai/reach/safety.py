@@ -175,6 +175,39 @@ def read_joint_limits(source) -> dict[str, dict]:
     return out
 
 
+# ----------------------------------------------------------------------------------------------- the state
+STAMP_WINDOW = (5.0, 0.05)   # s before and after a node's time within which the first stamped state says the stamps
+                             # are on its clock (a driver's and a simulator's are; another machine's may not be)
+
+
+@dataclass
+class StampClock:
+    """The time a joint state describes. Its stamp, when the stamps are on the node's clock, as the first stamped
+    state says (within STAMP_WINDOW of the node's time), so that a state delivered late is old however fresh its
+    arrival (issue 55: states 0.3-0.6 s late were taken as fresh, and the arm moved at 4 times its scaled velocity
+    limit); otherwise, and for a state without a stamp, the time it came, said once.
+
+        clock = StampClock()
+        at, note = clock.time_of(stamp, now)        # stamp None: none; note: '' or the one line to say, once
+    """
+    ours: bool | None = None       # the stamps are on the node's clock (None: no stamped state yet)
+    said: bool = False
+
+    def time_of(self, stamp: float | None, now: float) -> tuple[float, str]:
+        if stamp is not None and math.isfinite(stamp) and self.ours is None:
+            self.ours = now - STAMP_WINDOW[0] <= stamp <= now + STAMP_WINDOW[1]
+        if stamp is not None and math.isfinite(stamp) and self.ours:
+            return min(stamp, now), ''
+        note = ''
+        if not self.said:
+            self.said = True
+            note = ('joint_states ' + ('has no stamps' if stamp is None else
+                                       f'is stamped on another clock (its first stamp was over '
+                                       f'{STAMP_WINDOW[0]:g} s from this node\'s time)')
+                    + ': its age is taken from when it comes, not from when it was measured')
+        return now, note
+
+
 # ----------------------------------------------------------------------------------------------------- plans
 @dataclass
 class Plan:
@@ -270,6 +303,30 @@ def stop_from(start: float, p: np.ndarray, v: np.ndarray, acceleration: np.ndarr
     return Plan(start, np.array(times), np.array(positions), np.array(velocities))
 
 
+def reach_bounds(p0, v0, lower, upper, acceleration) -> tuple[np.ndarray, np.ndarray]:
+    """Per joint, the positions a plan from (p0, v0) may pass through: the position limits, widened only to where the
+    arm is and to where braking at the acceleration limit stops it. A state outside a narrowed range, or moving too
+    fast to stop before a limit, can only come back in: every plan from it is checked against these, so that none
+    takes it farther out, and none is refused for where it already is (issue 55: after one such state every goal
+    and ~home were refused). Within the limits and able to stop there: the limits themselves."""
+    with np.errstate(divide='ignore', invalid='ignore'):
+        stop = p0 + v0 * np.abs(v0) / (2.0 * acceleration)
+    stop = np.where(np.isfinite(stop), stop, p0)
+    return np.minimum(lower, np.minimum(p0, stop)), np.maximum(upper, np.maximum(p0, stop))
+
+
+def stop_within(start: float, p: np.ndarray, v: np.ndarray, limits: Limits) -> Plan:
+    """The stop of a measured state (p, v): at the layer's acceleration, or harder, up to the unscaled limit
+    (acceleration / acceleration_scale: what the arm can), where that keeps a joint within its position limits; a
+    joint that cannot stop before its limit even so brakes at that, the least it can pass it by."""
+    a = np.asarray(limits.acceleration, dtype=float)
+    full = a / limits.acceleration_scale
+    room = np.where(v > 0, limits.upper - p, np.where(v < 0, p - limits.lower, np.inf))
+    with np.errstate(divide='ignore', invalid='ignore'):
+        needed = np.where(room > 0, v * v / (2.0 * room), np.inf)
+    return stop_from(start, p, v, np.clip(np.nan_to_num(needed, nan=0.0, posinf=np.inf), a, full))
+
+
 def step_velocity(p0: np.ndarray, v0: np.ndarray, target: np.ndarray, limits: Limits, dt: float) -> np.ndarray:
     """Each joint's velocity at the end of a step of dt at constant acceleration from (p0, v0): as fast toward the
     target as the velocity and acceleration limits let it and still able to stop at the target (and so within the
@@ -313,6 +370,7 @@ class StepKinds:
     @classmethod
     def of(cls, p0, v0, target, lower, upper, velocity, a, dt: float) -> StepKinds:
         half = dt / 2.0
+        lower, upper = reach_bounds(p0, v0, lower, upper, a)   # from outside a range: back in, never farther out
         out = lambda x: (x < lower - POSITION_TOLERANCE) | (x > upper + POSITION_TOLERANCE)   # noqa: E731
         v1 = _step_velocity(p0, v0, target, velocity, a, dt)
         p1 = p0 + 0.5 * (v0 + v1) * dt
@@ -431,8 +489,14 @@ class SafetyLayer:
             why = ''
         v = np.zeros(len(measured)) if measured_velocity is None else np.clip(
             np.nan_to_num(np.asarray(measured_velocity, dtype=float)), -self.limits.velocity, self.limits.velocity)
-        p = np.clip(measured, self.limits.lower, self.limits.upper)
-        self._commit(stop_from(at, p, v, self.limits.acceleration))     # its stop from when it was measured
+        # where the arm is, never clipped into the range (a narrowed range the arm stands outside of: it was a jump
+        # of 1 rad at once); its stop from when it was measured, within the position limits wherever the arm can
+        # stop within them, checked as every plan is (issue 55)
+        stop = stop_within(at, measured, v, self.limits)
+        refused = self.check_limits(stop)
+        if refused:
+            raise ReachError(f'the stop from the measured state {refused}')      # not expected: reach_bounds
+        self._commit(stop)
         p, v = self.last.state_at(start)
         return start, p, v, why
 
@@ -515,15 +579,24 @@ class SafetyLayer:
         last = self.last
         return last is None or last.end < now or not last.velocities.any()
 
+    def check_limits(self, plan: Plan, q: np.ndarray | None = None) -> str:
+        """'' or why the plan (its samples q) passes a position limit: the bounds of its start (reach_bounds)."""
+        q = plan.samples() if q is None else q
+        lim = self.limits
+        lower, upper = reach_bounds(plan.positions[0], plan.velocities[0], lim.lower, lim.upper, lim.acceleration)
+        low, high = q < lower - POSITION_TOLERANCE, q > upper + POSITION_TOLERANCE
+        if low.any() or high.any():
+            k = int(np.argmax((low | high).any(axis=0)))
+            return f'it would pass {lim.joints[k]}\'s limit'
+        return ''
+
     def check(self, plan: Plan, padding: float) -> tuple[str, list[str]]:
         """('' or why the plan may not be sent, the contacts): within the position limits and, with a body, clear
         of it and the world by padding (padding())."""
         q = plan.samples()
-        lim = self.limits
-        low, high = q < lim.lower - POSITION_TOLERANCE, q > lim.upper + POSITION_TOLERANCE
-        if low.any() or high.any():
-            k = int(np.argmax((low | high).any(axis=0)))
-            return f'it would pass {lim.joints[k]}\'s limit', []
+        refused = self.check_limits(plan, q)
+        if refused:
+            return refused, []
         if self.body is None:
             return '', []
         hit = self.body.in_collision(q, padding)
