@@ -222,6 +222,7 @@ class ReachController:
         self.measured: dict[str, float] = {}     # the time each joint's last state describes (its stamp; the
                                                   # time it came when it has none or is on another clock)
         self.stamps = StampClock()                # whether they are on this node's clock: a late state is old
+        self.no_action = ''                       # why the policy gave no action for the last state it was asked
         self.enabled = bool_param('~enabled', True)
         self.going_home = False                   # ~home: the arm on its way home, no goal
         self.version = 0                          # one more at every goal and ~home: a step of an older one changes
@@ -559,12 +560,23 @@ class ReachController:
                 return LoadPolicyResponse(success=False, message=f'{e}; still driving with the policy it had')
             with self.lock:
                 self.policy = policy.actor
+                self._restart_stall_clock()       # the time it took is no stall
             self._announce(policy.describe(), policy.metadata.get('success_rate'))
-            self._predict(policy.actor)
+        # answered now, the prediction made after (between two control steps: seconds, a minute in a large world,
+        # the arm resting meanwhile): the caller waited 44 s for it, with no word of what went on
+        threading.Thread(target=self._predict_between_steps, args=(policy.actor,), daemon=True).start()
+        return LoadPolicyResponse(success=True, message=f'driving with {policy.describe()}' + (f' ({note})' if note
+                                  else '') + f'; predicting its success through the safety layer over '
+                                  f'{PREDICTION_GOALS} goals now (the arm rests until then; the log and '
+                                  f'~predicted_success_rate say it)')
+
+    def _predict_between_steps(self, policy) -> None:
+        with self.step_lock:
+            rospy.loginfo(f'reach_controller: predicting the new policy\'s success through the safety layer over '
+                          f'{PREDICTION_GOALS} goals; the arm rests until then')
+            self._predict(policy)
             with self.lock:
                 self._restart_stall_clock()       # the time it took is no stall
-        return LoadPolicyResponse(success=True, message=f'driving with {policy.describe()}' + (f' ({note})' if note
-                                                                                                  else ''))
 
     def _on_home(self, req) -> TriggerResponse:
         with self.lock:
@@ -769,7 +781,12 @@ class ReachController:
                 target = self._home_target(goal, q)
             else:
                 target = self._policy_target(policy, q, tip, goal, recovery, version)
-                if target is None:
+                if target is None:       # a verdict at once, said once: the arm holds where it is (no flapping log)
+                    with self.lock:
+                        if version == self.version and not self.said:
+                            self.said, self.holding, self.best_q = True, True, q
+                            rospy.loginfo(f'not reached: the policy answered no action for this goal '
+                                          f'({self.no_action}); holding where the arm is')
                     return self._hold(now, 'the policy gave no action', joints)
         plan = self._plan_and_send(target, measured, velocity, joints,
                                    measured_at=min(measured_at[n] for n in arm.joints))
@@ -808,7 +825,7 @@ class ReachController:
                                                         {k: v[None] for k, v in observation.items()}))[0]
             a = self.setup.check_action_one(np.asarray(action, dtype=np.float64))
         except (policies.PolicyError, ValueError) as e:      # a model that answers no action here (NaN): none
-            rospy.logerr_throttle(10.0, f'the policy gave no action for this state, so the arm holds: {e}')
+            self.no_action = str(e)
             return None
         own_tip, jac = self.setup.place_one(q)
         moved = self.setup.move_one(q, jac, a)
