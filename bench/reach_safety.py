@@ -144,6 +144,75 @@ def in_process(goals: int, seconds: float = EPISODE) -> None:
                   f'{r["reached"]:>4d}/{goals:<3d} {r["held"]:>6d} {r["samples"]:>8,d}  {worst}')
 
 
+# ------------------------------------------------------------------------------------------------- attacks
+STATE_TIMEOUT = 0.2     # reach_controller's ~state_timeout
+SAMPLE = 0.005          # s between two samples of the arm's motion
+
+
+def attack(limits, start_q, start_v, target, late: tuple[float, float], steps: int = 200, seed: int = 0):
+    """The layer toward target from a measured state (start_q, start_v), each tick's joint_states measured late[0]
+    to late[1] s before it (stamped with the time they describe) and held, as reach_controller holds, once older
+    than STATE_TIMEOUT; the arm follows the plans exactly (each from its start on, from the stop of the measured
+    state before the first): (the worst velocity and acceleration of its motion as shares of the limits, the
+    samples farther out than the position limits, or than the start where it stood outside them)."""
+    from robot_ai.reach.safety import SafetyLayer, violations
+    layer = SafetyLayer(limits, PERIOD)
+    rng = np.random.default_rng(seed)
+
+    def arm_at(t: float):
+        return next((p.state_at(t) for p in reversed(layer.history) if p.start <= t), layer.history[0].state_at(t))
+    now, times, positions = 0.0, [], []
+    for k in range(steps):
+        at = now - rng.uniform(*late)
+        if k == 0:
+            layer.plan(now, target, np.array(start_q, dtype=float), np.array(start_v, dtype=float))
+        elif now - at > STATE_TIMEOUT:
+            layer.plan(now, None, None, why_not='joint_states is old')
+        else:
+            layer.plan(now, target, *arm_at(max(at, 0.0)), measured_at=at)
+        while len(times) * SAMPLE < now + PERIOD - 1e-9:      # one grid of samples: no two at one time
+            times.append(len(times) * SAMPLE)
+            positions.append(arm_at(times[-1])[0])
+        now += PERIOD
+    positions = np.array(positions)
+    found = violations(np.array(times), positions, limits)
+    # farther out than the limits, or than the start where it stood outside them (a narrowed range)
+    lower = np.minimum(limits.lower, start_q) - 1e-9
+    upper = np.maximum(limits.upper, start_q) + 1e-9
+    farther = int(((positions < lower) | (positions > upper)).any(axis=1).sum())
+    return found.worst['velocity'][0], found.worst['acceleration'][0], farther
+
+
+def attacks() -> None:
+    """Issue 55's inputs that took the arm past its limits, in-process on the UR5 at velocity_scale 0.25: the worst
+    velocity and acceleration of the motion as shares of the limits (1.0 is the goal), the position limits passed."""
+    from robot_ai.reach.env import ReachSetup
+    from robot_ai.reach.safety import Limits
+    setup = ReachSetup(os.path.join(ROBOTS, 'ur5.urdf'))
+    arm = setup.arm
+    limits = Limits.of(arm, velocity_scale=0.25)
+    narrowed = Limits.of(arm, {'joint_limits': {arm.joints[0]: {'has_position_limits': True, 'min_position': -0.5,
+                                                                 'max_position': 0.5}}}, velocity_scale=0.25)
+    rest, outside = setup.home.copy(), setup.home.copy()
+    outside[0] = 1.5
+    toward, v = setup.home.copy(), np.zeros(arm.n)
+    v[1] = limits.velocity[1]
+    toward[1] = arm.upper[1] - 0.25 * v[1] ** 2 / limits.acceleration[1]   # half the scaled braking distance left
+    still = np.zeros(arm.n)
+    cases = [('joint_states 0.3-0.6 s late', limits, rest, still, rest + 0.8, (0.3, 0.6)),
+             ('joint_states 0-0.15 s late', limits, rest, still, rest + 0.8, (0.0, 0.15)),
+             ('outside a narrowed range', narrowed, outside, still, rest, (0.0, 0.05)),
+             ('moving toward a limit', limits, toward, v, rest, (0.0, 0.05))]
+    print(f'  attacks on the layer\'s input, in-process ({arm.tree.name}, velocity_scale 0.25, the arm following each '
+          f'plan from its start); worst velocity and acceleration as shares of the scaled limits, 1.0 the goal')
+    print(f'    {"input":30s} {"worst velocity":>15s} {"worst acceleration":>19s} {"samples farther out":>20s}')
+    for label, lim, q, v0, target, late in cases:
+        wv, wa, passed = attack(lim, q, v0, target, late)
+        print(f'    {label:30s} {wv:>15.3f} {wa:>19.3f} {passed:>20d}')
+    print('    (moving toward a limit with half the braking distance it needs at the scaled acceleration left: its')
+    print('     stop brakes at twice the scaled, half the unscaled limit, and stays within the position limit)')
+
+
 # ------------------------------------------------------------------------------------------------- through ROS
 def click_latencies(clicks: int, node: str = '/reach_controller') -> np.ndarray:
     """Seconds from a goal published to the first trajectory command after it, the arm at rest before each."""
@@ -231,6 +300,7 @@ def main() -> int:
     print(f'reach_controller\'s safety layer, {os.cpu_count()} cores (load average {os.getloadavg()[0]:.2f})   '
           f'[bench/reach_safety.py, {time.strftime("%Y-%m-%d")}]')
     in_process(a.goals, a.seconds)
+    attacks()
     if a.clicks:
         through_ros(a.clicks)
     return 0

@@ -583,7 +583,10 @@ class SafetyLayer:
         """'' or why the plan (its samples q) passes a position limit: the bounds of its start (reach_bounds)."""
         q = plan.samples() if q is None else q
         lim = self.limits
-        lower, upper = reach_bounds(plan.positions[0], plan.velocities[0], lim.lower, lim.upper, lim.acceleration)
+        # widened only to where braking as hard as the arm can (the unscaled limit) stops it: a plan that brakes
+        # gentler past a limit is refused, and the harder stop already sent goes on
+        lower, upper = reach_bounds(plan.positions[0], plan.velocities[0], lim.lower, lim.upper,
+                                    lim.acceleration / lim.acceleration_scale)
         low, high = q < lower - POSITION_TOLERANCE, q > upper + POSITION_TOLERANCE
         if low.any() or high.any():
             k = int(np.argmax((low | high).any(axis=0)))
