@@ -217,3 +217,24 @@ def test_a_home_inside_an_obstacle_or_a_full_world_is_one_line():
     assert '\n' not in str(e.value)
     with pytest.raises(ReachError, match='collision must be true or false'):
         ReachSetup(model=KUKA, collision='yes')
+
+
+def test_obstacles_beyond_the_arm_s_reach_are_left_out_of_the_checks_and_said():
+    """Issue 55: 5,000 small obstacles far from the arm kept the node silent for minutes and every plan too slow to
+    send (the checks run an obstacle at a time). Those no sphere can come within a metre of are left out; the checks
+    answer as before."""
+    import time
+    from robot_ai.reach.env import ReachSetup
+    far = [{'sphere': 0.01, 'position': [5 + 0.01 * i, 3, 1]} for i in range(5000)]
+    t = time.process_time()
+    setup = ReachSetup(os.path.join(ROBOTS, 'kuka_lwr_arm.urdf'), obstacles=WORLD + far)
+    near = ReachSetup(os.path.join(ROBOTS, 'kuka_lwr_arm.urdf'), obstacles=WORLD)
+    assert setup.body.beyond == 5000 and near.body.beyond == 0
+    assert len(setup.body.obstacles) == len(WORLD) and len(setup.obstacles) == len(WORLD) + 5000
+    assert 0.5 < setup.body.reach() < 3.0
+    q = np.random.default_rng(0).uniform(setup.arm.lower, setup.arm.upper, (500, setup.arm.n))
+    np.testing.assert_array_equal(setup.body.in_collision(q), near.body.in_collision(q))
+    assert time.process_time() - t < 60        # not minutes
+    m = setup.body.moving_spheres                    # a bound: no configuration puts a sphere farther out
+    farthest = np.linalg.norm(setup.body.sphere_centres(q)[:, m], axis=-1) + setup.body.radii[m]
+    assert farthest.max() <= setup.body.reach()

@@ -303,6 +303,9 @@ class ReachController:
                 body = CollisionModel(tree, xml, self.setup.arm, self.setup.obstacles)
             except ReachError as e:
                 rospy.logwarn(f'reach_controller: no collision check of the arm\'s body: {e}')
+        if body is not None and body.beyond:
+            rospy.loginfo(f'reach_controller: {body.beyond} of the obstacles lie beyond the arm\'s reach '
+                          f'({body.reach():.2f} m and a metre of margin): left out of its checks')
         if body is not None and not len(body.radii):
             rospy.logwarn(f'reach_controller: {tree.name} has no collision geometry this machine can read '
                           f'({len(body.missing)} meshes not found): the commands are checked against the limits '

@@ -116,11 +116,15 @@ def describe_layer(setup: ReachSetup) -> str:
 
 def describe_world(setup: ReachSetup) -> str:
     body = setup.body
-    names = ', '.join(o.name for o in setup.obstacles) or 'no obstacles'
+    names = ', '.join(o.name for o in setup.obstacles[:8]) or 'no obstacles'
+    if len(setup.obstacles) > 8:
+        names += f' and {len(setup.obstacles) - 8} more'
     text = (f'{names}; the arm\'s body: {len(body.radii)} spheres on {len(body.links)} links, {len(body.link_pairs)} '
             f'link pairs checked')
     if body.missing:
         text += f' ({len(body.missing)} collision meshes not on this machine, their links unchecked)'
+    if getattr(body, 'beyond', 0):
+        text += f'; {body.beyond} obstacles beyond the arm\'s reach ({body.reach():.2f} m) left out of the checks'
     return text
 
 

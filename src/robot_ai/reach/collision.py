@@ -53,6 +53,14 @@ class Obstacle:
         return bool(np.linalg.norm(local) <= self.size[0])
 
 
+def obstacle_distance(o: Obstacle) -> float:
+    """The distance from the arm's base frame's origin to the obstacle (0 inside it)."""
+    local = -o.pose[:3, 3] @ o.pose[:3, :3]
+    if o.kind == 'box':
+        return float(np.linalg.norm(np.maximum(np.abs(local) - np.array(o.size) / 2.0, 0.0)))
+    return max(0.0, float(np.linalg.norm(local)) - o.size[0])
+
+
 def _rpy_matrix(rpy) -> np.ndarray:
     r, p, y = rpy
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
@@ -395,6 +403,37 @@ class CollisionModel:
         self.link_pairs, self.excluded = self._choose_pairs(samples, rng)
         self.pair_a, self.pair_b = self._sphere_pairs(self.link_pairs)
         self.margins = {link: self._margin(i, rng) for i, link in enumerate(self.links)}
+        self.beyond = self._cull()
+
+    def reach(self) -> float:
+        """A bound on how far from the arm's base frame any of its moving spheres can be, in any configuration: the
+        joints' offsets from the base down to each sphere's link (a prismatic joint's travel added), the sphere's
+        centre in its link and its radius. inf where a link is not below the base (nothing is culled then)."""
+        parent_joint = {j.child: j for j in self.tree.joints.values()}
+        worst = 0.0
+        for k in self.moving_spheres:
+            link, length = self.links[self.owner[k]], 0.0
+            while link != self.arm.base:
+                joint = parent_joint.get(link)
+                if joint is None:
+                    return math.inf
+                length += float(np.linalg.norm(joint.xyz))
+                if joint.type == 'prismatic':
+                    length += max(abs(joint.lower or 0.0), abs(joint.upper or 0.0)) or 1.0
+                link = joint.parent
+            worst = max(worst, length + float(np.linalg.norm(self.centres[k])) + float(self.radii[k]))
+        return worst
+
+    def _cull(self, padding: float = 1.0) -> int:
+        """Obstacles no moving sphere can come within padding of (1 m: any ~collision_margin) are left out of the
+        checks, which run an obstacle at a time (5,000 small ones far from the arm kept a node silent for minutes);
+        how many."""
+        if not self.obstacles or not len(self.moving_spheres):
+            return 0
+        reach = self.reach() + padding
+        near = tuple(o for o in self.obstacles if obstacle_distance(o) <= reach)
+        beyond, self.obstacles = len(self.obstacles) - len(near), near
+        return beyond
 
     def _margin(self, i: int, rng: np.random.Generator, per_sphere: int = 100) -> float:
         """How far link i's spheres reach beyond its geometry: the largest distance from a point of their union's

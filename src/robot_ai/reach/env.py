@@ -312,10 +312,12 @@ class ReachSetup:
             g[3:] = g[3:] / norm * (-1.0 if g[6] < 0 else 1.0)
         return g.tolist()
 
-    def obstacle_holding(self, goal) -> str | None:
+    def obstacle_holding(self, goal, within_reach: bool = False) -> str | None:
         """The name of the obstacle a goal's point is inside, or None (goals inside one are refused, by the env's
-        options and by reach_controller, and never drawn)."""
-        return next((o.name for o in self.obstacles if o.contains(goal[:3])), None)
+        options and by reach_controller, and never drawn). within_reach: only the obstacles the arm's body can
+        reach (a drawn goal is a tip's position: thousands of far ones need no look)."""
+        obstacles = self.body.obstacles if within_reach and self.body is not None else self.obstacles
+        return next((o.name for o in obstacles if o.contains(goal[:3])), None)
 
     def reset_options(self, options: dict, goal: list, q: list) -> tuple[list, list]:
         """(goal, start configuration) of an episode with reset options: 'goal' (check_goal's) and 'q' (joint
@@ -429,7 +431,8 @@ class ReachSetup:
             hits = self.body.in_collision(np.array([out[i] for i in waiting]))
             if goal and self.obstacles:
                 tips = self.goals_of(np.array([out[i] for i in waiting]).T)
-                hits = [bool(hit) or self.obstacle_holding(tips[:, k]) is not None for k, hit in enumerate(hits)]
+                hits = [bool(hit) or self.obstacle_holding(tips[:, k], within_reach=True) is not None
+                        for k, hit in enumerate(hits)]
             waiting = [i for i, hit in zip(waiting, hits) if hit]
             if not waiting:
                 return out
