@@ -163,13 +163,14 @@ class TestReachRos(unittest.TestCase):
     def test_a_sim_killed_mid_episode_raises_within_the_timeout_and_every_call_after_it_too(self):
         procs = self.start_victim()
         try:
-            env = self.ros('/victim', timeout=2.0)
             deadline = time.monotonic() + 60
-            while True:
-                try:
+            while True:       # the victim's frames may take seconds on a loaded machine: a fresh env each try, as
+                env = self.ros('/victim', timeout=2.0)      # gymnasium's env checker, whose first reset raised,
+                try:                                        # fails the first step on its own state (a TypeError)
                     env.reset(seed=3)
                     break
                 except RosReachError:
+                    env.close()
                     self.assertLess(time.monotonic(), deadline)
             for _ in range(5):
                 env.step(env.action_space.sample())
