@@ -402,8 +402,7 @@ class ClassRun:
         judging = Judging(options, not a.no_sandbox, WALL_LIMIT_FACTOR * budget + 60.0,
                           sandbox.Limits(cpu_seconds=int(budget) + 60),
                           nothing_graded(tree, a.configurations)[len('score: '):])
-        book = Gradebook(path, getattr(a, 'csv_format', 'robot_ai'), students, getattr(a, 'id_from', 'folder'),
-                         getattr(a, 'assignment', 'check_fk'))
+        book = Gradebook(path, a.csv_format, students, a.id_from, a.assignment)
         return cls(folder, students, path, reports, judging, budget, book)
 
     def prepare_reports(self) -> None:

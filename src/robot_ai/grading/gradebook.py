@@ -97,7 +97,7 @@ class Gradebook:
         """One student's row; result None: not graded (the run was stopped first)."""
         from robot_ai.grading import sandbox
         shown = sandbox.printable(student)
-        who = identity(shown, getattr(result, 'source', '') if result is not None else '', self.id_from)
+        who = identity(shown, result.source if result is not None else '', self.id_from)
         grade = '' if result is None or result.grade is None else f'{result.grade:.1f}'
         if self.fmt == 'moodle':
             ident = f'Participant {who.id}' if who.id.isdigit() else who.id

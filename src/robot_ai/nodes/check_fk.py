@@ -22,16 +22,15 @@ import sys
 import tempfile
 import time
 
-
 from robot_ai.child_process import PR_SET_CHILD_SUBREAPER, prctl
 from robot_ai.grading import candidates, sandbox
 from robot_ai.grading.cgroups import BudgetClock
 from robot_ai.grading.class_run import grade_class, reexec_in_namespaces, sandboxed
 from robot_ai.grading.fk import Grade, comparison_frame, configurations
-from robot_ai.grading.pacing import STABLE, Answer, Pacer, same
-from robot_ai.grading.processes import Output, end_descendants, log_path, start_master, stop, wait_for_master
 from robot_ai.grading.gradebook import FORMATS, ID_FROM, grade_line
 from robot_ai.grading.master import read_refused
+from robot_ai.grading.pacing import STABLE, Answer, Pacer, same
+from robot_ai.grading.processes import Output, end_descendants, log_path, start_master, stop, wait_for_master
 from robot_ai.grading.report import (BUDGET_BASE, BUDGET_PER_CONFIGURATION, MAX_NAME, RESULT_BYTES, budget_of,
                                      exit_status, graded_links, nothing_graded, read_model, result_of, write_junit)
 from robot_ai.kinematics import prefix_frame
@@ -531,7 +530,7 @@ def grade(tree, a, candidate: TfTree, proc, output: Output, pub, JointState, clo
             return result.report()[:-1] + [
                 f'FAIL: too slow ({k} of {a.configurations} configurations answered): no answer to configuration {k} '
                 f'and no tf message for {a.timeout:g} s (--timeout)'], 1
-        previous = got = answer.poses
-        result.add(k, q, reference, got)
+        previous = answer.poses
+        result.add(k, q, reference, answer.poses)
         done[0] = k + 1
     return result.report(), 0 if result.verdict() == 'PASS' else 1

@@ -123,7 +123,7 @@ def describe_world(setup: ReachSetup) -> str:
             f'link pairs checked')
     if body.missing:
         text += f' ({len(body.missing)} collision meshes not on this machine, their links unchecked)'
-    if getattr(body, 'beyond', 0):
+    if body.beyond:
         text += f'; {body.beyond} obstacles beyond the arm\'s reach ({body.reach():.2f} m) left out of the checks'
     return text
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import os
+import stat
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -90,6 +91,7 @@ def read_yaml(value: str, what: str):
     of one line naming `what`, at once, for anything else: a file that cannot be read, is not a regular file (a FIFO
     would block), or holds more than YAML_BYTES; text that is not YAML or uses more than YAML_ALIASES aliases.
     `!degrees x` is x degrees in radians (ur_description's joint_limits.yaml), `!radians x` is x."""
+    import yaml
     text = value
     if '\n' not in value and (value.endswith(('.yaml', '.yml')) or os.path.isfile(value)):
         text = _read_regular(value, what)
@@ -97,12 +99,11 @@ def read_yaml(value: str, what: str):
         return _bounded_yaml(text)
     except RecursionError:
         raise ReachError(f'{what}: not YAML we read: nested too deep') from None
-    except _YamlError as e:
+    except yaml.YAMLError as e:
         raise ReachError(f'{what}: not YAML: {str(e).splitlines()[0]}') from None
 
 
 def _read_regular(path: str, what: str) -> str:
-    import stat
     try:
         if not stat.S_ISREG(os.stat(path).st_mode):
             raise ReachError(f'{what}: {path} is not a regular file (a FIFO, a device or a folder is not read)')
@@ -128,35 +129,30 @@ def _read_regular(path: str, what: str) -> str:
         raise ReachError(f'{what}: {path} is not UTF-8 text') from None
 
 
-try:
-    import yaml as _yaml
-    _YamlError = _yaml.YAMLError
-except ImportError:          # pragma: no cover (PyYAML is ROS's)
-    _yaml, _YamlError = None, Exception
-
-
 def _bounded_yaml(text: str):
     """yaml.safe_load with at most YAML_ALIASES aliases, and the !degrees and !radians tags."""
-    class Loader(_yaml.SafeLoader):
+    import yaml
+
+    class Loader(yaml.SafeLoader):
         aliases, sizes = 0, {}
 
         def compose_node(self, parent, index):
-            if self.check_event(_yaml.AliasEvent):
+            if self.check_event(yaml.AliasEvent):
                 Loader.aliases += 1
                 if Loader.aliases > YAML_ALIASES:
-                    raise _yaml.YAMLError(f'more than {YAML_ALIASES} aliases (*name): refused')
+                    raise yaml.YAMLError(f'more than {YAML_ALIASES} aliases (*name): refused')
             node = super().compose_node(parent, index)
             if self.size(node) > YAML_NODES:
-                raise _yaml.YAMLError(f'more than {YAML_NODES:,} nodes with its aliases expanded: refused')
+                raise yaml.YAMLError(f'more than {YAML_NODES:,} nodes with its aliases expanded: refused')
             return node
 
         def size(self, node) -> int:
             """The nodes under node, aliases expanded (its children's sizes are known: composed before it)."""
             known = Loader.sizes.get(id(node))
             if known is None:
-                if isinstance(node, _yaml.SequenceNode):
+                if isinstance(node, yaml.SequenceNode):
                     known = 1 + sum(self.size(c) for c in node.value)
-                elif isinstance(node, _yaml.MappingNode):
+                elif isinstance(node, yaml.MappingNode):
                     known = 1 + sum(self.size(k) + self.size(v) for k, v in node.value)
                 else:
                     known = 1
@@ -169,11 +165,11 @@ def _bounded_yaml(text: str):
             try:
                 return float(text) * factor
             except ValueError:
-                raise _yaml.YAMLError(f'{node.tag} {text!r} is not a number') from None
+                raise yaml.YAMLError(f'{node.tag} {text!r} is not a number') from None
         return construct
     Loader.add_constructor('!degrees', angle(math.pi / 180.0))
     Loader.add_constructor('!radians', angle(1.0))
-    return _yaml.load(text, Loader=Loader)
+    return yaml.load(text, Loader=Loader)
 
 
 def parse_obstacles(value) -> tuple[Obstacle, ...]:

@@ -99,6 +99,11 @@ class Limits:
         return cls(tuple(arm.joints), lower, upper, velocity * velocity_scale, acceleration * acceleration_scale,
                    velocity_scale, acceleration_scale, notes)
 
+    @property
+    def unscaled_acceleration(self) -> np.ndarray:
+        """The acceleration limits before acceleration_scale: the hardest the arm can brake."""
+        return self.acceleration / self.acceleration_scale
+
     def describe(self) -> str:
         return (f'velocities x{self.velocity_scale:g} (up to {self.velocity.max():.3g}), accelerations '
                 f'x{self.acceleration_scale:g} (up to {self.acceleration.max():.3g})')
@@ -319,8 +324,7 @@ def stop_within(start: float, p: np.ndarray, v: np.ndarray, limits: Limits) -> P
     """The stop of a measured state (p, v): at the layer's acceleration, or harder, up to the unscaled limit
     (acceleration / acceleration_scale: what the arm can), where that keeps a joint within its position limits; a
     joint that cannot stop before its limit even so brakes at that, the least it can pass it by."""
-    a = np.asarray(limits.acceleration, dtype=float)
-    full = a / limits.acceleration_scale
+    a, full = limits.acceleration, limits.unscaled_acceleration
     room = np.where(v > 0, limits.upper - p, np.where(v < 0, p - limits.lower, np.inf))
     with np.errstate(divide='ignore', invalid='ignore'):
         needed = np.where(room > 0, v * v / (2.0 * room), np.inf)
@@ -586,7 +590,7 @@ class SafetyLayer:
         # widened only to where braking as hard as the arm can (the unscaled limit) stops it: a plan that brakes
         # gentler past a limit is refused, and the harder stop already sent goes on
         lower, upper = reach_bounds(plan.positions[0], plan.velocities[0], lim.lower, lim.upper,
-                                    lim.acceleration / lim.acceleration_scale)
+                                    lim.unscaled_acceleration)
         low, high = q < lower - POSITION_TOLERANCE, q > upper + POSITION_TOLERANCE
         if low.any() or high.any():
             k = int(np.argmax((low | high).any(axis=0)))
