@@ -136,6 +136,23 @@ def wait_for(predicate, timeout=10.0, step=0.02):
     return predicate()
 
 
+def action_client(name, action, timeout=30.0):
+    """A SimpleActionClient of name whose server is up and whose feedback and result subscriptions are connected:
+    wait_for_server checks only the goal, cancel and status topics, and under load the server's first feedback (seen:
+    episode 1 of 120) went out before the client's feedback subscription had its connection. None after timeout."""
+    import actionlib
+    client = actionlib.SimpleActionClient(name, action)
+    deadline = time.monotonic() + timeout
+    if not client.wait_for_server(rospy.Duration(timeout)):
+        return None
+    inner = client.action_client
+    while time.monotonic() < deadline:
+        if inner.feedback_sub.get_num_connections() and inner.result_sub.get_num_connections():
+            return client
+        time.sleep(0.02)
+    return None
+
+
 def said_by(log, node, words, since, timeout=30.0):
     """The first line node said in log ([(name, text)], from index since) that holds every word of one of words (a
     list of word lists), waiting up to timeout seconds; None when none came (the caller fails with the lines)."""

@@ -8,7 +8,6 @@ import threading
 import time
 import unittest
 
-import actionlib
 import numpy as np
 import rospy
 import rostest
@@ -22,7 +21,7 @@ from robot_ai.msg import QLearningAction, QLearningGoal, QLearningProgress
 from robot_ai.srv import Act, EvaluateAgent, LoadPolicy, QLearning
 
 sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
-from ros_helpers import on_this_master, wait_file  # noqa: E402
+from ros_helpers import action_client, on_this_master, wait_file  # noqa: E402
 
 NS = '/cartpole_q_learning/'
 
@@ -141,8 +140,8 @@ class TestCartPoleQLearningNode(unittest.TestCase):
         self.assertTrue(self.train(episodes=5, components=10).success)
 
     def test_4_action_feedback_and_cancel(self):
-        client = actionlib.SimpleActionClient(NS + 'training', QLearningAction)
-        self.assertTrue(client.wait_for_server(rospy.Duration(30)))
+        client = action_client(NS + 'training', QLearningAction)
+        self.assertIsNotNone(client, 'no action server with connected topics within 30 s')
         feedback = []
         client.send_goal(QLearningGoal(episodes=120, components=100, seed=11),
                          feedback_cb=lambda fb: feedback.append(fb))

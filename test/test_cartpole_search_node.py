@@ -7,7 +7,6 @@ import sys
 import time
 import unittest
 
-import actionlib
 import numpy as np
 import rospy
 import rostest
@@ -20,7 +19,7 @@ from robot_ai.msg import RandomSearchAction, RandomSearchGoal, SearchProgress
 from robot_ai.srv import Act, EvaluatePolicy, RandomSearch
 
 sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
-from ros_helpers import on_this_master, wait_file, wait_for  # noqa: E402
+from ros_helpers import action_client, on_this_master, wait_file, wait_for  # noqa: E402
 
 NS = '/cartpole_search/'
 
@@ -106,8 +105,8 @@ class TestCartPoleSearchNode(unittest.TestCase):
         self.assertTrue(self.evaluate(weights=[0.1, 0.5, 1.0, 0.9], episodes=3).success)
 
     def test_4_action_feedback_and_cancel(self):
-        client = actionlib.SimpleActionClient(NS + 'search', RandomSearchAction)
-        self.assertTrue(client.wait_for_server(rospy.Duration(30)))
+        client = action_client(NS + 'search', RandomSearchAction)
+        self.assertIsNotNone(client, 'no action server with connected topics within 30 s')
         feedback = []
         client.send_goal(RandomSearchGoal(iterations=40, episodes=50, seed=11),
                          feedback_cb=lambda fb: feedback.append(fb))

@@ -9,7 +9,6 @@ import sys
 import time
 import unittest
 
-import actionlib
 import numpy as np
 import rospy
 import rostest
@@ -19,6 +18,9 @@ from robot_ai import policies
 from robot_ai.cartpole.linear_search import LinearPolicy
 from robot_ai.msg import QLearningAction, QLearningGoal, RandomSearchAction, RandomSearchGoal
 from robot_ai.srv import Act, EvaluateAgent, EvaluatePolicy, LoadPolicy, QLearning, RandomSearch
+
+sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
+from ros_helpers import action_client  # noqa: E402
 
 SEARCH, QL = '/cartpole_search/', '/cartpole_q_learning/'
 
@@ -188,8 +190,8 @@ class TestPolicyFiles(unittest.TestCase):
         self.assertTrue(os.path.isfile(res.policy_path))   # the run's own best is still saved
 
     def test_6_cancelled_goals_keep_what_finished(self):
-        client = actionlib.SimpleActionClient(QL + 'training', QLearningAction)
-        self.assertTrue(client.wait_for_server(rospy.Duration(30)))
+        client = action_client(QL + 'training', QLearningAction)
+        self.assertIsNotNone(client, 'no action server with connected topics within 30 s')
         feedback = []
         # 8 learners, 2 at a time: two of them finish in seconds, then cancel while others run
         client.send_goal(QLearningGoal(learners=8, episodes=1000, components=100, seed=5),
@@ -223,8 +225,8 @@ class TestPolicyFiles(unittest.TestCase):
             rows = list(csv.reader(f))[1:]
         self.assertEqual({int(r[1]) for r in rows if int(r[2]) == 1000}, set(result.learner_seeds))
 
-        search = actionlib.SimpleActionClient(SEARCH + 'search', RandomSearchAction)
-        self.assertTrue(search.wait_for_server(rospy.Duration(30)))
+        search = action_client(SEARCH + 'search', RandomSearchAction)
+        self.assertIsNotNone(search, 'no action server with connected topics within 30 s')
         fb = []
         search.send_goal(RandomSearchGoal(iterations=10000, episodes=1000, seed=1), feedback_cb=fb.append)
         deadline = time.time() + 60
