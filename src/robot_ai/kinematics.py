@@ -37,11 +37,14 @@ JOINT_CHILD_TAGS = ('parent', 'child', 'origin', 'axis', 'limit', 'mimic')
 FINGER_WORDS = frozenset(('finger', 'thumb', 'index', 'middle', 'ring', 'pinky', 'little', 'knuckle', 'gripper',
                           'claw', 'jaw', 'palm', 'hand', 'digit', 'phalanx'))
 # The names of an arm's end, best first (end_effectors): a tool centre point, ROS-Industrial's tool0, an end
-# effector, a tool frame, a flange, a gripper's or a hand's base; a sensor's frame only where nothing else is left
+# effector, a tool frame, a grasp frame, a flange, a gripper's or a hand's base; a sensor's frame (a camera's, a touch
+# sensor's) only where nothing else is left
 TIP_NAMES = tuple(re.compile(p) for p in (
     r'(^|_)tcp(_|$)|tool_?cent(er|re)_?point', r'(^|_)tool0$', r'end_?effector|(^|_)eef?(_link)?$|(^|_)ee_link',
-    r'(^|_)tool(_?frame|_?link)?$', r'(^|_)flange(_link)?$', r'gripper(_base)?(_link)?$|(^|_)hand(_link)?$'))
-SENSOR_NAME = re.compile(r'camera|optical|imu|laser|lidar|depth|rgb|kinect|realsense|sensor|accelerometer|led')
+    r'(^|_)tool(_?frame|_?link)?$', r'(^|_)grasp(ing)?(_?frame|_?link|_?point)?$', r'(^|_)flange(_link)?$',
+    r'gripper(_base)?(_link)?$|(^|_)hand(_link)?$'))
+SENSOR_NAME = re.compile(r'camera|optical|imu|laser|lidar|depth|rgb|kinect|realsense|sensor|accelerometer|led|'
+                         r'touch|tactile|bumper|sonar|microphone|speaker|button|skin')
 
 
 class URDFError(ValueError):

@@ -74,8 +74,60 @@ def test_every_arm_of_a_two_armed_robot_is_listed_and_reach_says_so():
     from robot_ai.reach import Arm
     arm = Arm(tree)
     assert arm.tip == 'r_gripper_tool_frame' and arm.n == 8
-    assert any('l_gripper_tool_frame' in w and '2 arms' in w for w in arm.warnings), arm.warnings
+    assert any('the right arm' in w and 'l_gripper_tool_frame (left arm)' in w for w in arm.warnings), arm.warnings
     assert Arm(tree, tip='l_gripper_tool_frame').warnings == []     # a tip given: nothing to say
+
+
+def two_arms(sides, extra):
+    """A torso with two 5-joint arms, Pepper's shape: sides are the joints' prefixes ('L', 'R' or 'left_', ...),
+    each arm's last link {s}_wrist ({s}: the prefix's first letter, lower case); extra: {link: (joint type, parent)}
+    below each arm, formatted with S (the prefix) and s."""
+    body = '<link name="torso"/>'
+    for side in sides:
+        s, parent = side[0].lower(), 'torso'
+        for k, joint in enumerate(('ShoulderPitch', 'ShoulderRoll', 'ElbowYaw', 'ElbowRoll', 'WristYaw')):
+            child = f'{side}{joint}_link' if k < 4 else f'{s}_wrist'
+            body += (f'<link name="{child}"/><joint name="{side}{joint}" type="revolute"><parent link="{parent}"/>'
+                     f'<child link="{child}"/><origin xyz="0.1 {0.15 if s == "l" else -0.15} 0"/>'
+                     f'<axis xyz="{"0 1 0" if k % 2 == 0 else "0 0 1"}"/>'
+                     f'<limit lower="-2" upper="2" effort="1" velocity="1"/></joint>')
+            parent = child
+        for link, (kind, above) in extra.items():
+            link, above = link.format(S=side, s=s), above.format(S=side, s=s)
+            body += (f'<link name="{link}"/><joint name="{link}_joint" type="{kind}"><parent link="{above}"/>'
+                     f'<child link="{link}"/><origin xyz="0.03 0 0"/><axis xyz="1 0 0"/>'
+                     f'<limit lower="0" upper="1" effort="1" velocity="1"/></joint>')
+    return KinematicTree.from_xml_string(f'<robot name="two_arms">{body}</robot>')
+
+
+def test_a_touch_sensors_frame_on_the_wrist_is_not_the_tip():
+    """Issue 57: on Pepper the default tip was LHandTouchBack_frame, a touch sensor's frame fixed to the wrist
+    (pepper_description), not the hand: a sensor's frame is a tip only where nothing else is left."""
+    from robot_ai.reach import Arm
+    tree = two_arms(['L', 'R'], {'{S}HandTouchBack_frame': ('fixed', '{s}_wrist'),
+                                 '{S}HandTouchLeft_frame': ('fixed', '{s}_wrist'),
+                                 '{s}_gripper': ('revolute', '{s}_wrist')})       # Pepper's LHand: the hand opens
+    assert tree.end_effectors() == ['l_wrist', 'r_wrist']
+    arm = Arm(tree)
+    assert arm.tip == 'l_wrist' and arm.n == 5
+    # a grasp frame, when the file has one (pepper_moveit_config's l_grasp_link), is the tip
+    tree = two_arms(['L', 'R'], {'{S}HandTouchBack_frame': ('fixed', '{s}_wrist'),
+                                 '{s}_grasp_link': ('fixed', '{s}_wrist')})
+    assert tree.end_effectors() == ['l_grasp_link', 'r_grasp_link']
+
+
+def test_the_warning_of_a_two_armed_robot_says_which_arm_the_default_is():
+    """Issue 57: on Baxter the default tip is the right arm; the line that names the other arm says so."""
+    from robot_ai.reach import Arm
+    for sides, tip, other in ((['right_', 'left_'], 'right_gripper', 'left_gripper'),
+                              (['L', 'R'], 'Lgripper', 'Rgripper')):
+        arm = Arm(two_arms(sides, {'{S}gripper': ('fixed', '{s}_wrist')}))
+        assert arm.tip == tip, arm.tip
+        side, other_side = ('right', 'left') if tip[0] in 'rR' else ('left', 'right')
+        (warning,) = arm.warnings
+        assert f'no tip given: {tip}, the end of the {side} arm' in warning, warning
+        assert f'the other arm ends at {other} ({other_side} arm)' in warning, warning
+        assert '--tip' in warning and 'tip:=' in warning
 
 
 def test_the_default_tip_below_a_floating_base_is_the_arms_end_in_the_bases_frame():

@@ -18,6 +18,7 @@ one of thousands: ReachVectorEnv equals gymnasium's SyncVectorEnv over ReachEnvs
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,6 +58,21 @@ def joint_velocity(joint) -> float:
 def _listed(names: list[str], most: int = 12) -> str:
     shown = ', '.join(names[:most])
     return shown + (f' and {len(names) - most} more' if len(names) > most else '')
+
+
+_SIDES = {'left': re.compile(r'(^|[_/])(left|l)([_/]|$)|^L(?=[A-Z])|Left'),
+          'right': re.compile(r'(^|[_/])(right|r)([_/]|$)|^R(?=[A-Z])|Right')}
+
+
+def arm_side(tree: KinematicTree, link: str) -> str | None:
+    """'left' or 'right' when the link's name or its chain's moving joints say which side (right_gripper,
+    l_wrist, LShoulderPitch, ...), else None."""
+    chain = tree.chain_to(link)[1] if link in tree.links else []
+    for name in [link] + [j for j in reversed(chain) if tree.joints[j].moving]:
+        said = [side for side, pattern in _SIDES.items() if pattern.search(name)]
+        if len(said) == 1:
+            return said[0]
+    return None
 
 
 def _rotation_to_z(axis: np.ndarray) -> np.ndarray:
@@ -102,8 +118,12 @@ class Arm:
             ends = tree.end_effectors()
             self.tip = ends[0]
             if len(ends) > 1:
-                self.warnings.append(f'no tip given: {self.tip}, the end of one of {len(ends)} arms (their ends: '
-                                     f'{_listed(ends)}); give tip to choose')
+                side = arm_side(tree, self.tip)
+                which = f'the {side} arm' if side else f'one of {len(ends)} arms'
+                others = [f'{end} ({s} arm)' if (s := arm_side(tree, end)) else end for end in ends[1:]]
+                self.warnings.append(f'no tip given: {self.tip}, the end of {which}; the other arm'
+                                     f'{"s end" if len(others) > 1 else " ends"} at {_listed(others)}: give tip '
+                                     f'(--tip, tip:=) to reach with {"one" if len(others) > 1 else "it"}')
         else:
             self.tip = str(tip)
         if self.tip not in tree.links:
