@@ -47,34 +47,15 @@ class ArmRenderer:
         sphere_u, sphere_v = np.mgrid[0:2 * np.pi:16j, 0:np.pi:9j]
         self._sphere = np.stack((np.cos(sphere_u) * np.sin(sphere_v), np.sin(sphere_u) * np.sin(sphere_v),
                                  np.cos(sphere_v)))
+        self._background = None
+        self._artists()
 
-    def new_episode(self) -> None:
-        self.path = []
-
-    def draw(self, q, goal) -> np.ndarray:
-        """An RGB frame (HEIGHT, WIDTH, 3) of the arm at q (n,) with the goal (3,) (None: no goal yet)."""
-        arm, ax = self.arm, self.ax
-        poses = arm.tree.link_poses(arm.tree.resolve_positions(arm.positions(q)), base=arm.base)
-        tip = poses[arm.tip][:3, 3]
-        self.path.append(tip)
-        ax.cla()
-        for parent, child in self.bones:
-            a, b = poses[parent][:3, 3], poses[child][:3, 3]
-            ax.plot(*np.column_stack((a, b)), color='0.6', lw=1.5)
-        ax.scatter(0, 0, 0, color='black', marker='s', s=40, depthshade=False, label=f'base ({self.arm.base})')
-        chain = np.array([poses[link][:3, 3] for link in self.chain_links])
-        ax.plot(chain[:, 0], chain[:, 1], chain[:, 2], '-o', color='tab:blue', lw=4, ms=4)
-        path = np.array(self.path)
-        ax.plot(path[:, 0], path[:, 1], path[:, 2], color='tab:orange', lw=1)
-        ax.scatter(*tip, color='tab:red', s=40, depthshade=False, label='tip')
-        text = f'{self.title}'
-        if goal is not None:
-            ax.scatter(*goal, color='tab:green', s=80, depthshade=False, label='goal')
-            s = self._sphere * self.threshold
-            ax.plot_wireframe(s[0] + goal[0], s[1] + goal[1], s[2] + goal[2], color='tab:green', lw=0.4, alpha=0.5)
-            d = float(goal_distance(tip, goal))
-            text += f'\ndistance {d:.3f} m' + ('  reached' if d < self.threshold else '')
-        c, r = self.centre, self.half
+    def _artists(self) -> None:
+        """The axes, the legend and the view drawn once (the background); the moving parts as artists whose data
+        each frame sets: a frame redraws only them (ax.cla() and a full draw made each frame cost 0.16 s, nine
+        tenths of a video's time)."""
+        from mpl_toolkits.mplot3d.art3d import Line3DCollection
+        ax, c, r = self.ax, self.centre, self.half
         ax.set_xlim(c[0] - r, c[0] + r)
         ax.set_ylim(c[1] - r, c[1] + r)
         ax.set_zlim(c[2] - r, c[2] + r)
@@ -82,9 +63,62 @@ class ArmRenderer:
         ax.set_xlabel('x (m)')
         ax.set_ylabel('y (m)')
         ax.set_zlabel('z (m)')
-        ax.set_title(text, fontsize=10)
+        ax.set_autoscale_on(False)
+        none = ([], [], [])
+        self.bone_lines = Line3DCollection([], colors='0.6', linewidths=1.5)
+        ax.add_collection3d(self.bone_lines, autolim=False)
+        (self.chain_line,) = ax.plot(*none, '-o', color='tab:blue', lw=4, ms=4)
+        (self.path_line,) = ax.plot(*none, color='tab:orange', lw=1)
+        (base,) = ax.plot([0], [0], [0], 's', color='black', ms=6, label=f'base ({self.arm.base})')
+        (self.tip_dot,) = ax.plot(*none, 'o', color='tab:red', ms=6, label='tip')
+        (self.goal_dot,) = ax.plot(*none, 'o', color='tab:green', ms=9, label='goal')
+        self.sphere_lines = Line3DCollection([], colors='tab:green', linewidths=0.4, alpha=0.5)
+        ax.add_collection3d(self.sphere_lines, autolim=False)
+        self.title_text = self.fig.text(0.5, 0.985, self.title, ha='center', va='top', fontsize=10)
         ax.legend(loc='upper left', fontsize=8, frameon=False)
-        self.canvas.draw()
+        self.moving = [self.bone_lines, self.chain_line, self.path_line, self.tip_dot, self.goal_dot,
+                       self.sphere_lines, self.title_text]
+
+    def new_episode(self) -> None:
+        self.path = []
+
+    def draw(self, q, goal) -> np.ndarray:
+        """An RGB frame (HEIGHT, WIDTH, 3) of the arm at q (n,) with the goal (3,) (None: no goal yet)."""
+        arm = self.arm
+        poses = arm.tree.link_poses(arm.tree.resolve_positions(arm.positions(q)), base=arm.base)
+        tip = poses[arm.tip][:3, 3]
+        self.path.append(tip)
+        if self._background is None:              # the view without the moving parts, once
+            for artist in self.moving:
+                artist.set_visible(False)
+            self.canvas.draw()
+            self._background = self.canvas.copy_from_bbox(self.fig.bbox)
+            for artist in self.moving:
+                artist.set_visible(True)
+        self.bone_lines.set_segments([(poses[a][:3, 3], poses[b][:3, 3]) for a, b in self.bones])
+        chain = np.array([poses[link][:3, 3] for link in self.chain_links])
+        self.chain_line.set_data_3d(chain[:, 0], chain[:, 1], chain[:, 2])
+        path = np.array(self.path)
+        self.path_line.set_data_3d(path[:, 0], path[:, 1], path[:, 2])
+        self.tip_dot.set_data_3d([tip[0]], [tip[1]], [tip[2]])
+        text = self.title
+        shown = [self.bone_lines, self.chain_line, self.path_line, self.tip_dot]
+        if goal is not None:
+            self.goal_dot.set_data_3d([goal[0]], [goal[1]], [goal[2]])
+            s = self._sphere * self.threshold + np.asarray(goal, dtype=float)[:, None, None]
+            rings = [np.column_stack((s[0][i], s[1][i], s[2][i])) for i in range(s.shape[1])]
+            rings += [np.column_stack((s[0][:, j], s[1][:, j], s[2][:, j])) for j in range(s.shape[2])]
+            self.sphere_lines.set_segments(rings)
+            shown = shown[:1] + [self.sphere_lines] + shown[1:] + [self.goal_dot]
+            d = float(goal_distance(tip, goal))
+            text += f'\ndistance {d:.3f} m' + ('  reached' if d < self.threshold else '')
+        self.title_text.set_text(text)
+        self.canvas.restore_region(self._background)
+        for artist in shown:
+            if hasattr(artist, 'do_3d_projection'):
+                artist.do_3d_projection()
+            self.ax.draw_artist(artist)
+        self.fig.draw_artist(self.title_text)
         return np.asarray(self.canvas.buffer_rgba())[:, :, :3].copy()
 
     def close(self) -> None:
