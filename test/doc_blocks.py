@@ -1,0 +1,131 @@
+"""The docs' code blocks as a user runs them (issue 57: "every command in the docs should run as written"): the python
+blocks and the `python -m robot_ai.<cli>` commands of README.md and docs/, with the placeholders a reader fills in
+(their own arm file, the file an earlier command wrote) filled in the same way. Those that need the ROS graph run in
+the rostest that starts what they lease (ros_env.test: CartPole sims; reach_ros.test: arms); those that need what
+this machine cannot have (stable-baselines3 and torch, a Ray cluster) are named with the reason, which the tests
+check is still true here."""
+from __future__ import annotations
+
+import glob
+import importlib.util
+import os
+import re
+import shlex
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED_ROBOTS = ROOT.parent / 'shared' / 'robots'
+PAGES = [ROOT / 'README.md', *sorted((ROOT / 'docs').rglob('*.md'))]
+FENCED = re.compile(r'^```(\w*)\n(.*?)^```', re.S | re.M)
+# a block that names no import gets these: the docs' fragments go on from the block above them
+PRELUDE = 'import gymnasium\nimport robot_ai.reach\nimport robot_ai.envs\n'
+CLI = re.compile(r'(?:^|\s)(?:\S*/)?python3? -m robot_ai\.(reach|cartpole) (.*)$')
+# what a command needs that this machine does not have, by a word of its line
+NEEDS = {'--ray': 'a Ray cluster (docs/fleet.md; ray_cluster.test runs the package on one)',
+         '.onnx': 'a model an example exports with stable-baselines3 (torch: never installed here)'}
+
+
+@dataclass
+class Block:
+    page: str
+    code: str
+    needs_ros: str            # '' (runs anywhere), 'cartpole' (CartPole sims to lease) or 'reach' (arms to lease)
+    missing: list[str]        # modules it imports that are not installed here
+
+    def source(self, arm: str) -> str:
+        """The block as a reader runs it: their arm file is `arm`, their world the tests' world."""
+        code = self.code.replace('/path/arm.urdf', arm).replace('"arm.urdf"', f'"{arm}"')
+        code = code.replace('"world.yaml"', f'"{ROOT / "test" / "world.yaml"}"')
+        return ('' if re.search(r'^import |^from ', code, re.M) else PRELUDE) + code
+
+
+def python_blocks() -> list[Block]:
+    found = []
+    for page in PAGES:
+        for lang, code in FENCED.findall(page.read_text()):
+            if lang not in ('python', 'py'):
+                continue
+            needs_ros = 'cartpole' if re.search(r'["\']robot_ai/RosCartPole', code) else \
+                'reach' if re.search(r'["\']robot_ai/RosReach', code) else ''
+            imported = re.findall(r'^\s*(?:from|import) ([\w.]+)', code, re.M)
+            missing = sorted({m for m in imported if not _importable(m)})
+            found.append(Block(str(page.relative_to(ROOT)), code, needs_ros, missing))
+    return found
+
+
+def _importable(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+@dataclass
+class Command:
+    page: str
+    line: str                 # as the docs show it (continuation lines joined)
+    cli: str                  # reach or cartpole
+    words: list[str]          # after `python -m robot_ai.<cli>`
+    needs: str                # why it cannot run here, or ''
+
+    @property
+    def writes(self) -> bool:
+        return self.words[0] in ('train', 'random-search', 'q-learning', 'ars')
+
+
+def cli_commands() -> list[Command]:
+    """Every `python -m robot_ai.reach|cartpole ...` line of the docs' shell blocks, once each, the ones that write a
+    file before the ones that read one (a reader runs train before evaluate)."""
+    found, seen = [], set()
+    for page in PAGES:
+        for lang, code in FENCED.findall(page.read_text()):
+            if lang not in ('sh', 'bash', 'shell'):
+                continue
+            for line in re.sub(r'\\\n\s*', ' ', code).splitlines():
+                m = CLI.search(line.split('  #')[0].split(' # ')[0])
+                if not m:
+                    continue
+                words = shlex.split(m.group(2))
+                if (m.group(1), *words) in seen:
+                    continue
+                seen.add((m.group(1), *words))
+                needs = next((why for word, why in NEEDS.items() if any(word in w for w in words)), '')
+                found.append(Command(str(page.relative_to(ROOT)), line.strip(), m.group(1), words, needs))
+    return sorted(found, key=lambda c: not c.writes)
+
+
+def arm_xacro(folder: Path) -> Path:
+    """A reader's own arm.urdf.xacro with a `hand` argument: the UR5 of ../shared/robots (its tool0), a hand link on
+    tool0 when hand:=true."""
+    text = (SHARED_ROBOTS / 'ur5.urdf').read_text()
+    text = re.sub(r'<robot ([^>]*)>', r'<robot \1 xmlns:xacro="http://www.ros.org/wiki/xacro">\n'
+                  r'  <xacro:arg name="hand" default="false"/>', text, count=1)
+    text = text.replace('</robot>', '  <xacro:if value="$(arg hand)">\n    <link name="hand"/>\n'
+                        '    <joint name="tool0_hand" type="fixed"><parent link="tool0"/><child link="hand"/>'
+                        '<origin xyz="0 0 0.05"/></joint>\n  </xacro:if>\n</robot>')
+    path = folder / 'arm.urdf.xacro'
+    path.write_text(text)
+    return path
+
+
+def filled(command: Command, folder: Path, home: Path) -> list[str]:
+    """The command's argv as a reader runs it in folder, HOME=home: their arm files are the UR5 (a xacro with a hand
+    argument for a .xacro), '..._seed0' and FILE the newest file an earlier command wrote, ../shared/robots the
+    shared robots."""
+    xacro = arm_xacro(folder)
+    out = []
+    for word in command.words:
+        word = word.replace('../shared/robots/', f'{SHARED_ROBOTS}/')
+        if word.endswith('.urdf.xacro') and not word.startswith(str(SHARED_ROBOTS)):
+            word = str(xacro)
+        elif word.endswith('.urdf') and not os.path.exists(word) and not word.startswith(str(SHARED_ROBOTS)):
+            word = str(SHARED_ROBOTS / 'ur5.urdf')
+        elif '...' in word or word == 'FILE':
+            pattern = str(home / '.ros' / 'robot_ai' / f'{"reach-" if command.cli == "reach" else ""}*.npz') \
+                if word == 'FILE' else str(home) + word[1:] if word.startswith('~') else word
+            matches = sorted(glob.glob(pattern.replace('...', '*')), key=os.path.getmtime)
+            word = matches[-1] if matches else word
+        out.append(word)
+    return [sys.executable, '-m', f'robot_ai.{command.cli}'] + out
