@@ -25,6 +25,9 @@ from std_srvs.srv import Trigger
 from robot_ai.envs import RosReachError  # the import registers robot_ai/RosReach-v0
 from robot_ai.reach import ReachSetup  # the import registers robot_ai/Reach-v0
 
+sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
+from doc_blocks import SHARED_ROBOTS, python_blocks  # noqa: E402
+
 HERE = os.path.dirname(os.path.realpath(__file__))
 PR2 = os.path.realpath(os.path.join(HERE, '..', '..', 'shared', 'robots', 'pr2.urdf'))
 ARM7 = os.path.join(HERE, 'urdf', 'reach_arm7.urdf.xacro')
@@ -197,6 +200,17 @@ class TestReachRos(unittest.TestCase):
             self.stop(procs)
 
     # ------------------------------------------------------------------------------------------------ the arm_sim
+    def test_the_docs_rosreach_blocks_run_as_written(self):
+        """Issue 57: the python blocks of the docs that lease an arm (docs/envs/RosReach.md) run as written on
+        reach_gym.launch's arms (sims:=2, as that page's roslaunch line), each in a process of its own."""
+        blocks = [b for b in python_blocks() if b.needs_ros == 'reach' and not b.missing]
+        self.assertGreaterEqual(len(blocks), 2, 'the test finds too few blocks')
+        for block in blocks:
+            run = subprocess.run([sys.executable, '-c', block.source(str(SHARED_ROBOTS / 'ur5.urdf'))],
+                                 capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+            self.assertEqual(run.returncode, 0,
+                             f'{block.page}:\n{block.code}\n{run.stdout[-2000:]}{run.stderr[-3000:]}')
+
     def test_arm_sim_moves_at_most_its_velocity_limits_and_ignores_bad_commands(self):
         states, velocities = [], []
         sub = rospy.Subscriber('/controlled/joint_states', JointState,

@@ -22,6 +22,9 @@ from sensor_msgs.msg import JointState
 
 from robot_ai.envs import RosCartPoleError, RosCartPoleVectorEnv  # registers robot_ai/RosCartPole-v0, -v1
 
+sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
+from doc_blocks import python_blocks  # noqa: E402
+
 VECTORISERS = os.path.join(os.path.dirname(os.path.realpath(__file__)), 'ros_env_vectorisers.py')
 GOOD = np.array([0.1, 0.5, 10.0, 2.0])      # a linear policy that balances the pole: episodes end by truncation
 
@@ -345,19 +348,24 @@ class TestRosEnv(unittest.TestCase):
         again.reset(seed=0)
         self.assertEqual(again.unwrapped.sim_namespace, claimed[0])
 
-    def test_the_readmes_rl_block_runs_as_written(self):
+    def test_the_docs_rl_blocks_run_as_written(self):
         """Issue 41: the README's block wanted 17 sims of `sims:=8`. It now runs as written on the sims its roslaunch
-        line starts (this file's cartpole_gym.launch has as many), every line of it."""
+        line starts (this file's cartpole_gym.launch has as many), every line of it. Issue 57: so does every python
+        block of the docs that leases a CartPole sim (docs/envs/RosCartPole.md), each in a process of its own."""
         with open(os.path.join(os.path.dirname(os.path.abspath(__file__)), '..', 'README.md')) as f:
             readme = f.read()
         start = readme.index('roslaunch robot_ai cartpole_gym.launch sims:=')
         sims = int(readme[start:].split('sims:=', 1)[1].split()[0])
         self.assertEqual(sims, 4, 'ros_env.test starts 4 sims: the README\'s block must be sized for those')
-        block = readme[start:].split('```python\n', 1)[1].split('```', 1)[0]
-        self.assertIn('SyncVectorEnv', block)
-        self.assertNotIn('stable_baselines3', block)    # its own block: where stable-baselines3 is installed
-        run = subprocess.run([sys.executable, '-c', block], capture_output=True, text=True, timeout=120)
-        self.assertEqual(run.returncode, 0, run.stdout + run.stderr)
+        blocks = [b for b in python_blocks() if b.needs_ros == 'cartpole' and not b.missing]
+        self.assertIn('SyncVectorEnv', blocks[0].code)
+        self.assertEqual(blocks[0].page, 'README.md')
+        self.assertGreaterEqual(len(blocks), 3, 'the test finds too few blocks')
+        for block in blocks:
+            run = subprocess.run([sys.executable, '-c', block.source('')], capture_output=True, text=True,
+                                 timeout=120, stdin=subprocess.DEVNULL)
+            self.assertEqual(run.returncode, 0,
+                             f'{block.page}:\n{block.code}\n{run.stdout[-2000:]}{run.stderr[-3000:]}')
 
     def test_every_standard_vectoriser_trains_on_the_sims_bit_for_bit(self):
         """SyncVectorEnv over gymnasium.make (CleanRL), make_vec 'sync' and the package's vector env, in this
