@@ -3,6 +3,7 @@ hostile targets on every reference arm, executed as a joint_trajectory_controlle
 velocity or acceleration limit and touch nothing."""
 from __future__ import annotations
 
+import itertools
 import os
 
 import numpy as np
@@ -10,7 +11,8 @@ import pytest
 
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import ReachSetup
-from robot_ai.reach.safety import Limits, SafetyLayer, read_joint_limits, step_end, stop_from, violations
+from robot_ai.reach.safety import (LEAD_PERIODS, MAX_LEAD_PERIODS, READY_WITHIN, Limits, SafetyLayer, measure_lead,
+                                   read_joint_limits, step_end, stop_from, violations)
 from robot_ai.reach.trajectory import Follower, TrajectoryError
 
 ROBOTS = os.path.realpath(os.path.join(os.path.dirname(__file__), '..', '..', '..', 'shared', 'robots'))
@@ -566,3 +568,30 @@ def test_a_state_moving_toward_a_limit_stops_within_it_where_the_arm_can_and_goe
     over = positions[:, 1].max() - arm.upper[1]
     assert 0 < over <= v[1] ** 2 / (2 * fast.acceleration[1]) + 1e-9      # the least it can pass it by
     assert np.abs(positions[-1] - setup.home).max() < 1e-3               # and home after: nothing refused
+
+
+# --------------------------------------------------------------------------------------------------------- lead
+def test_the_lead_is_measured_against_the_machine_not_fixed(kuka_world):
+    """Issue 55: with 5,000 obstacles every plan took 89 ms, over the fixed 60 ms (0.6 of two periods), and the arm
+    could not move at all. The lead is now measured at start: plans made as the control loop makes them, timed; a
+    machine (or a world) that makes them slowly gets as many periods of lead as leave READY_WITHIN of it, and a line
+    that says so. The plans' time is what a clock says: a fake one here, each plan taking `took` seconds."""
+    limits = Limits.of(kuka_world.arm, velocity_scale=0.5)
+
+    def fake(took):
+        calls = itertools.count()                  # plan k starts at k s and ends `took` later
+        return lambda: (n := next(calls)) // 2 + (took if n % 2 else 0.0)
+
+    body = kuka_world.body
+    quick = measure_lead(limits, PERIOD, body, home=kuka_world.home, clock=fake(0.001))
+    assert quick.lead == pytest.approx(LEAD_PERIODS * PERIOD) and quick.p95 == pytest.approx(0.001)
+    assert '100 ms (2 periods) ahead' in quick.note
+    slow = measure_lead(limits, PERIOD, body, home=kuka_world.home, clock=fake(0.089))
+    assert slow.lead == pytest.approx(3 * PERIOD) and READY_WITHIN * slow.lead >= 0.089
+    assert '89.0 ms' in slow.note and '150 ms (3 periods)' in slow.note
+    hopeless = measure_lead(limits, PERIOD, body, home=kuka_world.home, clock=fake(2.0))
+    assert hopeless.lead == pytest.approx(MAX_LEAD_PERIODS * PERIOD)
+    assert 'the longest lead' in hopeless.note and 'not sent' in hopeless.note
+    # the real clock on the real world: plans of the KUKA among a table and two boxes fit in the two periods
+    real = measure_lead(limits, PERIOD, body, home=kuka_world.home)
+    assert 0 < real.p95 and real.lead >= LEAD_PERIODS * PERIOD

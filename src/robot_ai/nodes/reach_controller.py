@@ -127,7 +127,7 @@ from robot_ai.reach.arm import ReachError
 from robot_ai.reach.collision import CollisionModel
 from robot_ai.reach.env import RECOVERING, READY, ReachSetup, Recovery
 from robot_ai.reach.safety import (DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, SAMPLE_STEP, Limits, Plan, SafetyLayer,
-                                   StampClock)
+                                   StampClock, measure_lead)
 from robot_ai.reach.task import GOALS, goal_angle, goal_distance_one, why_unreached
 from robot_ai.text import percent
 
@@ -177,9 +177,31 @@ def _rotate(q, v) -> list[float]:
     return [v[0] + w * tx + (y * tz - z * ty), v[1] + w * ty + (z * tx - x * tz), v[2] + w * tz + (x * ty - y * tx)]
 
 
+class Starting:
+    """Says every `every` seconds what the node is still doing at its start, until ready() (issue 55: 5,000
+    obstacles kept it silent 79 to 203 s): the stage, and ARS's iterations while it learns."""
+
+    def __init__(self, every: float = 30.0):
+        self.stage = 'reading the robot description'
+        self.iterations = 0                   # ARS's, while it learns at start
+        self.t0 = time.monotonic()
+        self.done = threading.Event()
+        threading.Thread(target=self._say, args=(every,), daemon=True, name='starting').start()
+
+    def _say(self, every: float) -> None:
+        while not self.done.wait(every):
+            stage = self.stage + (f' (iteration {self.iterations})' if self.stage.startswith('ARS') else '')
+            rospy.loginfo(f'reach_controller: not ready yet, {time.monotonic() - self.t0:.0f} s after its start: '
+                          f'{stage}')
+
+    def ready(self) -> None:
+        self.done.set()
+
+
 class ReachController:
 
-    def __init__(self, tree, xml: str):
+    def __init__(self, tree, xml: str, starting: Starting | None = None):
+        self.starting = starting = Starting() if starting is None else starting
         self.rate = number_param('~rate', 20.0, 'a positive number of steps per second', lambda v: 0 < v <= 1000)
         self.stalled_after = number_param('~stalled_after', 2.0, 'a positive number of seconds',
                                           lambda v: 0 < v <= 3600)
@@ -194,7 +216,7 @@ class ReachController:
         if goal_kind not in ('', *GOALS):
             raise ValueError(f'~goal must be one of {", ".join(GOALS)} (or empty: the policy\'s), got {goal_kind!r}')
         self.policy, self.setup, info, success = self._policy(xml, str_param('~policy', ''), str_param('~tip', ''),
-                                                              world, goal_kind)
+                                                              world, goal_kind, starting)
         self._announce(info, success)
         arm = self.setup.arm
         self.base, self.tip = arm.base, arm.tip
@@ -205,8 +227,15 @@ class ReachController:
         if missing:
             raise ValueError(f'~command_joints lacks {", ".join(missing)}, which the arm moves to reach')
         self.slot = [self.command_joints.index(n) for n in arm.joints]
+        starting.stage = 'reading the joint limits and building the collision model of the arm\'s body'
         self.layer = self._safety_layer(tree, xml)
+        starting.stage = 'timing plans to set the lead'
+        lead = measure_lead(self.layer.limits, self.layer.period, self.layer.body, self.layer.margin,
+                            self.setup.home)
+        self.layer.lead = lead.lead
+        rospy.loginfo(f'reach_controller: {lead.note}')
         self.moving = self.setup.through(self.layer.limits, self.layer.period, self.layer.margin)   # as it moves
+        starting.stage = 'predicting the policy\'s success through the safety layer'
         self._predict(self.policy)
         # the arm moves at velocity_scale of its speed: a motion takes 1 / velocity_scale as long, a stall too (a
         # pose goal from a singular home turns first, its distance growing for seconds at 0.25)
@@ -284,6 +313,7 @@ class ReachController:
                       + (f'drag and release the marker {rospy.resolve_name("~pose_marker")}, ' if self.setup.pose
                          else '')      # position goals have no marker
                       + f'or publish {rospy.resolve_name("~goal")} or {rospy.resolve_name("~goal_pose")}; {priority}')
+        starting.ready()
 
     def _safety_layer(self, tree, xml: str) -> SafetyLayer:
         """~joint_limits, ~velocity_scale, ~acceleration_scale, ~collision and ~collision_margin as a SafetyLayer."""
@@ -339,11 +369,13 @@ class ReachController:
         rospy.loginfo(f'reach_controller: driving with {info}')
 
     @staticmethod
-    def _policy(xml: str, path: str, tip: str, world=None, goal: str = ''):
+    def _policy(xml: str, path: str, tip: str, world=None, goal: str = '', starting: Starting | None = None):
         """(an object with act_batch(flat observations), the reach setup it acts in, a line on it, its success rate)
         of ~policy, or of an ARS run on the robot description when it is empty; world: ~obstacles; goal: ~goal
         ('' : the policy file's, or position)."""
+        starting = Starting() if starting is None else starting
         if path:
+            starting.stage = f'loading ~policy {path}'
             try:
                 policy, setup, note = policy_files.load(path, urdf=xml, tip=tip or None, obstacles=world,
                                                         goal=goal or None)
@@ -353,6 +385,7 @@ class ReachController:
                 rospy.logwarn(note)
             return policy.actor, setup, policy.describe(), policy.metadata.get('success_rate')
         pose = dict(goal='pose') if goal == 'pose' else {}
+        starting.stage = 'reading the arm and ~obstacles'
         try:
             setup = ReachSetup(urdf=xml, tip=tip or None, obstacles=world, **pose)
         except ReachError as e:
@@ -364,12 +397,16 @@ class ReachController:
         t = time.monotonic()
         # a Ctrl-C during the training ends it at the next iteration (it took ARS's seconds, and under load minutes,
         # before roslaunch's escalation to SIGTERM 15 s later)
-        stop = rospy.core.is_shutdown_requested
+        starting.stage = 'ARS learning to reach (seconds on a quiet machine; give ~policy to skip it)'
+
+        def stop() -> bool:            # asked once an iteration
+            starting.iterations += 1
+            return rospy.core.is_shutdown_requested()
         kwargs = dict(urdf=xml, tip=setup.arm.tip, **pose)
         if world is not None:
             kwargs['obstacles'] = world
         training = learn.train(kwargs, seed=0, should_stop=stop, evaluate_episodes=1000)
-        if stop():
+        if rospy.core.is_shutdown_requested():
             raise rospy.ROSInterruptException('reach_controller: shut down during its training')
         rate = training.held_out.success_rate
         within = f'{setup.task.distance_threshold:g} m' + (f' and {setup.task.angle_threshold:g} rad' if pose else '')
@@ -972,9 +1009,12 @@ def main():
     tree, key = wait_for_tree()
     if tree is None:
         return
+    starting = Starting()
     try:
-        ReachController(tree, rospy.get_param(key))
+        ReachController(tree, rospy.get_param(key), starting)
     except ValueError as e:
         rospy.logfatal(f'reach_controller: bad parameter: {e}')
         raise SystemExit(1)
+    finally:
+        starting.ready()
     rospy.spin()

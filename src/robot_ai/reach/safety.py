@@ -53,6 +53,7 @@ LEAD_PERIODS = 2                   # a plan starts this many control periods aft
 SHORTER = (0.5, 0.25, 0.1)         # a step that would touch is tried again toward these shares of its target
 READY_WITHIN = 0.6                 # of the lead: a plan made later than this after its `now` (its collision checks
                                    # slowed by a loaded machine) is not sent: the rest of the lead is for the delivery
+MAX_LEAD_PERIODS = 10              # the longest lead measure_lead gives: a goal's first motion starts this late
 
 
 @dataclass(frozen=True)
@@ -636,6 +637,50 @@ class Violations:
     @property
     def total(self) -> int:
         return self.position + self.velocity + self.acceleration
+
+
+@dataclass(frozen=True)
+class LeadMeasure:
+    """What measure_lead found: the lead (s), the plans' making times' 95th percentile (s), and a line on them."""
+    lead: float
+    p95: float
+    note: str
+
+
+def measure_lead(limits: Limits, period: float, body=None, margin: float = DEFAULT_MARGIN, home=None,
+                 plans: int = 30, seed: int = 0, clock: Callable[[], float] | None = None) -> LeadMeasure:
+    """The lead this machine needs: plans made as the control loop makes them (from home toward random targets
+    within the limits, one a period, each from the one before, the arm's body and obstacles checked), timed; the
+    lead is the LEAD_PERIODS periods unless the slowest twentieth of them take more than READY_WITHIN of it (many
+    obstacles, a large body, a slow machine), then as many whole periods as leave that share, up to
+    MAX_LEAD_PERIODS. clock: seconds (time.perf_counter)."""
+    import time
+    clock = time.perf_counter if clock is None else clock
+    rng = np.random.default_rng(seed)
+    q = (limits.lower + limits.upper) / 2.0 if home is None else np.asarray(home, dtype=float)
+    layer = SafetyLayer(limits, period, body, margin, follows_plans=True)
+    took = []
+    now = 0.0
+    for k in range(plans):
+        target = np.clip(q + rng.uniform(-0.5, 0.5, q.shape), limits.lower, limits.upper)
+        t0 = clock()
+        layer.plan(now, target, q if k == 0 else None)
+        took.append(clock() - t0)
+        now += period
+    p95 = float(np.percentile(took, 95))
+    base = LEAD_PERIODS * period
+    if p95 <= READY_WITHIN * base:
+        return LeadMeasure(base, p95, f'plans take {1000 * p95:.1f} ms to make here (95th percentile of {plans}): '
+                                      f'each is sent {1000 * base:.0f} ms ({LEAD_PERIODS} periods) ahead of its start')
+    periods = min(MAX_LEAD_PERIODS, math.ceil(p95 / READY_WITHIN / period - 1e-9))
+    lead = periods * period
+    note = (f'plans take {1000 * p95:.1f} ms to make here (95th percentile of {plans}), more than '
+            f'{READY_WITHIN:g} of the {1000 * base:.0f} ms lead: each is sent {1000 * lead:.0f} ms ({periods} periods) '
+            f'ahead of its start')
+    if p95 > READY_WITHIN * lead:
+        note += (', the longest lead; slower plans are not sent (the arm holds): fewer obstacles, '
+                 '~collision_margin 0 or a faster machine would let it move')
+    return LeadMeasure(lead, p95, note)
 
 
 def violations(times, positions, limits: Limits, tolerance: float = 1e-3, min_dt: float = 1e-4) -> Violations:
