@@ -37,7 +37,7 @@ RUN := source $(WS)/devel/setup.bash && export PATH="$(VENV)/bin:$$PATH" ROS_HOS
 .PHONY: build test check demo bench clean apt venv ray
 
 # Tests at a time in make test: each rostest has a master of its own; most of their time is waiting for ROS, not CPU.
-TEST_JOBS ?= 3
+TEST_JOBS ?= 4
 
 apt:
 	@missing=$$(for p in $(APT_PACKAGES); do \

@@ -3,7 +3,7 @@
 target in the workspace's build folder, so the commands and the result files are catkin's own), and print a line as
 each ends. The results folder is emptied once before (make test does it), never by a target.
 
-    python test/run_tests.py --build .catkin_ws/build --jobs 3        # then test/summarize.py reads the results
+    python test/run_tests.py --build .catkin_ws/build --jobs 4        # then test/summarize.py reads the results
 
 Every rostest starts a master of its own on a free port, so rostests do not meet. The unit tests (pytest) run beside
 them. A target's output goes to <build>/test_logs/<name>.log; a failed target's last lines are printed. Exits 0
@@ -24,8 +24,9 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 # 101, cartpole_robot 96, cartpole_search 85, across_machines 85, forward_kinematics_vs_rsp 83, ros_env 78, reach_ros
 # 51, forward_kinematics_node 41, bench_output 26, the rest under 20 (reach_pose 161 s beside reach_ros and
 # reach_safety; reach_safety 339 s on 2026-12-04). The longest start first, so that the run ends soon after its
-# longest test; a .test file not named here runs after these, in name order. reach_safety.test is not named: it runs
-# after the others, nearly alone. Beside the long tests its commands reach arm_sim late: a jolt over an acceleration
+# longest test; a .test file not named here runs after these, in name order. reach_safety.test and
+# reach_safety_input.test are not named: they run after the others, side by side (one file until 2026-12-05: 215 s
+# at the end of the run, nearly alone, the last 200 s of a quiet run's 933). Beside the long tests its commands reach arm_sim late: a jolt over an acceleration
 # limit in 3 of 3 fresh-clone runs on 2026-12-03; on 2026-12-04, with arm_sim and reach_controller at nice -10
 # (robot_ai.priority), ~load_policy between control steps and slow plans not sent, it passed one fresh-clone run
 # beside them (the tests in 884 s) and failed the next: late too often, during whole-machine stalls of half a second.
@@ -79,7 +80,7 @@ def _run(name: str, target: str, build: pathlib.Path, logs: pathlib.Path, t0: fl
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument('--build', required=True, help='the catkin workspace\'s build folder')
-    p.add_argument('--jobs', type=int, default=3, help='tests at a time')
+    p.add_argument('--jobs', type=int, default=4, help='tests at a time')
     p.add_argument('--only', nargs='*', default=None, help='names of tests to run (launch.test, pytest, ...)')
     a = p.parse_args(argv)
     build = pathlib.Path(a.build).resolve()

@@ -22,7 +22,7 @@ from std_srvs.srv import SetBool
 from trajectory_msgs.msg import JointTrajectory
 
 import onnx_models
-from ros_helpers import said_by
+from ros_helpers import cases_of, said_by
 from robot_ai.reach import ReachSetup
 from robot_ai.reach.safety import Limits, Violations, violations
 from robot_ai.srv import LoadPolicy
@@ -233,6 +233,14 @@ class TestReachSafety(unittest.TestCase):
         stop.unregister()
 
 
+# The policies (test_1, two minutes) run as reach_safety.test, the input's faults as reach_safety_input.test, each
+# with nodes of its own: make test runs the two side by side.
+POLICY_CASES = ('test_1_no_policy_makes_the_arm_pass_a_limit_or_touch_anything',)
+
+
 if __name__ == '__main__':
     rospy.init_node('test_reach_safety')
-    rostest.rosrun('robot_ai', 'reach_safety', TestReachSafety, sys.argv)
+    faults = 'input' in sys.argv[1:]
+    rostest.rosrun('robot_ai', 'reach_safety_input' if faults else 'reach_safety',
+                   cases_of(TestReachSafety, POLICY_CASES, not faults,
+                            'TestReachSafetyInput' if faults else 'TestReachSafetyPolicies'))
