@@ -26,8 +26,9 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 # reach_safety; reach_safety 339 s on 2026-12-04). The longest start first, so that the run ends soon after its
 # longest test; a .test file not named here runs after these, in name order. reach_safety.test and
 # reach_safety_input.test are not named: they run after the others, side by side (one file until 2026-12-05: 215 s
-# at the end of the run, nearly alone, the last 200 s of a quiet run's 933). Beside the long tests its commands reach arm_sim late: a jolt over an acceleration
-# limit in 3 of 3 fresh-clone runs on 2026-12-03; on 2026-12-04, with arm_sim and reach_controller at nice -10
+# at the end of the run, nearly alone, the last 200 s of a quiet run's 933). Beside the long tests its commands
+# reach arm_sim late: a jolt over an acceleration limit in 3 of 3 fresh-clone runs on 2026-12-03; on 2026-12-04,
+# with arm_sim and reach_controller at nice -10
 # (robot_ai.priority), ~load_policy between control steps and slow plans not sent, it passed one fresh-clone run
 # beside them (the tests in 884 s) and failed the next: late too often, during whole-machine stalls of half a second.
 # ray_cluster (117 s alone) comes last: two class runs at once on this machine (its Ray

@@ -323,6 +323,9 @@ def main(argv: list[str] | None = None) -> int:
     except XacroError as e:
         print(f'xacro: {e}', file=sys.stderr)
         return 1
+    except KeyboardInterrupt:         # a Ctrl-C: the expanding child ended with it (expand's finally)
+        print('interrupted', file=sys.stderr)
+        return 130
     sys.stdout.write(urdf)
     return 0
 
