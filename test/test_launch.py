@@ -111,12 +111,16 @@ def tracebacks(text):
 
 
 def start_xvfb(size='1024x768'):
-    """(display name, Xvfb process) of a new virtual screen."""
-    display = ':%d' % free_display()
-    xvfb = subprocess.Popen(['Xvfb', display, '-screen', '0', f'{size}x24', '-nolisten', 'tcp'],
+    """(display name, Xvfb process) of a new virtual screen, once it takes connections (its socket is there): a fixed
+    second was too short on a loaded machine, and a GUI started before it could not open the display."""
+    n = free_display()
+    xvfb = subprocess.Popen(['Xvfb', f':{n}', '-screen', '0', f'{size}x24', '-nolisten', 'tcp'],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    time.sleep(1.0)
-    return display, xvfb
+    deadline = time.monotonic() + 60
+    while not os.path.exists(f'/tmp/.X11-unix/X{n}') and time.monotonic() < deadline and xvfb.poll() is None:
+        time.sleep(0.1)
+    time.sleep(0.2)
+    return f':{n}', xvfb
 
 
 def run_to_end(args, env=None, launch_file='demo.launch', timeout=400):
@@ -261,16 +265,25 @@ class TestLaunch(unittest.TestCase):
                                 stderr=subprocess.DEVNULL, start_new_session=True)
         display, xvfb = start_xvfb()
         try:
+            # the master up first: a roslaunch that does not find it starts one of its own, and then the roscore's
+            # run_id does not match its own ('RLException: run_id on parameter server does not match')
+            deadline = time.time() + 60
+            while subprocess.run(['rosnode', 'list'], env=env, capture_output=True).returncode != 0:
+                self.assertLess(time.time(), deadline, 'roscore did not start within 60 s')
+                time.sleep(0.3)
             for _ in range(2):
                 proc = subprocess.Popen(['roslaunch', '-p', str(port), 'robot_ai', 'forward_kinematics.launch',
                                          'gui:=true'], env=dict(env, DISPLAY=display), stdout=subprocess.PIPE,
                                         stderr=subprocess.STDOUT)
-                deadline = time.time() + 60
+                deadline = time.time() + 180      # a GUI's start (Python, Tk, rospy) takes long beside the suite
                 nodes = ''
-                while '/joint_state_publisher_gui' not in nodes and time.time() < deadline:
+                while '/joint_state_publisher_gui' not in nodes and time.time() < deadline and proc.poll() is None:
                     time.sleep(0.5)
                     nodes = subprocess.run(['rosnode', 'list'], env=env, capture_output=True, text=True).stdout
-                self.assertIn('/joint_state_publisher_gui', nodes)
+                if '/joint_state_publisher_gui' not in nodes:
+                    proc.send_signal(signal.SIGINT)
+                    out, _ = proc.communicate(timeout=60)
+                    self.fail(f'the sliders never registered: {nodes.split()}\n{out.decode(errors="replace")[-3000:]}')
                 proc.send_signal(signal.SIGINT)     # a terminal's Ctrl-C reaches roslaunch
                 out, _ = proc.communicate(timeout=60)
                 nodes = subprocess.run(['rosnode', 'list'], env=env, capture_output=True, text=True).stdout
