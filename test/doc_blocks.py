@@ -70,14 +70,9 @@ class Command:
     words: list[str]          # after `python -m robot_ai.<cli>`
     needs: str                # why it cannot run here, or ''
 
-    @property
-    def writes(self) -> bool:
-        return self.words[0] in ('train', 'random-search', 'q-learning', 'ars')
-
 
 def cli_commands() -> list[Command]:
-    """Every `python -m robot_ai.reach|cartpole ...` line of the docs' shell blocks, once each, the ones that write a
-    file before the ones that read one (a reader runs train before evaluate)."""
+    """Every `python -m robot_ai.reach|cartpole ...` line of the docs' shell blocks, once each, in the docs' order."""
     found, seen = [], set()
     for page in PAGES:
         for lang, code in FENCED.findall(page.read_text()):
@@ -93,7 +88,7 @@ def cli_commands() -> list[Command]:
                 seen.add((m.group(1), *words))
                 needs = next((why for word, why in NEEDS.items() if any(word in w for w in words)), '')
                 found.append(Command(str(page.relative_to(ROOT)), line.strip(), m.group(1), words, needs))
-    return sorted(found, key=lambda c: not c.writes)
+    return found
 
 
 def arm_xacro(folder: Path) -> Path:
@@ -112,14 +107,13 @@ def arm_xacro(folder: Path) -> Path:
 
 def filled(command: Command, folder: Path, home: Path) -> list[str]:
     """The command's argv as a reader runs it in folder, HOME=home: their arm files are the UR5 (a xacro with a hand
-    argument for a .xacro), '..._seed0' and FILE the newest file an earlier command wrote, ../shared/robots the
-    shared robots."""
-    xacro = arm_xacro(folder)
+    argument for a .xacro, written in folder), '..._seed0' and FILE the newest file a command wrote in home,
+    ../shared/robots the shared robots."""
     out = []
     for word in command.words:
         word = word.replace('../shared/robots/', f'{SHARED_ROBOTS}/')
         if word.endswith('.urdf.xacro') and not word.startswith(str(SHARED_ROBOTS)):
-            word = str(xacro)
+            word = str(arm_xacro(folder))
         elif word.endswith('.urdf') and not os.path.exists(word) and not word.startswith(str(SHARED_ROBOTS)):
             word = str(SHARED_ROBOTS / 'ur5.urdf')
         elif '...' in word or word == 'FILE':

@@ -11,9 +11,10 @@ from pathlib import Path
 
 import pytest
 
+from doc_blocks import PAGES
+
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / 'docs'
-PAGES = [ROOT / 'README.md', *sorted(DOCS.rglob('*.md'))]
 NODES = ROOT / 'src' / 'robot_ai' / 'nodes'
 
 # node module -> its page; the helpers share one

@@ -1,7 +1,7 @@
 """Issue 57: every command in the docs runs as written. The python blocks and the `python -m robot_ai.<cli>` commands
-of README.md and docs/ that need no ROS graph run here, in order, as a reader runs them (their arm file: the UR5 of
-../shared/robots; a file an earlier command wrote: the one it wrote); the python blocks that lease ROS sims run in
-ros_env.test and reach_ros.test; what cannot run on this machine is named with its reason, checked to be true."""
+of README.md and docs/ that need no ROS graph run here as a reader runs them (their arm file: the UR5 of
+../shared/robots; a file an earlier command wrote: one the CLI wrote, `home`); the python blocks that lease ROS sims
+run in ros_env.test and reach_ros.test; what cannot run on this machine is named with its reason, checked true."""
 import os
 import subprocess
 import sys

@@ -200,8 +200,7 @@ class Starting:
 
 class ReachController:
 
-    def __init__(self, tree, xml: str, starting: Starting | None = None):
-        self.starting = starting = Starting() if starting is None else starting
+    def __init__(self, tree, xml: str, starting: Starting):
         self.rate = number_param('~rate', 20.0, 'a positive number of steps per second', lambda v: 0 < v <= 1000)
         self.stalled_after = number_param('~stalled_after', 2.0, 'a positive number of seconds',
                                           lambda v: 0 < v <= 3600)
@@ -216,7 +215,7 @@ class ReachController:
         if goal_kind not in ('', *GOALS):
             raise ValueError(f'~goal must be one of {", ".join(GOALS)} (or empty: the policy\'s), got {goal_kind!r}')
         self.policy, self.setup, info, success = self._policy(xml, str_param('~policy', ''), str_param('~tip', ''),
-                                                              world, goal_kind, starting)
+                                                              starting, world, goal_kind)
         self._announce(info, success)
         arm = self.setup.arm
         self.base, self.tip = arm.base, arm.tip
@@ -369,11 +368,11 @@ class ReachController:
         rospy.loginfo(f'reach_controller: driving with {info}')
 
     @staticmethod
-    def _policy(xml: str, path: str, tip: str, world=None, goal: str = '', starting: Starting | None = None):
+    def _policy(xml: str, path: str, tip: str, starting: Starting, world=None, goal: str = ''):
         """(an object with act_batch(flat observations), the reach setup it acts in, a line on it, its success rate)
         of ~policy, or of an ARS run on the robot description when it is empty; world: ~obstacles; goal: ~goal
-        ('' : the policy file's, or position)."""
-        starting = Starting() if starting is None else starting
+        ('' : the policy file's, or position); starting: told each stage (main makes it, and readies it however
+        the start ends)."""
         if path:
             starting.stage = f'loading ~policy {path}'
             try:

@@ -69,7 +69,7 @@ class ArmRenderer:
         ax.add_collection3d(self.bone_lines, autolim=False)
         (self.chain_line,) = ax.plot(*none, '-o', color='tab:blue', lw=4, ms=4)
         (self.path_line,) = ax.plot(*none, color='tab:orange', lw=1)
-        (base,) = ax.plot([0], [0], [0], 's', color='black', ms=6, label=f'base ({self.arm.base})')
+        ax.plot([0], [0], [0], 's', color='black', ms=6, label=f'base ({self.arm.base})')
         (self.tip_dot,) = ax.plot(*none, 'o', color='tab:red', ms=6, label='tip')
         (self.goal_dot,) = ax.plot(*none, 'o', color='tab:green', ms=9, label='goal')
         self.sphere_lines = Line3DCollection([], colors='tab:green', linewidths=0.4, alpha=0.5)

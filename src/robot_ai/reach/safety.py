@@ -30,6 +30,7 @@ acceleration limit anywhere gets ``DEFAULT_ACCELERATION_TIME``'s: full (scaled) 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -654,7 +655,6 @@ def measure_lead(limits: Limits, period: float, body=None, margin: float = DEFAU
     lead is the LEAD_PERIODS periods unless the slowest twentieth of them take more than READY_WITHIN of it (many
     obstacles, a large body, a slow machine), then as many whole periods as leave that share, up to
     MAX_LEAD_PERIODS. clock: seconds (time.perf_counter)."""
-    import time
     clock = time.perf_counter if clock is None else clock
     rng = np.random.default_rng(seed)
     q = (limits.lower + limits.upper) / 2.0 if home is None else np.asarray(home, dtype=float)
