@@ -57,17 +57,23 @@ class Hostile:
         return out
 
 
-def run_goals(setup, policy, goals: int, seed: int, body, seconds: float = EPISODE) -> dict:
-    """The controller's loop in-process over `goals` goals (see the module): violations, collisions, reached."""
+def run_goals(setup, policy, goals: int, seed: int, body, seconds: float = EPISODE, late: float = 0.0,
+              bounded: bool = True) -> dict:
+    """The controller's loop in-process over `goals` goals (see the module): violations, collisions, reached. late:
+    the share of plans that reach the arm 0 to 300 ms after their start (a loaded machine), the ones after them no
+    sooner (a topic delivers in order); bounded: the arm is arm_sim's follower (joins a late plan within the arm's
+    limits), else joint_trajectory_controller's (splices it in from where the arm is)."""
     from robot_ai import ars
     from robot_ai.reach.safety import Limits, SafetyLayer, violations
     from robot_ai.reach.env import Recovery
     from robot_ai.reach.task import goal_distance_one
-    from robot_ai.reach.trajectory import Follower
+    from robot_ai.reach.trajectory import ArmBounds, Follower, TrajectoryError
     limits = Limits.of(setup.arm, velocity_scale=SCALE)
+    full = Limits.of(setup.arm, velocity_scale=1.0)
     layer = SafetyLayer(limits, PERIOD, body=body)
     moving = setup.through(limits, PERIOD, layer.margin)      # reach_controller's recovery, as it runs it
-    arm = Follower(setup.home)
+    arm = Follower(setup.home, ArmBounds(full.lower, full.upper, full.velocity, full.acceleration) if bounded else None)
+    pending, last_arrival, late_plans = [], 0.0, 0
     rng = np.random.default_rng(seed)
     now, times, positions = 0.0, [], []
     reached = held = 0
@@ -101,19 +107,26 @@ def run_goals(setup, policy, goals: int, seed: int, body, seconds: float = EPISO
                 plan = layer.plan(now, None, p, v, why_not='the policy gave no action')
             held += bool(plan.held)
             arrive = now + rng.uniform(0.0, 0.03)
+            if late and rng.random() < late:
+                arrive, late_plans = plan.start + rng.uniform(0.0, 0.3), late_plans + 1
+            last_arrival = max(arrive, last_arrival)
+            pending.append((last_arrival, plan))
             after = now + PERIOD * (rng.uniform(1.0, 1.4) if rng.random() > 0.05 else rng.uniform(1.5, 4.0))
             for t in np.arange(now, after, 0.005):
-                if arrive is not None and t >= arrive:
-                    arm.take(arrive, plan.start, *plan.points(PERIOD))
-                    arrive = None
+                while pending and t >= pending[0][0]:
+                    when, due = pending.pop(0)
+                    try:
+                        arm.take(when, due.start, *due.points(PERIOD))
+                    except TrajectoryError:          # every point in the past: refused, as a controller does
+                        pass
                 times.append(t)
                 positions.append(arm.state_at(t)[0])
             now = after
     positions = np.array(positions)
     found = violations(np.array(times), positions, limits)
     touching = int(body.in_collision(positions).sum()) if body is not None else 0
-    return dict(found=found, touching=touching, samples=len(times), reached=reached, held=held,
-                seconds=now)
+    return dict(found=found, arm=violations(np.array(times), positions, full), touching=touching,
+                samples=len(times), reached=reached, held=held, seconds=now, late=late_plans)
 
 
 def in_process(goals: int, seconds: float = EPISODE) -> None:
@@ -142,6 +155,22 @@ def in_process(goals: int, seconds: float = EPISODE) -> None:
             worst = f'{f.worst["velocity"][0]:.3f}, {f.worst["acceleration"][0]:.4f}'
             print(f'    {label:16s} {f"{f.position}/{f.velocity}/{f.acceleration}":>28s} {r["touching"]:>9d} '
                   f'{r["reached"]:>4d}/{goals:<3d} {r["held"]:>6d} {r["samples"]:>8,d}  {worst}')
+        late_goals = max(goals // 4, 1)
+        print(f'    one plan in ten 0-300 ms after its start (a loaded machine), {late_goals} goals a policy: the '
+              f'worst velocity, acceleration as shares of the arm\'s own limits (the layer\'s are {SCALE:g} of them)')
+        print(f'    {"policy":16s} {"late plans":>10s} {"arm_sim (joins within the limits)":>36s} '
+              f'{"joint_trajectory_controller (splices)":>40s}')
+        for label, policy in policies[:1] + policies[2:4]:
+            cells = []
+            for bounded in (True, False):
+                if isinstance(policy, Hostile):
+                    policy.rng, policy.k = np.random.default_rng(0), 0
+                r = run_goals(setup, policy, late_goals, seed=11, body=body, seconds=seconds, late=0.1,
+                              bounded=bounded)
+                a = r['arm']
+                cells.append(f'{a.worst["velocity"][0]:.3f}, {a.worst["acceleration"][0]:.3f} '
+                             f'({a.velocity + a.acceleration} passed)')
+            print(f'    {label:16s} {r["late"]:>10d} {cells[0]:>36s} {cells[1]:>40s}')
 
 
 # ------------------------------------------------------------------------------------------------- attacks

@@ -3,6 +3,7 @@ hostile targets on every reference arm, executed as a joint_trajectory_controlle
 velocity or acceleration limit and touch nothing."""
 from __future__ import annotations
 
+import copy
 import itertools
 import os
 
@@ -13,7 +14,7 @@ from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import ReachSetup
 from robot_ai.reach.safety import (LEAD_PERIODS, MAX_LEAD_PERIODS, READY_WITHIN, Limits, SafetyLayer, measure_lead,
                                    read_joint_limits, step_end, stop_from, violations)
-from robot_ai.reach.trajectory import Follower, TrajectoryError
+from robot_ai.reach.trajectory import ArmBounds, Follower, TrajectoryError
 
 ROBOTS = os.path.realpath(os.path.join(os.path.dirname(__file__), '..', '..', '..', 'shared', 'robots'))
 WORLD = os.path.realpath(os.path.join(os.path.dirname(__file__), '..', 'world.yaml'))
@@ -349,6 +350,50 @@ def test_a_plan_made_too_slowly_is_not_sent_and_the_stop_that_goes_on_instead_is
     assert found.total == 0, found
     # and one made within READY_WITHIN of the lead is sent
     assert not layer.plan(now + PERIOD, far, arm.state_at(now + PERIOD)[0], clock=lambda: now + PERIOD + 0.05).held
+
+
+def bounds_of(limits: Limits) -> ArmBounds:
+    """What the arm itself can do: its limits before the layer's scales (what arm_sim is given)."""
+    return ArmBounds(limits.lower, limits.upper, limits.velocity / limits.velocity_scale,
+                     limits.unscaled_acceleration)
+
+
+@pytest.mark.parametrize('late', [0.03, 0.074, 0.15, 0.25])
+@pytest.mark.parametrize('name', ['kuka_lwr_arm', 'ur5', 'panda'])
+def test_a_late_trajectory_is_joined_within_the_share_of_the_limits_it_uses(name, late):
+    """Issue 55: a trajectory that reached arm_sim 74 ms after its start was spliced in from where the arm was to
+    its next point, 17 times the acceleration limit. A follower that knows what its arm can do joins it further on
+    instead, within the scaled limits the trajectory was planned with; then it follows the trajectory exactly."""
+    setup = setup_of(name)
+    limits = Limits.of(setup.arm, velocity_scale=0.5)
+    rng = np.random.default_rng(int(late * 1000))
+    jolts = []
+    for trial in range(3):
+        layer = SafetyLayer(limits, PERIOD)
+        arm, q, now = Follower(setup.home, bounds_of(limits)), setup.home.copy(), 0.0
+        controller = Follower(setup.home)                        # joint_trajectory_controller's splice
+        target = rng.uniform(setup.arm.lower, setup.arm.upper)
+        for _ in range(10):              # up to speed, every plan in time
+            plan = layer.plan(now, target, q)
+            for follower in (arm, controller):
+                follower.take(now + 0.001, plan.start, *plan.points(PERIOD))
+            now += PERIOD
+            q = arm.state_at(now)[0]
+        other = rng.uniform(setup.arm.lower, setup.arm.upper)     # the late plan turns the other way
+        plan = layer.plan(now, other, q)
+        assert not plan.held
+        on_time = copy.deepcopy(controller)
+        on_time.take(plan.start - 0.001, plan.start, *plan.points(PERIOD))
+        for follower in (arm, controller):
+            follower.take(plan.start + late, plan.start, *plan.points(PERIOD))
+        assert arm.joined > plan.start + late
+        times = np.arange(now, max(plan.end, arm.joined) + 1.0, 0.002)
+        found = violations(times, np.array([arm.state_at(t)[0] for t in times]), limits)
+        assert found.total == 0, (name, late, trial, found)
+        for t in np.linspace(arm.joined, max(plan.end, arm.joined) + 0.5, 30):      # the plan from where it was joined
+            np.testing.assert_allclose(arm.state_at(t)[0], on_time.state_at(t)[0], atol=1e-9)
+        jolts.append(violations(times, np.array([controller.state_at(t)[0] for t in times]), limits))
+    assert max(j.worst['acceleration'][0] for j in jolts) > 2, jolts      # what the controller's splice does
 
 
 def test_an_arm_that_is_not_where_its_commands_put_it_is_planned_from_where_it_stands():

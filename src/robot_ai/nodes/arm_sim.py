@@ -9,9 +9,12 @@ joint of ~joints, in that order, so that reach_controller drives a real arm's Jo
 way. It takes joint_trajectory_controller's command too (trajectory_msgs/JointTrajectory, the topic a real arm's
 driver exposes: ur_robot_driver, franka_ros) and follows it as that controller does (robot_ai.reach.trajectory: from
 the trajectory's start, through its points, cubic where they give velocities; joints it does not name hold), each
-joint still at most at its URDF velocity limit; trajectories run on ROS time. Each joint_states message is stamped
-with the time it describes. NaN, infinite values or a wrong length: the command is ignored with a throttled warning,
-the arm holds.
+joint still at most at its URDF velocity limit; trajectories run on ROS time. Unlike that controller, it joins a
+trajectory that comes after its start (a busy machine) as a real arm's drives allow: further on, where the joining
+curve keeps within the share of the velocity and acceleration limits (the URDF's, ~joint_limits') that the
+trajectory itself uses, not at once with a jolt (robot_ai.reach.trajectory.ArmBounds). Each joint_states message is
+stamped with the time it describes. NaN, infinite values or a wrong length: the command is ignored with a throttled
+warning, the arm holds.
 
 An env takes the sim's ~lease: while it holds it, commands and ~set_state from any other node are ignored or refused
 (robot_ai.nodes.lease).
@@ -23,6 +26,8 @@ ROS Parameters
     ~rate (float, 100): ticks per second of ROS time (free-running).
     ~real_time_factor (float, 1.0): simulated seconds per second of ROS time.
     ~lockstep (bool, false): true = one step per command, reached at once (no clock, no velocity limit).
+    ~joint_limits (str, ""): a MoveIt joint_limits.yaml (reach_controller's): its acceleration limits are the arm's
+        (a joint without one: full speed in 0.25 s), within which a late trajectory is joined.
     ~nice (int, -10): the scheduling priority the sim asks for, as a real arm's controller runs real-time (root or
         CAP_SYS_NICE; otherwise it runs as started, and says so); 0 leaves it (robot_ai.priority).
 
@@ -54,8 +59,9 @@ from robot_ai.nodes.params import (bool_param, init_node, int_param, number_para
                                    quiet_on_shutdown)
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.priority import NICE, raise_priority
-from robot_ai.reach.arm import joint_limits, joint_velocity
-from robot_ai.reach.trajectory import Follower, TrajectoryError
+from robot_ai.reach.arm import ReachError, joint_limits, joint_velocity
+from robot_ai.reach.safety import acceleration_limits, joint_names, read_joint_limits
+from robot_ai.reach.trajectory import ArmBounds, Follower, TrajectoryError
 from robot_ai.srv import Lease as LeaseService
 from robot_ai.srv import SetJointPositions, SetJointPositionsResponse
 from robot_ai.tf_wire import JointStateEncoder, WireError, decode_float64_array, raw_message_class
@@ -75,6 +81,7 @@ class ArmSim:
         self.lower = np.array([lo for lo, _, _ in limits])
         self.upper = np.array([hi for _, hi, _ in limits])
         self.velocity = np.array([joint_velocity(tree.joints[n]) for n in self.joints])
+        self.bounds, self.notes = self._bounds(tree)
         self.rate = number_param('~rate', 100.0, 'a positive number of ticks per second', lambda v: 0 < v <= 10000)
         self.real_time_factor = number_param('~real_time_factor', 1.0, 'a positive number', lambda v: 0 < v <= 1000)
         self.lockstep = bool_param('~lockstep', False)
@@ -104,6 +111,8 @@ class ArmSim:
         priority = raise_priority(self.nice) if self.nice < 0 else f'at its own priority (~nice {self.nice})'
         mode = ('lockstep: one step per command, reached at once' if self.lockstep else
                 f'{self.rate * self.real_time_factor:g} ticks per second of ROS time, at the URDF velocity limits')
+        for note in self.notes:
+            rospy.loginfo(f'arm_sim: {note}')
         rospy.loginfo(f'arm_sim ready: {len(self.joints)} joints ({", ".join(self.joints)}), {mode}; commands on '
                       f'{rospy.resolve_name(COMMAND_TOPIC)} and {rospy.resolve_name(TRAJECTORY_TOPIC)}; {priority}')
 
@@ -123,6 +132,19 @@ class ArmSim:
         if len(set(value)) != len(value):
             raise ValueError(f'~joints names a joint twice: {value}')
         return value
+
+    def _bounds(self, tree) -> tuple[ArmBounds, tuple[str, ...]]:
+        """What the arm can do: the URDF's positions and velocities, ~joint_limits' accelerations."""
+        try:
+            given, notes = joint_names(read_joint_limits(rospy.get_param('~joint_limits', '') or None),
+                                       list(tree.joints))
+        except ReachError as e:
+            raise ValueError(f'~joint_limits: {e}') from None
+        acceleration, missing = acceleration_limits(given, self.joints, self.velocity)
+        if missing:
+            notes += (f'accelerations: full speed in 0.25 s for {len(missing)} of {len(self.joints)} joints '
+                      f'(no ~joint_limits entry)',)
+        return ArmBounds(self.lower, self.upper, self.velocity, acceleration), notes
 
     def _home_param(self, tree) -> np.ndarray:
         home = (self.lower + self.upper) / 2.0
@@ -233,7 +255,7 @@ class ArmSim:
         try:
             columns, times, positions, velocities = self._trajectory(msg)
             with self.lock:
-                follower = self.follower if self.follower is not None else Follower(self.positions)
+                follower = self.follower if self.follower is not None else Follower(self.positions, self.bounds)
                 now = (rospy.Time.now() - self.epoch).to_sec()
                 start = (msg.header.stamp - self.epoch).to_sec() if not msg.header.stamp.is_zero() else now
                 full = np.tile(follower.state_at(max(now, start))[0], (len(times), 1))
@@ -248,11 +270,12 @@ class ArmSim:
                     self.speeds = np.zeros(len(self.joints))
                     self._publish()
                     return
-                if start < now - 1e-3:
-                    rospy.logwarn_throttle(1.0, f'a trajectory came {1000 * (now - start):.0f} ms after its start: '
-                                                f'followed from where the arm is')
                 follower.take(now, start, times, full, full_v)
                 self.follower = follower
+                if start < now - 1e-3:
+                    rospy.logwarn_throttle(1.0, f'a trajectory came {1000 * (now - start):.0f} ms after its start: '
+                                                f'joined from where the arm is {1000 * (follower.joined - now):.0f} '
+                                                f'ms on, within the limits it uses')
         except TrajectoryError as e:
             rospy.logwarn_throttle(5.0, f'trajectory ignored: {e}')
 

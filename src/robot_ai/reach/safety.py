@@ -80,7 +80,6 @@ class Limits:
         given, named = joint_names(read_joint_limits(joint_limits), list(arm.tree.joints))
         lower, upper = arm.lower.copy(), arm.upper.copy()
         velocity = arm.velocity.copy()
-        acceleration = np.full(arm.n, np.nan)
         for k, name in enumerate(arm.joints):
             entry = given.get(name, {})
             if entry.get('has_position_limits'):
@@ -91,10 +90,7 @@ class Limits:
                                      f'min_position/max_position')
             if entry.get('has_velocity_limits') and 'max_velocity' in entry:
                 velocity[k] = min(velocity[k], entry['max_velocity'])
-            if entry.get('has_acceleration_limits') and 'max_acceleration' in entry:
-                acceleration[k] = entry['max_acceleration']
-        missing = [n for n, a in zip(arm.joints, acceleration) if math.isnan(a)]
-        acceleration = np.where(np.isnan(acceleration), velocity / DEFAULT_ACCELERATION_TIME, acceleration)
+        acceleration, missing = acceleration_limits(given, arm.joints, velocity)
         notes = named + ((f'no acceleration limit for {", ".join(missing)}: full speed in '
                           f'{DEFAULT_ACCELERATION_TIME:g} s assumed (give them in a joint_limits.yaml)',)
                          if missing else ())
@@ -109,6 +105,20 @@ class Limits:
     def describe(self) -> str:
         return (f'velocities x{self.velocity_scale:g} (up to {self.velocity.max():.3g}), accelerations '
                 f'x{self.acceleration_scale:g} (up to {self.acceleration.max():.3g})')
+
+
+def acceleration_limits(given: dict[str, dict], joints, velocity: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """(each joint's acceleration limit, the joints that had none): a joint_limits entry's max_acceleration (keyed
+    by joint_names), else full speed (velocity) in DEFAULT_ACCELERATION_TIME."""
+    acceleration = np.asarray(velocity, dtype=float) / DEFAULT_ACCELERATION_TIME
+    missing = []
+    for k, name in enumerate(joints):
+        entry = given.get(name, {})
+        if entry.get('has_acceleration_limits') and 'max_acceleration' in entry:
+            acceleration[k] = entry['max_acceleration']
+        else:
+            missing.append(name)
+    return acceleration, missing
 
 
 def _scale(name: str, value) -> float:

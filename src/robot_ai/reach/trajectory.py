@@ -9,12 +9,36 @@ As ros_controls' joint_trajectory_controller: a new trajectory replaces the one 
 Hermite interpolation where the points give velocities (a segment of constant acceleration is followed exactly) and
 straight lines where they do not; after the last point it holds there. Points at or before the start are dropped
 (the arm's own state starts the trajectory); points whose times do not increase are refused.
+
+A follower given what its arm can do (ArmBounds: a real arm's drives) joins a trajectory within them. The controller
+joins a trajectory that came after its start from where the arm is to its next point, however near: a jolt (a
+trajectory 74 ms late took a simulated arm to 17 times its acceleration limit). This follower joins such a one
+(and one in time whose join would pass the limits) further on instead: at the first time the joining curve stays
+within the share of the arm's acceleration and velocity limits the trajectory itself uses, and within the positions;
+failing that within the limits themselves (the soonest: the least way off the trajectory's path); failing that (a
+trajectory too short to catch) as gently as its points allow. A trajectory in time whose join is within the limits is
+joined as the controller joins it.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
+
+JOIN_STEP = 0.005          # s between the times a late trajectory may be joined at
+JOIN_TIMES = 2000          # at most this many of them (a longer trajectory: a coarser step)
+JOIN_SAMPLES = 9           # points inside the joining curve checked against the positions and velocities
+MAX_JOIN_AFTER = 30.0      # s after a trajectory's end a late one may be joined at rest where it ends, at most
+
+
+@dataclass(frozen=True)
+class ArmBounds:
+    """What the arm can do, per joint in the follower's order: positions, velocities (/s), accelerations (/s^2)."""
+    lower: np.ndarray
+    upper: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
 
 
 class TrajectoryError(ValueError):
@@ -23,8 +47,10 @@ class TrajectoryError(ValueError):
 
 class Follower:
 
-    def __init__(self, positions):
+    def __init__(self, positions, bounds: ArmBounds | None = None):
         p = np.asarray(positions, dtype=float)
+        self.bounds = bounds
+        self.joined = -math.inf               # when the last trajectory taken was joined (with bounds)
         self.times = np.array([-1e9])         # at rest since long ago
         self.positions = p[None].copy()
         self.velocities = np.zeros((1, len(p)))
@@ -90,8 +116,111 @@ class Follower:
         # the segment that runs into the new start keeps its kind: cut at the start, the same curve
         cut = [bool(self.hermite[b - 1]) if b - 1 < len(self.hermite) else False] if b else []
         given = velocities is not None
+        if velocities is None:
+            velocities = np.zeros_like(positions)
+        if self.bounds is not None:
+            joined, p_join, v_join, after = self._join(first, p, v, absolute, positions, velocities, given,
+                                                       now > start + 1e-9)
+            self.joined = joined
+            self.times = np.concatenate((self.times[:b], [first, joined], absolute[after:]))
+            self.positions = np.vstack((self.positions[:b], p, p_join, positions[after:]))
+            self.velocities = np.vstack((self.velocities[:b], v, v_join, velocities[after:]))
+            self.hermite = np.concatenate((self.hermite[:max(b - 1, 0)], cut, [True],
+                                           np.full(len(absolute) - after, given)))
+            return
         self.times = np.concatenate((self.times[:b], [first], absolute[keep]))
         self.positions = np.vstack((self.positions[:b], p, positions[keep]))
-        self.velocities = np.vstack((self.velocities[:b], v,
-                                     velocities[keep] if given else np.zeros_like(positions[keep])))
+        self.velocities = np.vstack((self.velocities[:b], v, velocities[keep]))
         self.hermite = np.concatenate((self.hermite[:max(b - 1, 0)], cut, np.full(int(keep.sum()), given)))
+
+    def _join(self, first: float, p: np.ndarray, v: np.ndarray, absolute: np.ndarray, positions: np.ndarray,
+              velocities: np.ndarray, given: bool, late: bool) -> tuple[float, np.ndarray, np.ndarray, int]:
+        """Where a trajectory is joined from the state (p, v) at first (see the module): (the time, the position and
+        velocity there, the index of its first point after that time)."""
+        bounds = self.bounds
+        new = Follower(positions[0])
+        new.times, new.positions, new.velocities = absolute, positions, velocities
+        new.hermite = np.full(len(absolute) - 1, given)
+        # the share of the limits the trajectory uses (its own curve, its points; the arm's state now)
+        used_a, used_v = _accelerations(new) / bounds.acceleration, np.abs(velocities) / bounds.velocity
+        if not given:
+            used_v = np.abs(np.diff(positions, axis=0) / np.diff(absolute)[:, None]) / bounds.velocity
+        share_a = float(np.max(used_a, initial=0.0))
+        share_v = max(float(np.max(used_v, initial=0.0)), float(np.max(np.abs(v) / bounds.velocity)))
+        kept = absolute[absolute > first + 1e-9]
+        step = max(JOIN_STEP, (kept[-1] - first) / JOIN_TIMES)
+        # and after its end, at rest where it ends: long enough to get there from here within the limits
+        far = np.abs(positions[-1] - p)
+        beyond = float(np.max(np.sqrt(6 * far / bounds.acceleration) + 4 * np.abs(v) / bounds.acceleration
+                              + 1.5 * far / bounds.velocity))
+        beyond = min(beyond, MAX_JOIN_AFTER)
+        times = np.unique(np.concatenate((kept, np.arange(kept[0], kept[-1], step),
+                                          kept[-1] + np.arange(1, JOIN_TIMES + 1) * max(step, beyond / JOIN_TIMES))))
+        times = times[times <= kept[-1] + beyond + step]
+        p1, v1 = new.states_at(times)                                # (m, n) each
+        span = (times - first)[:, None]
+        d = p1 - p
+        a0 = (6 * d - (4 * v + 2 * v1) * span) / span ** 2
+        a1 = (-6 * d + (2 * v + 4 * v1) * span) / span ** 2
+        ratio_a = np.max(np.maximum(np.abs(a0), np.abs(a1)) / bounds.acceleration, axis=1)
+        u = np.linspace(0, 1, JOIN_SAMPLES + 2)[1:-1][:, None, None]      # (k, 1, 1)
+        u2, u3 = u * u, u * u * u
+        h00, h10, h01, h11 = 2 * u3 - 3 * u2 + 1, u3 - 2 * u2 + u, -2 * u3 + 3 * u2, u3 - u2
+        inside = h00 * p + h10 * span * v + h01 * p1 + h11 * span * v1                 # (k, m, n)
+        d00, d10, d01, d11 = 6 * u2 - 6 * u, 3 * u2 - 4 * u + 1, -6 * u2 + 6 * u, 3 * u2 - 2 * u
+        speed = (d00 * p + d01 * p1) / span + d10 * v + d11 * v1
+        ratio_v = np.max(np.abs(speed) / bounds.velocity, axis=(0, 2))
+        within = ((inside >= bounds.lower - 1e-9) & (inside <= bounds.upper + 1e-9)).all(axis=(0, 2))
+        worst = np.maximum(ratio_a, ratio_v)
+        if late is False and within[0] and ratio_a[0] <= 1.0 and ratio_v[0] <= 1.0:
+            k = 0                    # in time and within the limits: joined as the controller joins it
+        else:
+            k = -1
+        for fits in (() if k == 0 else (within & (ratio_a <= share_a * (1 + 1e-9)) & (ratio_v <= share_v * (1 + 1e-9)),
+                     within & (ratio_a <= 1.0) & (ratio_v <= 1.0))):
+            if fits.any():
+                k = int(np.argmax(fits))
+                break
+        if k < 0:
+            k = int(np.argmin(np.where(within, worst, worst + 1e9)))
+        joined = float(times[k])
+        return joined, p1[k], v1[k], int(np.searchsorted(absolute, joined, side='right'))
+
+    def states_at(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """state_at at each of times, at once: positions and velocities, (len(times), joints) each."""
+        times = np.asarray(times, dtype=float)
+        last = len(self.times) - 1
+        k = np.clip(np.searchsorted(self.times, times, side='right') - 1, 0, max(last - 1, 0))
+        if last == 0:
+            return np.tile(self.positions[0], (len(times), 1)), np.zeros((len(times), self.positions.shape[1]))
+        t0, t1 = self.times[k][:, None], self.times[k + 1][:, None]
+        p0, p1 = self.positions[k], self.positions[k + 1]
+        v0, v1 = self.velocities[k], self.velocities[k + 1]
+        span = t1 - t0
+        u = np.clip((times[:, None] - t0) / span, 0.0, 1.0)
+        u2, u3 = u * u, u * u * u
+        h00, h10, h01, h11 = 2 * u3 - 3 * u2 + 1, u3 - 2 * u2 + u, -2 * u3 + 3 * u2, u3 - u2
+        d00, d10, d01, d11 = 6 * u2 - 6 * u, 3 * u2 - 4 * u + 1, -6 * u2 + 6 * u, 3 * u2 - 2 * u
+        hermite = self.hermite[k][:, None]
+        slope = (p1 - p0) / span
+        p = np.where(hermite, h00 * p0 + h10 * span * v0 + h01 * p1 + h11 * span * v1, p0 + slope * u * span)
+        v = np.where(hermite, (d00 * p0 + d01 * p1) / span + d10 * v0 + d11 * v1, slope)
+        after = times >= self.times[-1]
+        p[after], v[after] = self.positions[-1], 0.0
+        before = times < self.times[0]
+        p[before], v[before] = self.positions[0], 0.0
+        return p, v
+
+
+def _accelerations(follower: Follower) -> np.ndarray:
+    """The largest acceleration of each joint over a follower's Hermite segments (both ends of each: a cubic's
+    acceleration is linear), (joints,); 0 for straight lines."""
+    if not follower.hermite.any():
+        return np.zeros(follower.positions.shape[1])
+    span = np.diff(follower.times)[:, None]
+    d = np.diff(follower.positions, axis=0)
+    v0, v1 = follower.velocities[:-1], follower.velocities[1:]
+    a0 = (6 * d - (4 * v0 + 2 * v1) * span) / span ** 2
+    a1 = (-6 * d + (2 * v0 + 4 * v1) * span) / span ** 2
+    worst = np.maximum(np.abs(a0), np.abs(a1))[follower.hermite]
+    return worst.max(axis=0)
