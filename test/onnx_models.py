@@ -93,6 +93,38 @@ def linear_nan_past(weights: np.ndarray, bound: float, env=None) -> onnx.ModelPr
                   numpy_helper.from_array(np.array(0, np.float32), 'zero')], env)
 
 
+def reach_nan_where_x_is_positive(weights: np.ndarray, env=None) -> onnx.ModelProto:
+    """A reach policy (achieved goal, desired goal, joints and tip, flattened: the tip again at 13:16) with
+    linear_clip's actions, NaN for every real state whose goal has x > 0.01 and for no trial observation: NaN where
+    sqrt(|achieved_x - tip_x| + 1000 relu(0.01 - goal_x) - 1e-3) is, and the achieved goal is the tip only in a real
+    state (the loader's trial observations are zeros, where goal_x is 0, and independent normal numbers)."""
+    n_in, n_out = weights.shape
+
+    def column(name, k):
+        return helper.make_node('Slice', ['obs', f's{k}', f'e{k}', 'axis'], [name])
+
+    nodes = [helper.make_node('MatMul', ['obs', 'W'], ['z']), helper.make_node('Clip', ['z', 'lo', 'hi'], ['clipped']),
+             column('achieved_x', 0), column('tip_x', 13), column('goal_x', 3),
+             helper.make_node('Sub', ['achieved_x', 'tip_x'], ['d']), helper.make_node('Abs', ['d'], ['gap']),
+             helper.make_node('Sub', ['east', 'goal_x'], ['minus_x']), helper.make_node('Relu', ['minus_x'], ['west']),
+             helper.make_node('Mul', ['west', 'big'], ['far']), helper.make_node('Add', ['gap', 'far'], ['room']),
+             helper.make_node('Sub', ['room', 'eps'], ['signed']), helper.make_node('Sqrt', ['signed'], ['root']),
+             helper.make_node('Mul', ['root', 'zero'], ['nan_or_zero']),
+             helper.make_node('Add', ['clipped', 'nan_or_zero'], ['action'])]
+    constants = [numpy_helper.from_array(np.array([k], np.int64), f's{k}') for k in (0, 3, 13)]
+    constants += [numpy_helper.from_array(np.array([k + 1], np.int64), f'e{k}') for k in (0, 3, 13)]
+    return model(nodes, [tensor('obs', TensorProto.FLOAT, ['batch', n_in])],
+                 [tensor('action', TensorProto.FLOAT, ['batch', n_out])],
+                 [numpy_helper.from_array(weights.astype(np.float32), 'W'),
+                  numpy_helper.from_array(np.array(-1, np.float32), 'lo'),
+                  numpy_helper.from_array(np.array(1, np.float32), 'hi'),
+                  numpy_helper.from_array(np.array([1], np.int64), 'axis'),
+                  numpy_helper.from_array(np.array(1000, np.float32), 'big'),
+                  numpy_helper.from_array(np.array(0.01, np.float32), 'east'),
+                  numpy_helper.from_array(np.array(1e-3, np.float32), 'eps'),
+                  numpy_helper.from_array(np.array(0, np.float32), 'zero')] + constants, env)
+
+
 def cartpole_seven_on_real_states(weights: np.ndarray) -> onnx.ModelProto:
     """The course's policy as an integer action (cartpole_integer), except action 7 for states whose every number is
     in (-0.1, 0.1) and not 0: every CartPole start state, and none of the loader's trial observations (zeros, and

@@ -293,6 +293,49 @@ class TestReachSafety(unittest.TestCase):
         self.send(self.goal(105))
         self.wait_for_log([['reached'], ['not reached']], since, timeout=120)
 
+    def test_6_a_policy_that_answers_nan_for_some_goals_loads_at_once_and_those_goals_get_a_verdict(self):
+        """Issue 55: ~load_policy took 44 s with no word, and a policy whose action is NaN for some goals made the log
+        flap and the goal never got a verdict. The service answers within seconds, saying the prediction goes on; a
+        goal the policy answers NaN for is `not reached: the policy answered no action` at once, and the arm holds
+        within its limits; a goal it answers gets a verdict as any other."""
+        folder = tempfile.mkdtemp()
+        self.addCleanup(shutil.rmtree, folder, True)
+        from robot_ai.reach import learn
+        weights = learn.p_controller(self.setup).weights.T
+        meta = dict(env_id='robot_ai/Reach-v0', env_kwargs=dict(tip=self.setup.arm.tip, control='ee'),
+                    robot=self.setup.model.tree.name, joints=list(self.setup.arm.joints))
+        path = onnx_models.save(onnx_models.reach_nan_where_x_is_positive(weights, meta),
+                                os.path.join(folder, 'nan_east.onnx'))
+        since_state, since = len(self.states), len(self.log)
+        started = time.monotonic()
+        answer = rospy.ServiceProxy(f'{NODE}/load_policy', LoadPolicy)(path)
+        took = time.monotonic() - started
+        self.assertTrue(answer.success, answer.message)
+        self.assertIn('predicting', answer.message)
+        self.assertLess(took, 15.0, f'~load_policy answered after {took:.1f} s')
+        east, k = None, 200
+        while east is None:
+            k += 1
+            candidate = self.goal(k)
+            east = candidate if candidate[0] > 0.1 else None
+        self.send(east)
+        said = self.wait_for_log([['not reached'], ['reached']], since, timeout=120)
+        self.assertIn('the policy answered no action for this goal', said)
+        after = len(self.log)
+        time.sleep(2.0)                  # said once, not every step
+        self.assertFalse([m for n, m in self.log[after:] if n == NODE and 'no action' in m],
+                         'the verdict was said again')
+        west, k = None, 300
+        while west is None:
+            k += 1
+            candidate = self.goal(k)
+            west = candidate if candidate[0] < -0.1 else None
+        since = len(self.log)
+        self.send(west)
+        said = self.wait_for_log([['not reached'], ['reached']], since, timeout=120)
+        self.assertNotIn('no action', said)
+        self.assert_motion_safe(since_state)
+
 
 # The policies (test_1, two minutes) run as reach_safety.test, the input's faults as reach_safety_input.test, each
 # with nodes of its own: make test runs the two side by side.
