@@ -411,6 +411,30 @@ def test_an_arm_that_is_not_where_its_commands_put_it_is_planned_from_where_it_s
     np.testing.assert_allclose(plan.positions[0], moved, atol=1e-9)
 
 
+@pytest.mark.parametrize('gap, words', [(0.01, 'within the 0.02 m margin (lwr_arm_'), (0.05, '')])
+def test_a_home_within_the_margin_or_touching_is_said_and_a_clear_one_is_not(tmp_path, gap, words):
+    """Issue 55: a home within the margin but not in contact made `going home` refused every 2 s for a minute while
+    ~home answered success. reach_controller asks the layer first (clear_of) and refuses ~home with its words (a
+    home in contact is refused at start: ReachSetup)."""
+    plain = setup_of('kuka_lwr_arm', collision=True)
+    centres = plain.body.sphere_centres(plain.home[None])[0]
+    moving = np.asarray(plain.body.moving_spheres)
+    k = int(moving[np.argmax(centres[moving, 0])])        # the moving sphere farthest along x at home
+    surface = centres[k, 0] + plain.body.radii[k]
+    world = tmp_path / 'near_home.yaml'
+    world.write_text(f'obstacles:\n  - {{sphere: 0.05, position: [{surface + gap + 0.05:.6f}, {centres[k, 1]:.6f}, '
+                     f'{centres[k, 2]:.6f}], name: ball}}\n')
+    setup = setup_of('kuka_lwr_arm', obstacles=str(world))
+    layer = SafetyLayer(Limits.of(setup.arm), PERIOD, body=setup.body, margin=0.02)
+    said = layer.clear_of(setup.home)
+    assert said.startswith(words) if words else said == '', said
+    if words:
+        assert 'ball' in said
+    beyond = setup.home.copy()
+    beyond[0] = setup.arm.upper[0] + 0.1
+    assert layer.clear_of(beyond) == f'outside the limits of {setup.arm.joints[0]}'
+
+
 def test_bad_settings_are_one_line():
     limits = Limits.of(setup_of('ur5').arm)
     for kwargs, words in [(dict(period=0), 'period'), (dict(period=PERIOD, margin=-1), 'margin')]:

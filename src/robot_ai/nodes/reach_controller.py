@@ -84,7 +84,8 @@ ROS Publishers
     ~obstacle_markers (visualization_msgs/MarkerArray, latched): the obstacles, in the base frame.
 
 ROS Services
-    ~home (std_srvs/Trigger): the arm to its home (the middle of each joint's range, the policy's), goal dropped.
+    ~home (std_srvs/Trigger): the arm to its home (the middle of each joint's range, the policy's), goal dropped;
+        refused, and nothing sent, when home is outside the limits or within ~collision_margin of the body or world.
     ~enable (std_srvs/SetBool): false: the arm stops within its limits and holds, no command goes out once it is
         at rest; true: it goes on.
     ~load_policy (robot_ai/LoadPolicy): drive with another reach policy file or ONNX model of this robot, tip and
@@ -297,6 +298,10 @@ class ReachController:
                      rospy.Subscriber('~goal', PointStamped, self._on_goal, queue_size=1),
                      rospy.Subscriber('~goal_pose', PoseStamped, self._on_goal_pose, queue_size=1),
                      rospy.Subscriber('~stop', Empty, self._on_stop, queue_size=1, tcp_nodelay=True)]
+        self.home_blocked = self.layer.clear_of(self.setup.home)
+        if self.home_blocked:
+            rospy.logwarn(f'reach_controller: home {np.round(self.setup.home, 3).tolist()} is {self.home_blocked}: '
+                          f'~home is refused and a stalled goal is not tried again from there')
         self.services = [rospy.Service('~home', Trigger, self._on_home),
                          rospy.Service('~load_policy', LoadPolicy, self._on_load_policy),
                          rospy.Service('~enable', SetBool, self._on_enable)]
@@ -618,6 +623,10 @@ class ReachController:
                 self._restart_stall_clock()       # the time it took is no stall
 
     def _on_home(self, req) -> TriggerResponse:
+        blocked = self.layer.clear_of(self.setup.home)
+        if blocked:                # the layer would refuse its every last step, the arm short of it for good
+            return TriggerResponse(success=False, message=f'home {np.round(self.setup.home, 3).tolist()} is '
+                                   f'{blocked}: the safety layer does not take the arm there; nothing sent')
         with self.lock:
             self.goal, self.going_home = None, True
             self.version += 1
@@ -920,7 +929,8 @@ class ReachController:
                                      f'{task.angle_threshold:g} rad){at if stuck else ""}')
             if not reached and self.blocked and kind != 'beyond':
                 kind, why = 'collision', f'blocked {distance:.3f} m away by a collision ({self.blocked})'
-            if not reached and kind != 'beyond' and not self.retried:    # stalled within reach: home, once more
+            if not reached and kind != 'beyond' and not self.retried and not self.home_blocked:
+                # stalled within reach: home, once more (unless home is where the layer cannot take the arm)
                 self.homing, self.retried, self.homing_since, self.route_home = True, True, now, False
                 rospy.loginfo(f'{why}: going home to try again from there')
                 return

@@ -589,6 +589,23 @@ class SafetyLayer:
             return 0.0
         return self.margin
 
+    def clear_of(self, q: np.ndarray) -> str:
+        """'' where a plan may take the arm to q and stay (within the position limits, clear of its body and the world
+        by the margin), else why not, one line: a home within the margin was refused step by step for a minute while
+        ~home answered success (issue 55)."""
+        q = np.asarray(q, dtype=float)
+        lim = self.limits
+        outside = [n for n, v, lo, hi in zip(lim.joints, q, lim.lower, lim.upper)
+                   if not lo - POSITION_TOLERANCE <= v <= hi + POSITION_TOLERANCE]
+        if outside:
+            return f'outside the limits of {", ".join(outside)}'
+        if self.body is None or not self.body.in_collision(q[None], self.margin)[0]:
+            return ''
+        touching = self.body.contacts(q)
+        if touching:
+            return f'in contact ({", ".join(touching)})'
+        return f'within the {self.margin:g} m margin ({", ".join(self.body.contacts(q, self.margin))})'
+
     def resting(self, now: float) -> bool:
         """Whether the arm is at rest by its commands at now (no plan, or the last one's stop has run out or holds
         it still): nothing more needs sending."""
