@@ -60,7 +60,7 @@ from robot_ai.nodes.params import (bool_param, init_node, int_param, number_para
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.priority import NICE, raise_priority
 from robot_ai.reach.arm import ReachError, joint_limits, joint_velocity
-from robot_ai.reach.safety import acceleration_limits, joint_names, read_joint_limits
+from robot_ai.reach.safety import DEFAULT_ACCELERATION_TIME, acceleration_limits, joint_names, read_joint_limits
 from robot_ai.reach.trajectory import ArmBounds, Follower, TrajectoryError
 from robot_ai.srv import Lease as LeaseService
 from robot_ai.srv import SetJointPositions, SetJointPositionsResponse
@@ -142,8 +142,8 @@ class ArmSim:
             raise ValueError(f'~joint_limits: {e}') from None
         acceleration, missing = acceleration_limits(given, self.joints, self.velocity)
         if missing:
-            notes += (f'accelerations: full speed in 0.25 s for {len(missing)} of {len(self.joints)} joints '
-                      f'(no ~joint_limits entry)',)
+            notes += (f'accelerations: full speed in {DEFAULT_ACCELERATION_TIME:g} s for {len(missing)} of '
+                      f'{len(self.joints)} joints (no ~joint_limits entry)',)
         return ArmBounds(self.lower, self.upper, self.velocity, acceleration), notes
 
     def _home_param(self, tree) -> np.ndarray:
@@ -275,7 +275,7 @@ class ArmSim:
                 if start < now - 1e-3:
                     rospy.logwarn_throttle(1.0, f'a trajectory came {1000 * (now - start):.0f} ms after its start: '
                                                 f'joined from where the arm is {1000 * (follower.joined - now):.0f} '
-                                                f'ms on, within the limits it uses')
+                                                f'ms on, {follower.joined_how}')
         except TrajectoryError as e:
             rospy.logwarn_throttle(5.0, f'trajectory ignored: {e}')
 

@@ -623,10 +623,9 @@ class ReachController:
                 self._restart_stall_clock()       # the time it took is no stall
 
     def _on_home(self, req) -> TriggerResponse:
-        blocked = self.layer.clear_of(self.setup.home)
-        if blocked:                # the layer would refuse its every last step, the arm short of it for good
+        if self.home_blocked:      # the layer would refuse its every last step, the arm short of it for good
             return TriggerResponse(success=False, message=f'home {np.round(self.setup.home, 3).tolist()} is '
-                                   f'{blocked}: the safety layer does not take the arm there; nothing sent')
+                                   f'{self.home_blocked}: the safety layer does not take the arm there; nothing sent')
         with self.lock:
             self.goal, self.going_home = None, True
             self.version += 1

@@ -50,7 +50,8 @@ class Follower:
     def __init__(self, positions, bounds: ArmBounds | None = None):
         p = np.asarray(positions, dtype=float)
         self.bounds = bounds
-        self.joined = -math.inf               # when the last trajectory taken was joined (with bounds)
+        self.joined = -math.inf               # when the last trajectory taken was joined (with bounds), and how
+        self.joined_how = ''
         self.times = np.array([-1e9])         # at rest since long ago
         self.positions = p[None].copy()
         self.velocities = np.zeros((1, len(p)))
@@ -76,14 +77,7 @@ class Follower:
         if not self.hermite[k]:
             slope = (p1 - p0) / span
             return p0 + slope * s, slope
-        v0, v1 = self.velocities[k], self.velocities[k + 1]
-        u = s / span
-        u2, u3 = u * u, u * u * u
-        h00, h10, h01, h11 = 2 * u3 - 3 * u2 + 1, u3 - 2 * u2 + u, -2 * u3 + 3 * u2, u3 - u2
-        d00, d10, d01, d11 = 6 * u2 - 6 * u, 3 * u2 - 4 * u + 1, -6 * u2 + 6 * u, 3 * u2 - 2 * u
-        p = h00 * p0 + h10 * span * v0 + h01 * p1 + h11 * span * v1
-        v = (d00 * p0 + d01 * p1) / span + d10 * v0 + d11 * v1
-        return p, v
+        return _hermite(s / span, span, p0, self.velocities[k], p1, self.velocities[k + 1])
 
     def take(self, now: float, start: float, times, positions, velocities=None) -> None:
         """A trajectory: points at start + times[k] (s), positions (K, n), velocities (K, n) or None (a message
@@ -119,8 +113,8 @@ class Follower:
         if velocities is None:
             velocities = np.zeros_like(positions)
         if self.bounds is not None:
-            joined, p_join, v_join, after = self._join(first, p, v, absolute, positions, velocities, given,
-                                                       now > start + 1e-9)
+            joined, p_join, v_join, after, self.joined_how = self._join(first, p, v, absolute, positions,
+                                                                        velocities, given, now > start + 1e-9)
             self.joined = joined
             self.times = np.concatenate((self.times[:b], [first, joined], absolute[after:]))
             self.positions = np.vstack((self.positions[:b], p, p_join, positions[after:]))
@@ -134,19 +128,18 @@ class Follower:
         self.hermite = np.concatenate((self.hermite[:max(b - 1, 0)], cut, np.full(int(keep.sum()), given)))
 
     def _join(self, first: float, p: np.ndarray, v: np.ndarray, absolute: np.ndarray, positions: np.ndarray,
-              velocities: np.ndarray, given: bool, late: bool) -> tuple[float, np.ndarray, np.ndarray, int]:
+              velocities: np.ndarray, given: bool, late: bool) -> tuple[float, np.ndarray, np.ndarray, int, str]:
         """Where a trajectory is joined from the state (p, v) at first (see the module): (the time, the position and
-        velocity there, the index of its first point after that time)."""
+        velocity there, the index of its first point after that time, how: within which limits)."""
         bounds = self.bounds
         new = Follower(positions[0])
         new.times, new.positions, new.velocities = absolute, positions, velocities
         new.hermite = np.full(len(absolute) - 1, given)
         # the share of the limits the trajectory uses (its own curve, its points; the arm's state now)
-        used_a, used_v = _accelerations(new) / bounds.acceleration, np.abs(velocities) / bounds.velocity
-        if not given:
-            used_v = np.abs(np.diff(positions, axis=0) / np.diff(absolute)[:, None]) / bounds.velocity
-        share_a = float(np.max(used_a, initial=0.0))
-        share_v = max(float(np.max(used_v, initial=0.0)), float(np.max(np.abs(v) / bounds.velocity)))
+        share_a = float(np.max(_accelerations(new) / bounds.acceleration, initial=0.0))
+        speeds = velocities if given else np.diff(positions, axis=0) / np.diff(absolute)[:, None]
+        share_v = max(float(np.max(np.abs(speeds) / bounds.velocity, initial=0.0)),
+                      float(np.max(np.abs(v) / bounds.velocity)))
         kept = absolute[absolute > first + 1e-9]
         step = max(JOIN_STEP, (kept[-1] - first) / JOIN_TIMES)
         # and after its end, at rest where it ends: long enough to get there from here within the limits
@@ -157,34 +150,27 @@ class Follower:
         times = np.unique(np.concatenate((kept, np.arange(kept[0], kept[-1], step),
                                           kept[-1] + np.arange(1, JOIN_TIMES + 1) * max(step, beyond / JOIN_TIMES))))
         times = times[times <= kept[-1] + beyond + step]
-        p1, v1 = new.states_at(times)                                # (m, n) each
+        p1, v1 = new.states_at(times)                                # (m, n) each: the join's end at each time
         span = (times - first)[:, None]
-        d = p1 - p
-        a0 = (6 * d - (4 * v + 2 * v1) * span) / span ** 2
-        a1 = (-6 * d + (2 * v + 4 * v1) * span) / span ** 2
+        a0, a1 = _end_accelerations(p1 - p, v, v1, span)
         ratio_a = np.max(np.maximum(np.abs(a0), np.abs(a1)) / bounds.acceleration, axis=1)
         u = np.linspace(0, 1, JOIN_SAMPLES + 2)[1:-1][:, None, None]      # (k, 1, 1)
-        u2, u3 = u * u, u * u * u
-        h00, h10, h01, h11 = 2 * u3 - 3 * u2 + 1, u3 - 2 * u2 + u, -2 * u3 + 3 * u2, u3 - u2
-        inside = h00 * p + h10 * span * v + h01 * p1 + h11 * span * v1                 # (k, m, n)
-        d00, d10, d01, d11 = 6 * u2 - 6 * u, 3 * u2 - 4 * u + 1, -6 * u2 + 6 * u, 3 * u2 - 2 * u
-        speed = (d00 * p + d01 * p1) / span + d10 * v + d11 * v1
+        inside, speed = _hermite(u, span, p, v, p1, v1)                    # (k, m, n) each
         ratio_v = np.max(np.abs(speed) / bounds.velocity, axis=(0, 2))
         within = ((inside >= bounds.lower - 1e-9) & (inside <= bounds.upper + 1e-9)).all(axis=(0, 2))
-        worst = np.maximum(ratio_a, ratio_v)
-        if late is False and within[0] and ratio_a[0] <= 1.0 and ratio_v[0] <= 1.0:
-            k = 0                    # in time and within the limits: joined as the controller joins it
+        fits_arm = within & (ratio_a <= 1.0) & (ratio_v <= 1.0)
+        fits_share = within & (ratio_a <= share_a * (1 + 1e-9)) & (ratio_v <= share_v * (1 + 1e-9))
+        if not late and fits_arm[0]:
+            k, how = 0, 'in time, within the arm\'s limits'     # joined as the controller joins it
+        elif fits_share.any():
+            k, how = int(np.argmax(fits_share)), 'within the share of the limits it uses'
+        elif fits_arm.any():
+            k, how = int(np.argmax(fits_arm)), 'within the arm\'s limits'
         else:
-            k = -1
-        for fits in (() if k == 0 else (within & (ratio_a <= share_a * (1 + 1e-9)) & (ratio_v <= share_v * (1 + 1e-9)),
-                     within & (ratio_a <= 1.0) & (ratio_v <= 1.0))):
-            if fits.any():
-                k = int(np.argmax(fits))
-                break
-        if k < 0:
-            k = int(np.argmin(np.where(within, worst, worst + 1e9)))
+            worst = np.maximum(ratio_a, ratio_v)
+            k, how = int(np.argmin(np.where(within, worst, worst + 1e9))), 'as gently as its points allow'
         joined = float(times[k])
-        return joined, p1[k], v1[k], int(np.searchsorted(absolute, joined, side='right'))
+        return joined, p1[k], v1[k], int(np.searchsorted(absolute, joined, side='right')), how
 
     def states_at(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """state_at at each of times, at once: positions and velocities, (len(times), joints) each."""
@@ -198,13 +184,11 @@ class Follower:
         v0, v1 = self.velocities[k], self.velocities[k + 1]
         span = t1 - t0
         u = np.clip((times[:, None] - t0) / span, 0.0, 1.0)
-        u2, u3 = u * u, u * u * u
-        h00, h10, h01, h11 = 2 * u3 - 3 * u2 + 1, u3 - 2 * u2 + u, -2 * u3 + 3 * u2, u3 - u2
-        d00, d10, d01, d11 = 6 * u2 - 6 * u, 3 * u2 - 4 * u + 1, -6 * u2 + 6 * u, 3 * u2 - 2 * u
         hermite = self.hermite[k][:, None]
         slope = (p1 - p0) / span
-        p = np.where(hermite, h00 * p0 + h10 * span * v0 + h01 * p1 + h11 * span * v1, p0 + slope * u * span)
-        v = np.where(hermite, (d00 * p0 + d01 * p1) / span + d10 * v0 + d11 * v1, slope)
+        curve_p, curve_v = _hermite(u, span, p0, v0, p1, v1)
+        p = np.where(hermite, curve_p, p0 + slope * u * span)
+        v = np.where(hermite, curve_v, slope)
         after = times >= self.times[-1]
         p[after], v[after] = self.positions[-1], 0.0
         before = times < self.times[0]
@@ -217,10 +201,23 @@ def _accelerations(follower: Follower) -> np.ndarray:
     acceleration is linear), (joints,); 0 for straight lines."""
     if not follower.hermite.any():
         return np.zeros(follower.positions.shape[1])
-    span = np.diff(follower.times)[:, None]
-    d = np.diff(follower.positions, axis=0)
-    v0, v1 = follower.velocities[:-1], follower.velocities[1:]
-    a0 = (6 * d - (4 * v0 + 2 * v1) * span) / span ** 2
-    a1 = (-6 * d + (2 * v0 + 4 * v1) * span) / span ** 2
+    a0, a1 = _end_accelerations(np.diff(follower.positions, axis=0), follower.velocities[:-1],
+                                follower.velocities[1:], np.diff(follower.times)[:, None])
     worst = np.maximum(np.abs(a0), np.abs(a1))[follower.hermite]
     return worst.max(axis=0)
+
+
+def _hermite(u, span, p0, v0, p1, v1):
+    """(position, velocity) of the cubic Hermite segment from (p0, v0) to (p1, v1) over span, a share u into it
+    (numbers or arrays that broadcast)."""
+    u2, u3 = u * u, u * u * u
+    h00, h10, h01, h11 = 2 * u3 - 3 * u2 + 1, u3 - 2 * u2 + u, -2 * u3 + 3 * u2, u3 - u2
+    d00, d10, d01, d11 = 6 * u2 - 6 * u, 3 * u2 - 4 * u + 1, -6 * u2 + 6 * u, 3 * u2 - 2 * u
+    return (h00 * p0 + h10 * span * v0 + h01 * p1 + h11 * span * v1,
+            (d00 * p0 + d01 * p1) / span + d10 * v0 + d11 * v1)
+
+
+def _end_accelerations(d, v0, v1, span):
+    """The accelerations at both ends of cubic Hermite segments that move d from velocity v0 to v1 over span (a
+    cubic's acceleration is linear between them)."""
+    return (6 * d - (4 * v0 + 2 * v1) * span) / span ** 2, (-6 * d + (2 * v0 + 4 * v1) * span) / span ** 2
