@@ -8,11 +8,13 @@ import os
 import numpy as np
 import pytest
 import trimesh
-from trimesh.collision import CollisionManager
 
 from robot_ai.reach.arm import Arm, ReachError
+from robot_ai.reach import collision
 from robot_ai.reach.collision import CollisionModel, fit_spheres, parse_obstacles
 from robot_ai.reach.model import load_model
+
+from exact_meshes import MESHES, Exact
 
 ROBOTS = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', '..', 'shared', 'robots')
 WORLD = [{'box': [2.0, 2.0, 0.05], 'position': [0, 0, -0.03], 'name': 'table'},
@@ -59,48 +61,20 @@ def test_the_spheres_cover_the_shape(shape):
     assert gap < 0.01 * np.ptp(shape.vertices, axis=0).max()
 
 
-class Exact:
-    """The meshes themselves, by python-fcl: one collision manager for the whole body and the world (transforms set
-    per configuration), and one per link for distances."""
-
-    def __init__(self, body: CollisionModel):
-        self.body = body
-        self.world = CollisionManager()
-        self.single = {}
-        for link in body.links:
-            self.world.add_object(link, body.meshes[link])
-            self.single[link] = CollisionManager()
-            self.single[link].add_object(link, body.meshes[link])
-        self.shapes = {}
-        for o in body.obstacles:
-            shape = trimesh.creation.box(extents=o.size) if o.kind == 'box' else trimesh.creation.icosphere(
-                subdivisions=3, radius=o.size[0])
-            self.world.add_object(o.name, shape, transform=o.pose)
-            self.shapes[o.name] = (shape, o.pose)
-        moving = {link for link, m in zip(body.links, body.moving) if m}
-        self.pairs = {tuple(sorted((body.links[i], body.links[j]))) for i, j in body.link_pairs}
-        self.pairs |= {tuple(sorted((link, o.name))) for link in moving for o in body.obstacles}
-
-    def contacts(self, poses: dict, n: int) -> set:
-        """The checked pairs whose meshes touch in configuration n."""
-        for link in self.body.links:
-            self.world.set_transform(link, poses[link][n])
-        _, names = self.world.in_collision_internal(return_names=True)
-        return {tuple(sorted(pair)) for pair in names} & self.pairs
-
-    def distance(self, poses: dict, n: int, a: str, b: str) -> float:
-        self.single[a].set_transform(a, poses[a][n])
-        shape, pose = self.shapes[b] if b in self.shapes else (self.body.meshes[b], poses[b][n])
-        return self.single[a].min_distance_single(shape, transform=pose)
-
-
-@pytest.mark.parametrize('robot, tip', [('kuka_lwr_arm.urdf', None), ('pr2.urdf', 'r_gripper_tool_frame')])
-def test_every_sphere_check_agrees_with_the_exact_meshes_on_10000_configurations(robot, tip):
+@pytest.mark.parametrize('robot, tip', [('kuka_lwr_arm.urdf', None), ('pr2.urdf', 'r_gripper_tool_frame'),
+                                        ('ur5.urdf', None), ('panda.urdf', 'panda_hand')])
+def test_every_sphere_check_agrees_with_the_exact_meshes_on_10000_configurations(robot, tip, monkeypatch):
     """No contact of the meshes is missed by the spheres, and every contact the spheres alone see is one of meshes
-    closer than the two links' fitted margins (what the spheres add beyond the geometry)."""
+    closer than the two links' fitted margins (what the spheres add beyond the geometry). The UR5 and the Panda with
+    their real collision meshes (../shared/robots/meshes on ROS_PACKAGE_PATH), every link with a body."""
+    monkeypatch.setenv('ROS_PACKAGE_PATH', MESHES)
     model = load_model(os.path.join(ROBOTS, robot))
     arm = Arm(model.tree, tip)
-    body = CollisionModel(model.tree, model.urdf, arm, obstacles=WORLD)
+    # the table under the UR5's base, 3 cm below its shoulder's fat spheres (which reach 5 cm below the base)
+    world = WORLD if robot != 'ur5.urdf' else [dict(WORLD[0], position=[0, 0, -0.08])] + WORLD[1:]
+    body = CollisionModel(model.tree, model.urdf, arm, obstacles=world)
+    if robot in ('ur5.urdf', 'panda.urdf'):
+        assert body.missing == [] and set(body.links) >= {model.tree.joints[j].child for j in arm.joints}
     q = np.random.default_rng(7).uniform(arm.lower, arm.upper, size=(10000, arm.n))
     spheres = body.in_collision(q)
     exact = Exact(body)
@@ -134,12 +108,28 @@ def test_the_pairs_excluded_as_moveit_does():
         assert body.moving[i] or body.moving[j]
 
 
-def test_an_arm_without_geometry_has_no_body_and_says_which_meshes_are_missing():
+def test_a_link_whose_mesh_is_missing_gets_a_stated_stand_in_never_nothing(monkeypatch, caplog):
+    """Without ../shared/robots/meshes the UR5's meshes are not on the machine: every link still has a body (capsules
+    along its joint-to-joint segments, radius from its mass), said in one warning per process, and the stand-in
+    covers the real mesh's place well enough that a configuration folding the arm into the table is in contact."""
+    monkeypatch.setenv('ROS_PACKAGE_PATH', '')
+    monkeypatch.setattr(collision, '_WARNED', set())        # said once per process: this test sees it said
     ur5 = load_model(os.path.join(ROBOTS, 'ur5.urdf'))
-    body = CollisionModel(ur5.tree, ur5.urdf, Arm(ur5.tree), obstacles=WORLD)
+    arm = Arm(ur5.tree)
+    with caplog.at_level('WARNING', logger='robot_ai.reach.collision'):
+        body = CollisionModel(ur5.tree, ur5.urdf, arm, obstacles=WORLD)
+        again = CollisionModel(ur5.tree, ur5.urdf, arm, obstacles=WORLD)
     assert any('package://ur_description/meshes/ur5/collision/' in m for m in body.missing)
-    q = np.random.default_rng(0).uniform(-3, 3, size=(100, 6))
-    assert not body.in_collision(q).any()
+    moving = {ur5.tree.joints[j].child for j in arm.joints}
+    assert moving <= set(body.stand_ins) and moving <= set(body.links)
+    assert all(f'{link}: ' in caplog.text for link in list(body.stand_ins)[:6])
+    assert len([r for r in caplog.records if 'stood in for' in r.getMessage()]) <= 1 and again.stand_ins
+    down = arm.home.copy()
+    down[1] = 1.2                       # the shoulder lifted down: the upper arm into the table
+    assert body.in_collision(down[None])[0] and 'table' in ' '.join(body.contacts(down))
+    monkeypatch.setenv('ROS_PACKAGE_PATH', MESHES)
+    real = CollisionModel(ur5.tree, ur5.urdf, arm, obstacles=WORLD)
+    assert real.missing == [] and real.stand_ins == {}
 
 
 # ------------------------------------------------------------------------------------------------ in the env

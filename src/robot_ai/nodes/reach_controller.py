@@ -341,13 +341,13 @@ class ReachController:
             rospy.loginfo(f'reach_controller: {body.beyond} of the obstacles lie beyond the arm\'s reach '
                           f'({body.reach():.2f} m and a metre of margin): left out of its checks')
         if body is not None and not len(body.radii):
-            rospy.logwarn(f'reach_controller: {tree.name} has no collision geometry this machine can read '
-                          f'({len(body.missing)} meshes not found): the commands are checked against the limits '
-                          f'only')
+            rospy.logwarn(f'reach_controller: {tree.name} has no collision geometry: the commands are checked '
+                          f'against the limits only')
             body = None
-        elif body is not None and body.missing:
-            rospy.logwarn(f'reach_controller: collision meshes not found, those links unchecked: '
-                          f'{", ".join(m.split(":")[0] for m in body.missing[:8])}')
+        elif body is not None and body.stand_ins:
+            rospy.logwarn(f'reach_controller: collision meshes not found ({len(body.missing)}), links stood in for '
+                          f'by capsules: ' + '; '.join(f'{link}: {how}' for link, how in
+                                                       list(body.stand_ins.items())[:8]))
         return SafetyLayer(limits, 1.0 / self.rate, body, margin, follows_plans=self.command_kind == 'trajectory')
 
     # ------------------------------------------------------------------------------------------------ the policy

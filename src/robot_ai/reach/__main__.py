@@ -121,8 +121,9 @@ def describe_world(setup: ReachSetup) -> str:
         names += f' and {len(setup.obstacles) - 8} more'
     text = (f'{names}; the arm\'s body: {len(body.radii)} spheres on {len(body.links)} links, {len(body.link_pairs)} '
             f'link pairs checked')
-    if body.missing:
-        text += f' ({len(body.missing)} collision meshes not on this machine, their links unchecked)'
+    if body.stand_ins:
+        text += (f' ({len(body.missing)} collision meshes not on this machine: {", ".join(body.stand_ins)} stood in '
+                 f'for by capsules)')
     if body.beyond:
         text += f'; {body.beyond} obstacles beyond the arm\'s reach ({body.reach():.2f} m) left out of the checks'
     return text

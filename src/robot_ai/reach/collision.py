@@ -248,45 +248,110 @@ def _origin(element) -> np.ndarray:
 
 
 def link_shapes(urdf: str, urdf_dir: str = '') -> tuple[dict, list[str]]:
-    """({link: [trimesh.Trimesh in the link's frame, ...]}, warnings: the meshes that are not on this machine)."""
+    """({link: [trimesh.Trimesh in the link's frame, ...]}, warnings: the geometry that is not on this machine or
+    cannot be read, each 'link: what')."""
     import xml.etree.ElementTree as ET
-
-    import trimesh
     shapes, missing = {}, []
     for link in ET.fromstring(urdf).iter('link'):
         for collision in link.findall('collision'):
-            geometry = collision.find('geometry')
-            if geometry is None or len(geometry) == 0:
-                continue
-            g = geometry[0]
-            pose = _origin(collision)
-            try:
-                if g.tag == 'box':
-                    mesh = trimesh.creation.box(extents=[float(v) for v in g.get('size').split()])
-                elif g.tag == 'cylinder':
-                    mesh = trimesh.creation.cylinder(radius=float(g.get('radius')), height=float(g.get('length')),
-                                                     sections=24)
-                elif g.tag == 'sphere':
-                    mesh = trimesh.creation.icosphere(subdivisions=2, radius=float(g.get('radius')))
-                elif g.tag == 'mesh':
-                    path = resolve_mesh(g.get('filename', ''), urdf_dir)
-                    if not path:
-                        missing.append(f'{link.get("name")}: {g.get("filename")}')
-                        continue
-                    mesh = trimesh.load(path, force='mesh')
-                    scale = [float(v) for v in (g.get('scale') or '1 1 1').split()]
-                    mesh.apply_scale(scale)
-                else:
-                    continue
-            except (TypeError, ValueError, AttributeError, OSError):
-                missing.append(f'{link.get("name")}: a {g.tag} that cannot be read')
-                continue
-            mesh.apply_transform(pose)
-            mesh.metadata['primitive'] = (g.tag, pose) if g.tag == 'sphere' else None
-            if g.tag == 'sphere':
-                mesh.metadata['radius'] = float(g.get('radius'))
-            shapes.setdefault(link.get('name'), []).append(mesh)
+            mesh, why = _geometry(collision, urdf_dir)
+            if why:
+                missing.append(f'{link.get("name")}: {why}')
+            if mesh is not None:
+                shapes.setdefault(link.get('name'), []).append(mesh)
     return shapes, missing
+
+
+def _geometry(element, urdf_dir: str):
+    """(trimesh.Trimesh in the link's frame or None, why it is missing ('' when read or when there is none)) of a
+    <collision> or <visual> element."""
+    import trimesh
+    geometry = element.find('geometry')
+    if geometry is None or len(geometry) == 0:
+        return None, ''
+    g = geometry[0]
+    try:
+        pose = _origin(element)
+        if g.tag == 'box':
+            mesh = trimesh.creation.box(extents=[float(v) for v in g.get('size').split()])
+        elif g.tag == 'cylinder':
+            mesh = trimesh.creation.cylinder(radius=float(g.get('radius')), height=float(g.get('length')),
+                                             sections=24)
+        elif g.tag == 'sphere':
+            mesh = trimesh.creation.icosphere(subdivisions=2, radius=float(g.get('radius')))
+        elif g.tag == 'mesh':
+            path = resolve_mesh(g.get('filename', ''), urdf_dir)
+            if not path:
+                return None, g.get('filename') or 'a mesh with no filename'
+            mesh = trimesh.load(path, force='mesh')
+            if not len(getattr(mesh, 'vertices', ())):
+                return None, f'{g.get("filename")} (no triangles read)'
+            mesh.apply_scale([float(v) for v in (g.get('scale') or '1 1 1').split()])
+        else:
+            return None, ''
+    except (TypeError, ValueError, AttributeError, OSError, IndexError) as e:
+        return None, f'a {g.tag} that cannot be read ({type(e).__name__})'
+    mesh.apply_transform(pose)
+    mesh.metadata['primitive'] = (g.tag, pose) if g.tag == 'sphere' else None
+    if g.tag == 'sphere':
+        mesh.metadata['radius'] = float(g.get('radius'))
+    return mesh, ''
+
+
+STAND_IN_RADIUS = 0.05      # m: a stand-in's radius where neither the link's visual geometry nor its inertia tells
+STAND_IN_DENSITY = 1000.0   # kg/m^3: a stand-in's radius from the link's mass, as if it were a solid rod of water
+                            # (hollow aluminium arms weigh about that for their size)
+
+
+def stand_ins(urdf: str, tree: KinematicTree, links, urdf_dir: str = '') -> tuple[dict, dict]:
+    """({link: [trimesh.Trimesh]}, {link: how its radius was chosen}) for links whose collision geometry cannot be
+    read: a capsule along each segment from the link's origin to a child joint's origin (a sphere at the origin if
+    it has none), its radius from the link's readable visual geometry (half the second largest extent of its
+    bounds), else from its mass (a solid rod of STAND_IN_DENSITY along its segments), else STAND_IN_RADIUS."""
+    import xml.etree.ElementTree as ET
+
+    import trimesh
+    elements = {link.get('name'): link for link in ET.fromstring(urdf).iter('link')}
+    children = {}
+    for j in tree.joints.values():
+        children.setdefault(j.parent, []).append(np.asarray(j.xyz, dtype=float))
+    shapes, how = {}, {}
+    for name in links:
+        segments = [p for p in children.get(name, []) if np.linalg.norm(p) > 1e-6]
+        length = sum(float(np.linalg.norm(p)) for p in segments)
+        radius, source = STAND_IN_RADIUS, f'a default radius of {STAND_IN_RADIUS:g} m'
+        visuals = [m for m, _ in (_geometry(v, urdf_dir) for v in elements[name].findall('visual')) if m is not None]
+        inertial = elements[name].find('inertial')
+        mass = inertial.find('mass') if inertial is not None else None
+        if visuals:
+            extents = np.sort(trimesh.util.concatenate(visuals).extents)
+            radius, source = max(float(extents[1]) / 2.0, 0.005), 'its visual geometry'
+        elif mass is not None and length > 0:
+            try:
+                kg = float(mass.get('value'))
+            except (TypeError, ValueError):
+                kg = 0.0
+            if kg > 0:
+                radius = float(np.clip(math.sqrt(kg / STAND_IN_DENSITY / (math.pi * length)), 0.01, 0.3))
+                source = f'its mass ({kg:g} kg)'
+        pieces = []
+        for p in segments:
+            capsule = trimesh.creation.capsule(height=float(np.linalg.norm(p)), radius=radius, count=[12, 12])
+            # trimesh's capsule lies along z, centred: turn z onto the segment and move its middle there
+            turn = trimesh.geometry.align_vectors([0, 0, 1], p / np.linalg.norm(p))
+            turn[:3, 3] = p / 2.0
+            capsule.apply_transform(turn)
+            pieces.append(capsule)
+        if not pieces:
+            ball = trimesh.creation.icosphere(subdivisions=2, radius=radius)
+            ball.metadata['primitive'], ball.metadata['radius'] = ('sphere', np.identity(4)), radius
+            pieces.append(ball)
+        for piece in pieces:
+            piece.metadata.setdefault('primitive', None)
+        shapes[name] = pieces
+        how[name] = f'{len(segments) or 1} {"capsule" if segments else "sphere"}{"s" if len(segments) > 1 else ""} ' \
+                    f'of {radius:.3f} m from {source}'
+    return shapes, how
 
 
 def fit_spheres(mesh, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -367,6 +432,24 @@ def _live_entries(axis) -> set[tuple[int, int]]:
     return live
 
 
+_WARNED: set = set()
+
+
+def _warn_once(robot: str, stand_in: dict, missing: list[str]) -> None:
+    """One warning per robot and set of links in this process: a vector env of 64 arms says it once."""
+    key = (robot, tuple(sorted(stand_in)))
+    if key in _WARNED:
+        return
+    _WARNED.add(key)
+    import logging
+    links = '; '.join(f'{link}: {how}' for link, how in list(stand_in.items())[:6])
+    more = f' and {len(stand_in) - 6} more' if len(stand_in) > 6 else ''
+    logging.getLogger('robot_ai.reach.collision').warning(
+        f'{robot}: collision geometry not on this machine or unreadable '
+        f'({missing[0]}{" ..." if len(missing) > 1 else ""}), stood in for: {links}{more}. Put the meshes\' '
+        f'package on ROS_PACKAGE_PATH for the real body.')
+
+
 class CollisionModel:
     """The arm's body as spheres per link, the pairs checked, and the world's obstacles (see the module)."""
 
@@ -378,6 +461,14 @@ class CollisionModel:
         shapes, self.missing = link_shapes(urdf, urdf_dir)
         rng = np.random.default_rng(seed)
         reachable = set(tree.link_poses())
+        # a link whose geometry cannot be read is never left empty: it gets a stand-in, said once per process
+        unread = sorted({m.split(': ')[0] for m in self.missing} & reachable)
+        for link in unread:
+            shapes.pop(link, None)
+        more, self.stand_ins = stand_ins(urdf, tree, unread, urdf_dir)
+        shapes.update(more)
+        if self.stand_ins:
+            _warn_once(tree.name, self.stand_ins, self.missing)
         self.links = sorted(link for link in shapes if link in reachable)
         self.meshes = {}
         centres, radii, owner = [], [], []
@@ -419,6 +510,31 @@ class CollisionModel:
                 link = joint.parent
             worst = max(worst, length + float(np.linalg.norm(self.centres[k])) + float(self.radii[k]))
         return worst
+
+    def sweep(self) -> np.ndarray:
+        """(n,): a bound on how far (m) any point of a moving sphere moves per radian (or metre) of each of the arm's
+        joints: for a revolute joint, the longest way from its origin to a sphere's far side below it (the offsets of
+        the joints between, prismatic travel added); for a prismatic one, 1; a mimic joint adds its multiplier's share
+        to its source's. A motion's checks are spaced by it (motion.JointPlanner)."""
+        parent_joint = {j.child: j for j in self.tree.joints.values()}
+        index = {name: k for k, name in enumerate(self.arm.joints)}
+        out = np.zeros(self.arm.n)
+        for k in self.moving_spheres:
+            link, below = self.links[self.owner[k]], float(np.linalg.norm(self.centres[k])) + float(self.radii[k])
+            share = np.zeros(self.arm.n)
+            while link != self.arm.base and link in parent_joint:
+                joint = parent_joint[link]
+                source, factor = joint.name, 1.0
+                if joint.mimic is not None:
+                    source, factor = joint.mimic[0], abs(float(joint.mimic[1]))
+                if source in index:
+                    share[index[source]] += factor * (1.0 if joint.type == 'prismatic' else below)
+                below += float(np.linalg.norm(joint.xyz))
+                if joint.type == 'prismatic':
+                    below += max(abs(joint.lower or 0.0), abs(joint.upper or 0.0)) or 1.0
+                link = joint.parent
+            out = np.maximum(out, share)
+        return np.maximum(out, 1e-3)
 
     def _cull(self, padding: float = 1.0) -> int:
         """Obstacles no moving sphere can come within padding of (1 m: any ~collision_margin) are left out of the
