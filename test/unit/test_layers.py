@@ -19,7 +19,7 @@ LAYERS = [
     ['urdf_source', 'artifacts'],                              # robot files (xacro); a run's output files
     ['urdf_compat', 'policies'],                               # course nodes' URDF parser; policy files of every kind
     ['ars', 'plot_worker', 'launch_guard'],                    # the learner any env shares; processes
-    ['cli'],                                                   # what the command lines share
+    ['cli', 'motion'],                                         # what the command lines share; joint-space paths
     ['cartpole', 'reach', 'grading'],                          # the package's capabilities, none knowing another
     ['sb3', 'msg', 'srv'],                                     # stable-baselines3's adapter; generated ROS messages
     ['lease'],                                                 # rospy: a sim's lease, for sims and envs

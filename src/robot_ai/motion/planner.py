@@ -1,0 +1,208 @@
+"""Collision-free paths in joint space: OMPL's RRT-Connect (MoveIt's default planner) over a check of many
+configurations at once. No rospy.
+
+The check is what a sampling planner spends its time on: an arm's sphere body answers a batch at a few microseconds a
+configuration but a single call in 0.4-1 ms, so OMPL is given a motion validator of its own kind (every state of a
+motion checked in one call) instead of its discrete one (one call per state). A motion from a to b is checked at
+`states(a, b)` evenly spaced configurations, as many as keep every point of the body within `spacing` metres of a
+checked position: `sweep[i]` bounds how far any point of the body moves per unit of joint i (the longest reach below
+it), so a point moves at most sum(|b - a| * sweep) along the whole motion. A check with a padding of at least half
+the spacing then covers the configurations between the checked ones.
+
+Before any tree is grown, the straight motion to each goal is checked (all of them in one call): in open space that
+is the answer, at the cost of one check. Found paths are shortened by OMPL's PathSimplifier.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+DEFAULT_TIME_LIMIT = 1.0      # s a plan may take
+SIMPLIFY_SHARE = 0.25         # of the time the search took (at least SIMPLIFY_LEAST s): for shortening the path
+SIMPLIFY_LEAST = 0.02
+RANGE_SHARE = 0.2             # RRT-Connect's step: this share of the joint space's diagonal (OMPL's own default)
+MAX_GOALS = 16                # goal configurations given to the tree search (the nearest ones)
+
+
+@dataclass
+class PlannedPath:
+    """A plan's answer: waypoints (k, n) from the start to a goal configuration (None without a path), the goal's
+    index among those given, the reason there is none (one line; '' with a path), how it was found ('straight',
+    'RRTConnect'), the wall time it took and how many motions and configurations were checked."""
+    waypoints: np.ndarray | None
+    goal: int
+    reason: str
+    how: str
+    seconds: float
+    motions: int
+    states: int
+
+    @property
+    def found(self) -> bool:
+        return self.waypoints is not None
+
+    def length(self) -> float:
+        """The path's length in joint space (the sum of its segments' Euclidean lengths)."""
+        if self.waypoints is None:
+            return math.inf
+        return float(np.linalg.norm(np.diff(self.waypoints, axis=0), axis=1).sum())
+
+
+def _ompl():
+    from ompl import base as ob, geometric as og, util as ou
+    return ob, og, ou
+
+
+def seed_ompl(seed: int) -> None:
+    """OMPL's random numbers from seed: only before its first use in the process takes effect (OMPL's rule)."""
+    _, _, ou = _ompl()
+    ou.RNG.setSeed(int(seed))
+
+
+class JointPlanner:
+    """Paths between configurations within [lower, upper] (n,) whose every checked configuration `clear` accepts
+    (clear: (N, n) -> (N,) bool, called with many configurations at once); sweep (n,) or a number: metres any point
+    of the body moves at most per radian (or metre) of each joint; spacing: metres between checked states."""
+
+    def __init__(self, lower, upper, clear: Callable[[np.ndarray], np.ndarray], sweep, spacing: float = 0.01,
+                 planner: str = 'RRTConnect'):
+        self.lower = np.asarray(lower, dtype=float)
+        self.upper = np.asarray(upper, dtype=float)
+        self.n = len(self.lower)
+        if self.upper.shape != (self.n,) or not np.all(self.lower < self.upper):
+            raise ValueError('lower and upper must be n limits with lower < upper')
+        self.clear = clear
+        self.sweep = np.broadcast_to(np.asarray(sweep, dtype=float), (self.n,)).copy()
+        if not np.all(self.sweep > 0) or not spacing > 0:
+            raise ValueError('sweep and spacing must be positive')
+        self.spacing = float(spacing)
+        self.planner_name = planner
+        self.motions = 0
+        self.state_count = 0
+
+    # ------------------------------------------------------------------------------------------ checks
+    def states(self, a: np.ndarray, b: np.ndarray) -> int:
+        """How many configurations check the straight motion a -> b, both ends counted."""
+        return 1 + max(1, math.ceil(float(np.abs(b - a) @ self.sweep) / self.spacing))
+
+    def _clear(self, q: np.ndarray) -> np.ndarray:
+        self.state_count += len(q)
+        return np.asarray(self.clear(q), dtype=bool)
+
+    def motions_clear(self, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+        """(m,) bool: the straight motions starts[i] -> ends[i] ((m, n) each) are clear at every checked state, in
+        one call of the check."""
+        starts, ends = np.atleast_2d(starts), np.atleast_2d(ends)
+        counts = [self.states(a, b) for a, b in zip(starts, ends)]
+        if not counts:
+            return np.zeros(0, dtype=bool)
+        self.motions += len(counts)
+        q = np.concatenate([a + np.linspace(0.0, 1.0, c)[:, None] * (b - a)
+                            for a, b, c in zip(starts, ends, counts)])
+        ok = self._clear(q)
+        bounds = np.cumsum([0] + counts)
+        return np.array([ok[bounds[i]:bounds[i + 1]].all() for i in range(len(counts))], dtype=bool)
+
+    def path_clear(self, waypoints: np.ndarray) -> bool:
+        """Every segment of a path clear, in one call."""
+        w = np.asarray(waypoints, dtype=float)
+        return bool(self.motions_clear(w[:-1], w[1:]).all()) if len(w) > 1 else bool(self._clear(w).all())
+
+    # ------------------------------------------------------------------------------------------ OMPL
+    def _space(self):
+        """OMPL's space information: the joint box, a state check and the batched motion check. Made for each search
+        and dropped after it: kept, the validator (a Python object that OMPL holds) outlives the interpreter's
+        teardown and nanobind reports it as a leak at exit."""
+        ob, og, ou = _ompl()
+        ou.setLogLevel(ou.LOG_WARN)
+        space = ob.RealVectorStateSpace(self.n)
+        bounds = ob.RealVectorBounds(self.n)
+        for i in range(self.n):
+            bounds.setLow(i, float(self.lower[i]))
+            bounds.setHigh(i, float(self.upper[i]))
+        space.setBounds(bounds)
+        si = ob.SpaceInformation(space)
+        planner = self
+        n = self.n
+
+        def valid(state) -> bool:
+            return bool(planner._clear(np.array([[state[i] for i in range(n)]]))[0])
+
+        class BatchedMotions(ob.MotionValidator):
+            def checkMotion(self, s1, s2, *last):
+                a = np.array([s1[i] for i in range(n)])
+                b = np.array([s2[i] for i in range(n)])
+                return bool(planner.motions_clear(a[None], b[None])[0])
+
+        si.setStateValidityChecker(valid)
+        validator = BatchedMotions(si)
+        si.setMotionValidator(validator)
+        si.setup()
+        return space, si, validator
+
+    @staticmethod
+    def _state(space, q: np.ndarray):
+        s = space.allocState()
+        for i, v in enumerate(q):
+            s[i] = float(v)
+        return s
+
+    def _tree_search(self, start: np.ndarray, goals: np.ndarray, time_limit: float) -> tuple[np.ndarray | None, str]:
+        ob, og, _ = _ompl()
+        space, si, validator = self._space()
+        ss = og.SimpleSetup(si)
+        ss.setStartState(self._state(space, start))
+        goal = ob.GoalStates(si)
+        for q in goals:
+            goal.addState(self._state(space, q))
+        ss.setGoal(goal)
+        planner = getattr(og, self.planner_name)(si)
+        if hasattr(planner, 'setRange'):
+            planner.setRange(RANGE_SHARE * float(np.linalg.norm(self.upper - self.lower)))
+        ss.setPlanner(planner)
+        began = time.monotonic()
+        ss.solve(float(time_limit))
+        if not ss.haveExactSolutionPath():
+            return None, f'no path found in {time_limit:g} s'
+        searched = time.monotonic() - began
+        ss.simplifySolution(max(SIMPLIFY_LEAST, SIMPLIFY_SHARE * searched))
+        path = ss.getSolutionPath()
+        waypoints = np.array([[path.getState(k)[i] for i in range(self.n)] for k in range(path.getStateCount())])
+        return waypoints, ''
+
+    # ------------------------------------------------------------------------------------------ planning
+    def plan(self, start, goals, time_limit: float = DEFAULT_TIME_LIMIT) -> PlannedPath:
+        """A path from start (n,) to one of goals ((m, n): configurations that reach the same target, nearest
+        first is best), or the reason there is none: the start or every goal in contact, or no path in the time."""
+        began = time.monotonic()
+        motions, states = self.motions, self.state_count
+        start = np.asarray(start, dtype=float).reshape(self.n)
+        goals = np.atleast_2d(np.asarray(goals, dtype=float))
+
+        def answer(waypoints, goal, reason, how):
+            return PlannedPath(waypoints, goal, reason, how, time.monotonic() - began, self.motions - motions,
+                               self.state_count - states)
+        if not len(goals):
+            return answer(None, -1, 'no goal configuration given', '')
+        if not self._clear(start[None])[0]:
+            return answer(None, -1, 'the start is in contact (or within the margin)', '')
+        clear = self._clear(goals)
+        if not clear.any():
+            return answer(None, -1, 'every goal configuration is in contact (or within the margin)', '')
+        index = np.flatnonzero(clear)
+        index = index[np.argsort(np.linalg.norm(goals[index] - start, axis=1), kind='stable')]
+        straight = self.motions_clear(np.repeat(start[None], len(index), axis=0), goals[index])
+        if straight.any():
+            k = int(index[straight.argmax()])
+            return answer(np.array([start, goals[k]]), k, '', 'straight')
+        chosen = index[:MAX_GOALS]
+        waypoints, reason = self._tree_search(start, goals[chosen], time_limit)
+        if waypoints is None:
+            return answer(None, -1, reason, self.planner_name)
+        k = int(chosen[np.linalg.norm(goals[chosen] - waypoints[-1], axis=1).argmin()])
+        waypoints[0], waypoints[-1] = start, goals[k]
+        return answer(waypoints, k, '', self.planner_name)

@@ -1,0 +1,141 @@
+"""A reach goal planned with the arm's body: configurations that reach the goal clear of contacts, a collision-free
+path to one of them (motion.JointPlanner: OMPL's RRT-Connect over the sphere body), timed within the joint limits
+(motion.time_path: TOPP-RA). No rospy.
+
+    planner = ReachPlanner(setup)                     # setup: a ReachSetup with a body (collision=True)
+    plan = planner.plan(q_now, goal)                  # plan.timed.sample(0.05), or plan.reason
+    python -m robot_ai.reach plan --model M --obstacles W --goal 0.4 0.2 0.3
+
+A goal with no way says why, in one line: inside an obstacle, beyond the arm's reach, no configuration that reaches
+it clear of contacts, or no path found in the time.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from robot_ai.motion import JointPlanner, PlannedPath, TimedPath, time_path
+from robot_ai.motion.planner import DEFAULT_TIME_LIMIT
+from robot_ai.reach.arm import ReachError
+from robot_ai.reach.env import ReachSetup
+from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, Limits
+
+GOAL_DRAWS = 240         # extra postures (fixed draws) a goal's configurations are sought from, beyond the setup's
+GOAL_ROUND = 48          # ... that many at a time, until one reaches clear of contacts
+GOAL_CONFIGURATIONS = 8  # reaching configurations given to the planner at most (the nearest to the start first)
+
+
+@dataclass
+class ReachPlan:
+    """A goal's plan: the start (n,), the goal, the path (PlannedPath: waypoints or a reason), the timed motion
+    (None without a path), the reason there is none ('' with one), the reaching configurations found clear, and the
+    seconds the whole plan took (configurations, path and timing)."""
+    start: np.ndarray
+    goal: np.ndarray
+    path: PlannedPath | None
+    timed: TimedPath | None
+    reason: str
+    configurations: int
+    seconds: float
+
+    @property
+    def found(self) -> bool:
+        return self.timed is not None
+
+
+class ReachPlanner:
+    """Plans for one arm in one world (the setup's body and obstacles), keeping `margin` metres from every contact
+    (the safety layer's), within Limits.of(arm, joint_limits, velocity_scale)."""
+
+    def __init__(self, setup: ReachSetup, margin: float = DEFAULT_MARGIN,
+                 velocity_scale: float = DEFAULT_VELOCITY_SCALE, joint_limits=None,
+                 time_limit: float = DEFAULT_TIME_LIMIT, seed: int = 0):
+        if setup.body is None:
+            raise ReachError('a plan needs the arm\'s body: give collision=True (or obstacles)')
+        if not margin >= 0:
+            raise ReachError(f'margin must be a number of metres >= 0, got {margin!r}')
+        if not time_limit > 0:
+            raise ReachError(f'time_limit must be a positive number of seconds, got {time_limit!r}')
+        self.setup, self.body, self.arm = setup, setup.body, setup.arm
+        self.margin, self.time_limit = float(margin), float(time_limit)
+        self.limits = setup.limits if setup.limits is not None and joint_limits is None else Limits.of(
+            self.arm, joint_limits, velocity_scale)
+        # checked states at most `spacing` apart, each with the margin as padding: the body between two of them keeps
+        # at least half the margin (and touches nothing with no margin: 1 mm steps then)
+        self.spacing = max(self.margin, 0.001)
+        self.joints = JointPlanner(self.limits.lower, self.limits.upper, self.clear, self.body.sweep(),
+                                   spacing=self.spacing)
+        draws = np.random.default_rng(seed + 2).uniform(self.limits.lower, self.limits.upper,
+                                                        (GOAL_DRAWS, self.arm.n))
+        self.seeds = np.ascontiguousarray(np.vstack((setup.recovery_seeds.T, draws)).T)
+
+    def clear(self, q: np.ndarray) -> np.ndarray:
+        """(N,) bool: configurations (N, n) clear of every contact by the margin."""
+        return ~self.body.in_collision(q, self.margin)
+
+    def goal_configurations(self, goal, q) -> tuple[np.ndarray, str]:
+        """(configurations (m, n) that reach the goal clear by the margin, the nearest to q (n,) first; the reason
+        there is none, '' otherwise)."""
+        setup = self.setup
+        goal = np.asarray(setup.check_goal(goal, 'goal'), dtype=float)
+        inside = setup.obstacle_holding(goal)
+        if inside is not None:
+            return np.zeros((0, self.arm.n)), f'the goal is inside {inside}'
+        found, best = [], np.inf
+        seeds = np.hstack((np.asarray(q, dtype=float)[:, None], self.seeds))
+        first = 1 + setup.recovery_seeds.shape[1]          # where the arm stands, home and the setup's postures
+        for part in [seeds[:, :first]] + [seeds[:, k:k + GOAL_ROUND] for k in range(first, seeds.shape[1], GOAL_ROUND)]:
+            configurations, reached, error, far = setup._reaching_search(goal[:, None], np.asarray(q)[:, None], part,
+                                                                         clear=False)
+            best = min(best, float(error.min()))
+            candidates = configurations[:, reached[:, 0], 0].T
+            candidates = candidates[np.all((candidates >= self.limits.lower) & (candidates <= self.limits.upper),
+                                           axis=1)]
+            if len(candidates):
+                candidates = candidates[self.clear(candidates)]
+            found.extend(candidates)
+            if len(found) >= 1:
+                break
+        if not found:
+            if best > setup.task.distance_threshold:
+                return np.zeros((0, self.arm.n)), (f'the goal is beyond the arm\'s reach (no configuration found '
+                                                   f'within {best:.3f} m of it)')
+            return np.zeros((0, self.arm.n)), (f'no configuration reaches the goal clear of contacts by '
+                                               f'{self.margin:g} m')
+        found = self._nearest_turns(np.array(found), np.asarray(q, dtype=float))
+        found = found[self.clear(found)]
+        order = np.argsort(np.linalg.norm((found - q) / self.arm._half, axis=1), kind='stable')
+        return found[order][:GOAL_CONFIGURATIONS], ''
+
+    def _nearest_turns(self, found: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """The configurations, each with the same configurations a whole turn away on a joint whose range is more
+        than a turn (a UR's +-2 pi) put first, at the turn nearest to q: the same pose of the arm, but a shoulder at
+        6.03 rad from -1.57 must pass through the table to get there, where -0.25 rad need not."""
+        turning = [k for k, name in enumerate(self.arm.joints)
+                   if self.arm.tree.joints[name].type in ('revolute', 'continuous')
+                   and self.limits.upper[k] - self.limits.lower[k] > 2 * np.pi]
+        if not turning:
+            return found
+        near = found.copy()
+        for k in turning:
+            shifted = near[:, k] + 2 * np.pi * np.round((q[k] - near[:, k]) / (2 * np.pi))
+            inside = (shifted >= self.limits.lower[k]) & (shifted <= self.limits.upper[k])
+            near[inside, k] = shifted[inside]
+        return np.vstack((near, found[np.any(near != found, axis=1)]))
+
+    def plan(self, q, goal, time_limit: float | None = None) -> ReachPlan:
+        """The plan from joint positions q (n,) to the goal (a position, or a pose for pose goals)."""
+        began = time.monotonic()
+        q = np.asarray(q, dtype=float).reshape(self.arm.n)
+        goal_array = np.asarray(goal, dtype=float)
+        configurations, reason = self.goal_configurations(goal, q)
+        if reason:
+            return ReachPlan(q, goal_array, None, None, reason, 0, time.monotonic() - began)
+        path = self.joints.plan(q, configurations, self.time_limit if time_limit is None else time_limit)
+        if not path.found:
+            return ReachPlan(q, goal_array, path, None, path.reason, len(configurations), time.monotonic() - began)
+        timed = time_path(path.waypoints, self.limits.velocity, self.limits.acceleration, self.joints.path_clear)
+        return ReachPlan(q, goal_array, path, timed, '', len(configurations), time.monotonic() - began)
+

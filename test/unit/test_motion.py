@@ -1,0 +1,150 @@
+"""robot_ai.motion (OMPL's RRT-Connect over a batched check, TOPP-RA timing) and robot_ai.reach.planning (a reach goal
+planned with the arm's body), the plans held to the exact meshes (python-fcl) of the reference arms. No rospy."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from robot_ai.motion import JointPlanner, time_path
+from robot_ai.reach.env import ReachSetup
+from robot_ai.reach.planning import ReachPlanner
+
+from exact_meshes import MESHES, ROBOTS, Exact
+
+# a table 8 cm under the base (the UR5's shoulder spheres reach 5 cm below it) and two objects in the workspace
+WORLD = [{'box': [2.0, 2.0, 0.05], 'position': [0, 0, -0.105], 'name': 'table'},
+         {'box': [0.2, 0.2, 0.5], 'position': [0.45, 0.15, 0.25], 'rpy': [0, 0, 0.5], 'name': 'box'},
+         {'sphere': 0.12, 'position': [-0.2, -0.45, 0.4], 'name': 'ball'}]
+ARMS = {'ur5.urdf': (None, [1.57, -1.57, 1.57, -1.57, 1.57, 0.0]), 'panda.urdf': ('panda_hand', None),
+        'kuka_lwr_arm.urdf': (None, None)}
+
+
+# ------------------------------------------------------------------------------ the planner on a plane
+def wall(q: np.ndarray) -> np.ndarray:
+    """Clear everywhere but a wall x in [-0.2, 0.2] from y = -1 to 0.8 (a gap above it)."""
+    q = np.atleast_2d(q)
+    return ~((np.abs(q[:, 0]) < 0.2) & (q[:, 1] < 0.8))
+
+
+def within_half_a_spacing_of_clear(q: np.ndarray) -> np.ndarray:
+    """The wall's promise to a planner checking every 0.01 (sweep 1): no point of a motion deeper in than 0.005."""
+    q = np.atleast_2d(q)
+    return ~((np.abs(q[:, 0]) < 0.195) & (q[:, 1] < 0.795))
+
+
+def segment_clear(a, b, clear, count=2000) -> bool:
+    return bool(clear(a + np.linspace(0, 1, count)[:, None] * (b - a)).all())
+
+
+def test_a_straight_way_is_one_check_and_a_walled_one_goes_round():
+    planner = JointPlanner([-1, -1], [1, 1], wall, sweep=1.0, spacing=0.01)
+    free = planner.plan([-0.5, 0.9], [[0.5, 0.9]])
+    assert free.found and free.how == 'straight' and free.motions == 1
+    np.testing.assert_array_equal(free.waypoints, [[-0.5, 0.9], [0.5, 0.9]])
+    round_ = planner.plan([-0.5, 0.0], [[0.5, 0.0]], time_limit=5.0)
+    assert round_.found and round_.how == 'RRTConnect', round_.reason
+    np.testing.assert_array_equal(round_.waypoints[[0, -1]], [[-0.5, 0.0], [0.5, 0.0]])
+    assert (round_.waypoints[:, 1] > 0.8).any()                   # through the gap
+    for a, b in zip(round_.waypoints[:-1], round_.waypoints[1:]):
+        assert segment_clear(a, b, within_half_a_spacing_of_clear)
+
+
+def test_of_several_goals_the_reachable_one_and_reasons_in_one_line():
+    planner = JointPlanner([-1, -1], [1, 1], wall, sweep=1.0, spacing=0.01)
+    two = planner.plan([-0.5, 0.0], [[0.0, 0.0], [-0.7, -0.5]])    # the first inside the wall
+    assert two.found and two.goal == 1
+    assert planner.plan([0.0, 0.0], [[0.5, 0.0]]).reason == 'the start is in contact (or within the margin)'
+    assert planner.plan([0.5, 0.0], [[0.0, 0.0]]).reason.startswith('every goal configuration is in contact')
+    closed = JointPlanner([-1, -1], [1, 1], lambda q: np.abs(np.atleast_2d(q)[:, 0]) >= 0.2, sweep=1.0)
+    shut = closed.plan([-0.5, 0.0], [[0.5, 0.0]], time_limit=0.2)
+    assert not shut.found and shut.reason == 'no path found in 0.2 s' and '\n' not in shut.reason
+
+
+def test_a_motion_is_checked_finely_enough_for_its_sweep():
+    planner = JointPlanner([-1, -1], [1, 1], wall, sweep=[0.5, 2.0], spacing=0.01)
+    assert planner.states(np.zeros(2), np.array([0.1, 0.0])) == 6           # 0.05 m swept, every 1 cm
+    assert planner.states(np.zeros(2), np.array([0.0, 0.1])) == 21          # 0.2 m
+    # a wall thinner than a coarse step is still found by the fine one
+    thin = JointPlanner([-1, -1], [1, 1], lambda q: np.abs(np.atleast_2d(q)[:, 0] - 0.0123) > 0.004, sweep=1.0,
+                        spacing=0.004)
+    assert not thin.motions_clear(np.array([[-0.5, 0.0]]), np.array([[0.5, 0.0]]))[0]
+
+
+# ------------------------------------------------------------------------------ timing
+def test_timing_keeps_every_limit_starts_and_ends_at_rest_and_ends_exactly():
+    waypoints = np.array([[0.0, 0.0, 0.0], [1.0, 0.5, 0.0], [1.0, 1.0, 1.0], [0.2, 1.5, 1.0]])
+    v, a = np.array([1.0, 0.5, 2.0]), np.array([2.0, 1.0, 0.5])
+    timed = time_path(waypoints, v, a)
+    assert timed.how == 'toppra' and timed.duration > 0
+    t = np.linspace(0, timed.duration, 5000)
+    assert (np.abs(timed.velocities(t)) <= v * (1 + 1e-6)).all()
+    assert (np.abs(timed.accelerations(t)) <= a * (1 + 1e-6)).all()
+    np.testing.assert_array_equal(timed.positions(timed.duration), waypoints[-1])
+    np.testing.assert_allclose(timed.positions(0.0), waypoints[0], atol=1e-12)
+    np.testing.assert_allclose(timed.velocities(np.array([0.0, timed.duration])), 0.0, atol=1e-9)
+    times, positions, velocities = timed.sample(0.05)
+    assert times[-1] == timed.duration and positions.shape == (len(times), 3)
+
+
+def test_a_timing_that_leaves_the_checked_path_falls_back_to_the_segments_themselves():
+    waypoints = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
+
+    def on_segments(q):          # only the two segments themselves are clear: any rounding of the corner is not
+        q = np.atleast_2d(q)
+        return bool(((np.abs(q[:, 1]) < 1e-9) | (np.abs(q[:, 0] - 1.0) < 1e-9)).all())
+    timed = time_path(waypoints, np.ones(2), np.ones(2), is_clear=on_segments)
+    assert timed.how == 'rest to rest'
+    t = np.linspace(0, timed.duration, 3001)
+    assert on_segments(timed.positions(t))
+    assert (np.abs(timed.velocities(t)) <= 1 + 1e-9).all() and (np.abs(timed.accelerations(t)) <= 1 + 1e-9).all()
+    np.testing.assert_array_equal(timed.positions(timed.duration), waypoints[-1])
+
+
+# ------------------------------------------------------------------------------ reach plans with real bodies
+@pytest.fixture(params=sorted(ARMS))
+def arm_world(request, monkeypatch):
+    monkeypatch.setenv('ROS_PACKAGE_PATH', MESHES)
+    tip, home = ARMS[request.param]
+    setup = ReachSetup(os.path.join(ROBOTS, request.param), tip=tip, home=home, obstacles=WORLD, collision=True)
+    assert setup.body.missing == [] or request.param == 'kuka_lwr_arm.urdf'    # its wrist's mesh: a stand-in
+    return request.param, setup
+
+
+def test_plans_among_a_table_and_objects_touch_nothing_by_the_exact_meshes(arm_world):
+    """From random starts clear of the world to goals whose drawn configuration is clear by the margin: every one is
+    planned, and its timed motion, sampled every 2 ms, keeps the limits and never brings the meshes (python-fcl)
+    into contact in a checked pair or with an obstacle."""
+    robot, setup = arm_world
+    planner = ReachPlanner(setup, time_limit=10.0)        # ample on a loaded machine: the bench measures the times
+    exact = Exact(setup.body)
+    goals, starts = setup.first_states([np.random.default_rng(100 + i) for i in range(24)])
+    usable = planner.clear(goals.T) & planner.clear(starts.T)
+    assert usable.sum() >= 6, f'{robot}: the world leaves too few clear problems to test'
+    hard = 0
+    for i in np.flatnonzero(usable)[:6]:
+        goal = setup.goals_of(goals[:, i:i + 1])[:, 0]
+        plan = planner.plan(starts[:, i], goal)
+        assert plan.found, f'{robot} problem {i}: {plan.reason}'
+        hard += plan.path.how != 'straight'
+        times, positions, _ = plan.timed.sample(0.002)
+        reached = setup.goals_of(positions[-1][:, None])[:, 0]
+        assert np.linalg.norm(reached - goal) < setup.task.distance_threshold
+        assert (np.abs(plan.timed.velocities(times)) <= planner.limits.velocity * (1 + 1e-6)).all()
+        assert (np.abs(plan.timed.accelerations(times)) <= planner.limits.acceleration * (1 + 1e-6)).all()
+        poses = setup.body.link_poses(positions)
+        assert exact.contacts_along(poses, len(positions)) == [], f'{robot} problem {i}'
+        assert not setup.body.in_collision(positions).any()
+
+
+def test_a_goal_with_no_way_says_why(arm_world):
+    robot, setup = arm_world
+    planner = ReachPlanner(setup, time_limit=2.0)
+    inside = planner.plan(setup.home, [0.45, 0.15, 0.25])
+    assert not inside.found and inside.reason == 'the goal is inside box'
+    far = planner.plan(setup.home, [5.0, 0.0, 0.3])
+    assert not far.found and far.reason.startswith('the goal is beyond the arm\'s reach')
+    under = planner.plan(setup.home, [0.3, 0.3, -0.2])          # under the table's top, outside the table: no way
+    assert not under.found and under.reason in ('the goal is inside table',) or under.reason.startswith(
+        ('no configuration reaches the goal clear', 'the goal is beyond'))
