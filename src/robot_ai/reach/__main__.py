@@ -17,6 +17,7 @@ import signal
 import sys
 from dataclasses import replace
 
+import numpy as np
 
 from robot_ai import ars, artifacts
 from robot_ai import policies
@@ -24,7 +25,9 @@ from robot_ai.cli import (add_ray, command_parser, connect_ray, fraction, fracti
                           positive_number, refuse, run_command, show_policy, whole_number, write_or_say)
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
+from robot_ai.motion.planner import DEFAULT_TIME_LIMIT
 from robot_ai.reach.env import CONTROLS, STARTS, ReachSetup
+from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE
 from robot_ai.reach.task import ANGLE_THRESHOLD, GOALS
 from robot_ai.text import percent
 
@@ -55,6 +58,7 @@ def train_parser(sub) -> None:
     p.add_argument('--angle-threshold', type=positive_number, default=ANGLE_THRESHOLD,
                    help='pose goals: radians within which the orientation is reached')
     add_world(p)
+    add_home(p, '; default: the middle of every joint\'s range')
     add_layer(p)
     p.add_argument('--seed', type=int, default=0, help='random seed; the same seed gives the same policy')
     p.add_argument('--iterations', type=whole_number(1, 100000), default=None,
@@ -87,6 +91,24 @@ def add_world(p: argparse.ArgumentParser, default: str = '') -> None:
                    'them and itself' + default)
     p.add_argument('--collision', action='store_true', default=None,
                    help='check the arm\'s body (its URDF <collision> geometry) against itself, without obstacles too')
+
+
+def add_home(p: argparse.ArgumentParser, default: str = '') -> None:
+    p.add_argument('--home', nargs='+', default=None, metavar='Q',
+                   help='the arm\'s home: a joint position per joint in the arm\'s order, or name=value pairs (the '
+                   'others mid-range); a home in contact with the arm\'s body or the obstacles is refused' + default)
+
+
+def home(a, parser) -> dict:
+    """--home as an env kwarg: a list of numbers, or {joint: value}; none given: none."""
+    if a.home is None:
+        return {}
+    try:
+        if all('=' in token for token in a.home):
+            return {'home': {name: float(value) for name, _, value in (t.partition('=') for t in a.home)}}
+        return {'home': [float(token) for token in a.home]}
+    except ValueError:
+        refuse(parser, f'--home must be numbers, or name=value pairs, got {" ".join(a.home)}')
 
 
 def add_layer(p: argparse.ArgumentParser, default: str = '') -> None:
@@ -169,7 +191,7 @@ def run_train(a, parser) -> int:
         parser.error(f'--top-directions ({a.top_directions}) must be at most --directions ({a.directions})')
     connect_ray(parser, a.ray)
     kwargs = dict(model=a.model, xacro_args=a.xacro_args or None, tip=a.tip, control=a.control, start=a.start,
-                  **world(a), **layer(a))
+                  **world(a), **home(a, parser), **layer(a))
     if a.goal == 'pose':          # position goals: no such settings (a file as before)
         kwargs.update(goal='pose', angle_threshold=a.angle_threshold)
     try:
@@ -272,6 +294,7 @@ def evaluate_parser(sub) -> None:
     p.add_argument('--video', action='store_true', help='also write an mp4 of the arm reaching 3 of the goals')
     p.add_argument('--output-dir', default=artifacts.default_output_dir(), help='where the video goes')
     add_world(p, ' (default: the world the policy learned in)')
+    add_home(p, ' (default: the policy\'s)')
     add_layer(p, ' (default: as the policy learned)')
     p.set_defaults(run=run_evaluate)
 
@@ -279,7 +302,7 @@ def evaluate_parser(sub) -> None:
 def run_evaluate(a, parser) -> int:
     try:
         policy, setup, note = policy_files.load(a.policy, model=a.model or None, xacro_args=a.xacro_args or None,
-                                                **world(a), **layer(a))
+                                                **world(a), **home(a, parser), **layer(a))
     except (policies.PolicyError, ReachError) as e:
         refuse(parser, str(e))
     if note:
@@ -316,6 +339,79 @@ def run_evaluate(a, parser) -> int:
     return 0
 
 
+def plan_parser(sub) -> None:
+    p = sub.add_parser('plan', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       help='a collision-free, timed motion to one goal (OMPL RRT-Connect, TOPP-RA)',
+                       description='Plan the arm\'s motion from --from (default: home) to a goal with its body among '
+                       'the obstacles: configurations that reach the goal clear by --margin, a path to one of them '
+                       '(OMPL\'s RRT-Connect), timed within the joint limits (TOPP-RA). Prints the plan, or why there '
+                       'is none (exit status 1); --trajectory writes it as a trajectory_msgs/JointTrajectory YAML '
+                       '(rostopic pub -f takes it).')
+    add_robot(p, 'default: the package\'s UR5')
+    p.add_argument('--tip', default=None, help='the link that reaches; default: the arm\'s end')
+    p.add_argument('--goal', nargs='+', type=float, required=True, metavar='X',
+                   help='x y z (metres, in the arm\'s base frame), or x y z qx qy qz qw for a pose')
+    p.add_argument('--from', dest='start_q', nargs='+', default=None, metavar='Q',
+                   help='where the arm stands: joint positions in the arm\'s order, or name=value pairs')
+    add_world(p)
+    add_home(p, '; default: the middle of every joint\'s range')
+    p.add_argument('--margin', type=float, default=DEFAULT_MARGIN, help='metres kept from every contact')
+    p.add_argument('--velocity-scale', type=fraction_above_0, default=DEFAULT_VELOCITY_SCALE, metavar='SCALE',
+                   help='of the URDF\'s (and --joint-limits\') velocities and accelerations, as reach_controller')
+    p.add_argument('--joint-limits', default=None, metavar='FILE', help='a MoveIt joint_limits.yaml')
+    p.add_argument('--time-limit', type=positive_number, default=DEFAULT_TIME_LIMIT,
+                   help='seconds the path search may take')
+    p.add_argument('--trajectory', default=None, metavar='FILE', help='write the timed plan there (YAML)')
+    p.add_argument('--period', type=positive_number, default=0.05, help='seconds between the trajectory\'s points')
+    p.set_defaults(run=run_plan)
+
+
+def run_plan(a, parser) -> int:
+    from robot_ai.reach.planning import ReachPlanner
+    kwargs = dict(model=a.model, xacro_args=a.xacro_args or None, tip=a.tip, collision=True,
+                  goal='pose' if len(a.goal) == 7 else 'position', **world(a), **home(a, parser))
+    if len(a.goal) not in (3, 7):
+        refuse(parser, f'--goal must be x y z, or x y z qx qy qz qw, got {len(a.goal)} numbers')
+    try:
+        setup = ReachSetup(**kwargs)
+        planner = ReachPlanner(setup, margin=a.margin, velocity_scale=a.velocity_scale, joint_limits=a.joint_limits,
+                               time_limit=a.time_limit)
+        start = setup.home
+        if a.start_q is not None:
+            given = home(argparse.Namespace(home=a.start_q), parser)['home']
+            start = setup.configuration(given, '--from', setup.home)
+    except ReachError as e:
+        refuse(parser, str(e))
+    print(f'robot             {setup.arm.describe()}')
+    print(f'world             {describe_world(setup)}')
+    print(f'limits            {planner.limits.describe()}, {a.margin:g} m from every contact')
+    plan = planner.plan(start, a.goal)
+    if not plan.found:
+        print(f'not planned: {plan.reason} ({plan.seconds * 1000:.0f} ms)')
+        return 1
+    path, timed = plan.path, plan.timed
+    print(f'planned           in {plan.seconds * 1000:.0f} ms: {path.how}, {len(path.waypoints)} waypoints, '
+          f'{path.length():.2f} rad of joint motion, {path.motions} motions and {path.states} configurations '
+          f'checked; {plan.configurations} clear configurations reach the goal')
+    print(f'timed             {timed.duration:.2f} s ({timed.how})')
+    end = setup.goals_of(timed.end[:, None])[:, 0]
+    print(f'reaches           {np.round(end[:3], 4).tolist()} ({np.linalg.norm(end[:3] - np.array(a.goal[:3])):.4f} m '
+          f'from the goal) at {np.round(timed.end, 4).tolist()}')
+    if a.trajectory:
+        write_or_say('trajectory', lambda: _write_trajectory(a.trajectory, setup.arm.joints, timed, a.period))
+    return 0
+
+
+def _write_trajectory(path: str, joints: list[str], timed, period: float) -> str:
+    import yaml
+    times, positions, velocities = timed.sample(period)
+    points = [{'positions': p.tolist(), 'velocities': v.tolist(),
+               'time_from_start': {'secs': int(t), 'nsecs': int(round((t - int(t)) * 1e9))}}
+              for t, p, v in zip(times.tolist(), positions, velocities)]
+    text = yaml.safe_dump({'joint_names': list(joints), 'points': points}, sort_keys=False)
+    return artifacts.write_whole(path, lambda f: f.write(text.encode()))
+
+
 def show_parser(sub) -> None:
     p = sub.add_parser('show', help='print a reach policy file\'s metadata and arrays',
                        description='Print the metadata of a policy file (JSON) and the shapes of its arrays.')
@@ -332,6 +428,7 @@ def build_parser() -> tuple[argparse.ArgumentParser, argparse._SubParsersAction]
     parser, sub = command_parser('python -m robot_ai.reach', 'Any arm learns to reach (ARS), without ROS.')
     train_parser(sub)
     evaluate_parser(sub)
+    plan_parser(sub)
     show_parser(sub)
     return parser, sub
 
