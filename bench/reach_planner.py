@@ -3,7 +3,8 @@
 meshes (../shared/robots/meshes), the KUKA LWR and the PR2's right arm; among a table under the base and two objects,
 and with the body alone; from home, random starts and chained (each goal from where the last plan left the arm).
 Beside it, in the same run, the reference a MoveIt user gets: OMPL's RRT-Connect with a one-at-a-time state check
-(OMPL's discrete motion validator, the same spacing) on the same starts and goal configurations.
+(OMPL's discrete motion validator, the same spacing) on the same starts and goal configurations. Then Reach-v0's
+P-controller among the same world, with and without the planned way round, and the planner's share.
 
 A goal counts when its drawn configuration is clear of contacts by the margin (it has a clear reaching configuration).
 
@@ -22,6 +23,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROBOTS = os.path.join(HERE, '..', '..', 'shared', 'robots')
 os.environ['ROS_PACKAGE_PATH'] = os.path.join(ROBOTS, 'meshes') + os.pathsep + os.environ.get('ROS_PACKAGE_PATH', '')
 
+from robot_ai.reach import learn  # noqa: E402
 from robot_ai.reach.env import ReachSetup  # noqa: E402
 from robot_ai.reach.planning import ReachPlanner  # noqa: E402
 
@@ -96,6 +98,7 @@ def main(argv=None) -> int:
     p.add_argument('--problems', type=int, default=30, help='goals per arm, world and start')
     p.add_argument('--reference-limit', type=float, default=1.0,
                    help='seconds the reference may take per problem (0: no reference)')
+    p.add_argument('--episodes', type=int, default=200, help='Reach-v0 goals per arm and start (0: none)')
     a = p.parse_args(argv)
     print(f'{"arm":<22s}{"world":<8s}{"start":<9s}{"reached":>12s}{"median":>9s}{"p95":>9s}   '
           f'{"reference reached":>18s}{"median":>9s}{"p95":>9s}')
@@ -116,6 +119,23 @@ def main(argv=None) -> int:
     times = np.concatenate(all_times)
     print(f'all: {all_ok}/{all_n} reached ({100.0 * all_ok / max(all_n, 1):.1f} %), planning time median '
           f'{np.median(times) * 1000:.0f} ms, 95th percentile {np.percentile(times, 95) * 1000:.0f} ms')
+    if a.episodes:
+        print(f'\nReach-v0 among the table and two objects, the P-controller on {a.episodes} goals (seed 1000), its '
+              f'recovery going round by a planned way where its via points find none, beside the same without it')
+        print(f'{"arm":<22s}{"start":<9s}{"reached":>9s}{"planner share":>15s}{"without the planner":>21s}')
+        for robot, tip, home in ARMS:
+            setup = ReachSetup(os.path.join(ROBOTS, robot), tip=tip, home=home, obstacles=WORLD, collision=True)
+            for start in ('home', 'random', 'chained'):
+                on = learn.evaluate(learn.p_controller(setup), setup, a.episodes, 1000, start=start)
+                planned_way = ReachSetup._planned_way
+                ReachSetup._planned_way = lambda self, goal, q: None
+                try:
+                    off = learn.evaluate(learn.p_controller(setup), setup, a.episodes, 1000, start=start)
+                finally:
+                    ReachSetup._planned_way = planned_way
+                print(f'{robot:<22s}{start:<9s}{100 * on.success_rate:>8.1f}%{100 * on.planned:>14.1f}%'
+                      f'{100 * off.success_rate:>20.1f}%')
+                sys.stdout.flush()
     return 0
 
 

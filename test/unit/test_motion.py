@@ -148,3 +148,19 @@ def test_a_goal_with_no_way_says_why(arm_world):
     under = planner.plan(setup.home, [0.3, 0.3, -0.2])          # under the table's top, outside the table: no way
     assert not under.found and under.reason in ('the goal is inside table',) or under.reason.startswith(
         ('no configuration reaches the goal clear', 'the goal is beyond'))
+
+
+def test_the_env_goes_round_by_a_planned_way_where_its_via_points_find_none(monkeypatch):
+    """Reach-v0's recovery (a stalled or blocked arm goes in joint space to a configuration that reaches the goal)
+    takes a planned way where its straight and via-point ways touch: the UR5 with its real body among the table and
+    two objects reaches more of the same goals from home with it, and the goals it adds are the planner's share."""
+    from robot_ai.reach import learn
+    monkeypatch.setenv('ROS_PACKAGE_PATH', MESHES)
+    tip, home = ARMS['ur5.urdf']
+    setup = ReachSetup(os.path.join(ROBOTS, 'ur5.urdf'), tip=tip, home=home, obstacles=WORLD, collision=True)
+    with_planner = learn.evaluate(learn.p_controller(setup), setup, 40, 1000, start='home')
+    monkeypatch.setattr(ReachSetup, '_planned_way', lambda self, goal, q: None)
+    without = learn.evaluate(learn.p_controller(setup), setup, 40, 1000, start='home')
+    assert with_planner.success_rate > without.success_rate, (with_planner, without)
+    assert with_planner.success_rate >= 0.95 and with_planner.planned > 0
+    assert without.planned == 0

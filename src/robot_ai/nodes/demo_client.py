@@ -205,10 +205,26 @@ def wait_home(ns: str, joints: list[str], home: list[float], timeout: float = 30
     return False
 
 
+def seeded_goal_configurations(setup, count: int, seed: int, margin: float):
+    """(count, n): count configurations drawn within the limits from seed; with a body, each one in contact or
+    within margin of a contact drawn again from the same generator (a goal the arm's body cannot take is no goal to
+    ask of it: the Panda's stand-in body made one inside its own base). Without a body: the same draws as ever."""
+    import numpy as np
+    arm, rng = setup.arm, np.random.default_rng(seed)
+    q = rng.uniform(arm.lower, arm.upper, (count, arm.n))
+    if setup.body is None:
+        return q
+    for i in range(count):
+        for _ in range(1000):
+            if not setup.body.in_collision(q[i:i + 1], margin)[0]:
+                break
+            q[i] = rng.uniform(arm.lower, arm.upper)
+    return q
+
+
 def reach(ns: str, count: int, seed: int) -> tuple[list[str], list[str]]:
     """The reach through ROS: ARS's figures from the controller, then count seeded goals, each from home: (summary
     lines, the checks that failed)."""
-    import numpy as np
     from geometry_msgs.msg import PointStamped
     from std_msgs.msg import Float64
     from robot_ai.reach import ReachSetup
@@ -222,9 +238,12 @@ def reach(ns: str, count: int, seed: int) -> tuple[list[str], list[str]]:
     lines = [f'  {info}']
     failed = [] if rate >= 0.95 else [f'ARS reached {percent(rate)} of fresh goals (95 % wanted)']
     setup = ReachSetup(urdf=rospy.get_param(f'{ns}/robot_description'),
-                       tip=rospy.get_param(f'{controller}/tip', '') or None)
+                       tip=rospy.get_param(f'{controller}/tip', '') or None,
+                       obstacles=rospy.get_param(f'{controller}/obstacles', '') or None,
+                       collision=bool(rospy.get_param(f'{controller}/collision', False)))
     arm, threshold = setup.arm, setup.task.distance_threshold
-    goals = arm.tip_positions(np.random.default_rng(seed).uniform(arm.lower, arm.upper, (count, arm.n)))
+    goals = arm.tip_positions(seeded_goal_configurations(setup, count, seed,
+                                                         float(rospy.get_param(f'{controller}/collision_margin', 0.0))))
     distances = queue.Queue()
     sub = rospy.Subscriber(f'{controller}/distance', Float64, lambda m: distances.put(m.data), queue_size=1000)
     pub = rospy.Publisher(f'{controller}/goal', PointStamped, queue_size=1, latch=True)

@@ -328,11 +328,14 @@ def run_evaluate(a, parser) -> int:
     for start in starts:
         result = results[start]
         misses = result.misses_text()
+        planned = (f'; {percent(result.planned)} of those reached by a planned way round (the planner\'s share)'
+                   if setup.body is not None else '')
         print(f'from {start:<12s} {percent(result.success_rate):>7s} (mean final distance '
-              f'{result.mean_distance:.3f} m){"; missed: " + misses if misses else ""}')
+              f'{result.mean_distance:.3f} m){"; missed: " + misses if misses else ""}{planned}')
         if setup.control == 'ee':
             p = learn.evaluate(learn.p_controller(setup), setup, a.episodes, a.seed, start=start)
-            print(f'  P-controller    {percent(p.success_rate):>7s} of the same goals from the same starts')
+            planned = f' ({percent(p.planned)} by a planned way)' if setup.body is not None else ''
+            print(f'  P-controller    {percent(p.success_rate):>7s} of the same goals from the same starts{planned}')
     if a.video:
         stem = artifacts.artifact_stem(folder, 'evaluate-' + stem_name(setup), 'Reach-v0', a.seed)
         write_or_say('video', lambda: learn.record_video(policy.actor, setup, stem + '.mp4', seed=a.seed))
@@ -368,8 +371,9 @@ def plan_parser(sub) -> None:
 
 def run_plan(a, parser) -> int:
     from robot_ai.reach.planning import ReachPlanner
-    kwargs = dict(model=a.model, xacro_args=a.xacro_args or None, tip=a.tip, collision=True,
+    kwargs = dict(model=a.model, xacro_args=a.xacro_args or None, tip=a.tip,
                   goal='pose' if len(a.goal) == 7 else 'position', **world(a), **home(a, parser))
+    kwargs['collision'] = True              # a plan is of the arm's body, obstacles or not
     if len(a.goal) not in (3, 7):
         refuse(parser, f'--goal must be x y z, or x y z qx qy qz qw, got {len(a.goal)} numbers')
     try:

@@ -100,6 +100,12 @@ RECOVERY_STRIDE = 2.0        # ... in steps of up to this many full steps (a sea
                              # in joint space, at RECOVERY_STEP)
 RECOVERY_VIAS = 56           # with a body: fixed draws beside the seeds, clear of contacts, where a way round the
                              # obstacles and the arm's own links may pass (and the search starts from)
+GOAL_DRAWS = 240             # postures (fixed draws) beyond recovery_seeds that a goal's clear configurations are
+GOAL_ROUND = 48              # sought from, that many at a time, until one reaches clear of contacts
+RECOVERY_PLAN_TIME = 0.5    # s a planned way round may take (where the via points find none)
+RECOVERY_PLAN_GOALS = 8      # reaching configurations the planner is given, the nearest first
+RECOVERY_PLAN_PADDING = 0.01  # m kept beyond way_margin by a planned way through a safety layer (velocity_scale)
+RECOVERY_PLAN_SPACING = 0.01  # m: a planned way's checks at most this far apart along the body (its margin, if more)
 READY, RECOVERING, RECOVERED = 0, 1, 2      # an arm's limit recovery in its episode
 
 
@@ -107,29 +113,42 @@ READY, RECOVERING, RECOVERED = 0, 1, 2      # an arm's limit recovery in its epi
 class Recovery:
     """One arm's limit recovery in its episode (ReachSetup.recover_one): its state (READY, RECOVERING or
     RECOVERED), the configuration it goes to, the least dense error of the episode (lowered by STALL_GAIN of a
-    full step or more at a time), the steps since then that asked toward the goal, and the configuration it goes to
-    after q (the end of its way; q itself when the way has no via point)."""
+    full step or more at a time), the steps since then that asked toward the goal, the configuration it goes to
+    after q (the end of its way; q itself when the way has no via point), and the way's points between q and then
+    (a planned way: motion.JointPlanner's path, a step apart)."""
     state: int = READY
     q: tuple[float, ...] | None = None
     best: float = math.inf
     since: int = 0
     then: tuple[float, ...] | None = None
+    way: tuple[tuple[float, ...], ...] = ()
 
     def give_up(self) -> Recovery:
         """Recoveries.give_up for this arm, whose motion a collision refused: a way round it was on ends there (the
         policy has the arm again); the count of steps without progress goes on."""
-        return dataclasses.replace(self, state=RECOVERED) if self.state == RECOVERING else self
+        return dataclasses.replace(self, state=RECOVERED, way=()) if self.state == RECOVERING else self
+
+
+def _no_ways(count: int) -> np.ndarray:
+    out = np.empty(count, dtype=object)
+    out[:] = [() for _ in range(count)]
+    return out
 
 
 @dataclasses.dataclass
 class Recoveries:
     """The limit recovery's state of a batch of arms (ReachSetup.recover), Recovery's fields as arrays on the
-    batch's last axis: state (N,) int8, q (n, N), best (N,), since (N,) int32, then (n, N)."""
+    batch's last axis: state (N,) int8, q (n, N), best (N,), since (N,) int32, then (n, N), way (N,) of tuples."""
     state: np.ndarray
     q: np.ndarray
     best: np.ndarray
     since: np.ndarray
     then: np.ndarray
+    way: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.way is None:
+            self.way = _no_ways(len(self.state))
 
     @classmethod
     def fresh(cls, n: int, count: int) -> Recoveries:
@@ -137,21 +156,26 @@ class Recoveries:
                    np.zeros(count, dtype=np.int32), np.zeros((n, count)))
 
     def __getitem__(self, rows) -> Recoveries:
-        return Recoveries(self.state[rows], self.q[:, rows], self.best[rows], self.since[rows], self.then[:, rows])
+        return Recoveries(self.state[rows], self.q[:, rows], self.best[rows], self.since[rows], self.then[:, rows],
+                          self.way[rows])
 
     def __setitem__(self, rows, other: Recoveries) -> None:
         self.state[rows], self.q[:, rows], self.best[rows], self.since[rows] = (other.state, other.q, other.best,
                                                                                 other.since)
         self.then[:, rows] = other.then
+        self.way[rows] = other.way
 
     def restart(self, rows) -> None:
         """A new episode for these arms."""
         self.state[rows], self.best[rows], self.since[rows] = READY, np.inf, 0
+        self.way[rows] = _no_ways(len(self.state[rows]))
 
     def give_up(self, hit: np.ndarray | None) -> None:
         """Arms going to their configuration whose motion a collision refused: the policy has them again."""
         if hit is not None:
-            self.state[hit & (self.state == RECOVERING)] = RECOVERED
+            gone = hit & (self.state == RECOVERING)
+            self.state[gone] = RECOVERED
+            self.way[gone] = _no_ways(int(gone.sum()))
 
 
 def episode_steps(limits: Limits | None) -> int:
@@ -221,6 +245,8 @@ class ReachSetup:
         self.stall_steps = stall_steps(self.episode_steps)
         self.obstacles = parse_obstacles(obstacles)
         self.way_margin = 0.0       # metres the recovery's ways keep clear of contacts (through a layer: its margin)
+        self._planner = None        # (way_margin, motion.JointPlanner): the recovery's planned ways, made when needed
+        self._goal_draws = None     # (n, GOAL_DRAWS): postures a goal's clear configurations are sought from
         if collision is None:
             collision = bool(self.obstacles)
         if not isinstance(collision, (bool, np.bool_)):
@@ -521,7 +547,7 @@ class ReachSetup:
         asked2 = (asked * asked).sum(axis=0)
         error = self.task.error(tip_t.T, goal_t.T)
         best, since = self._stall_count(error, tip_t, goal_t, actions_t, rec.best, rec.since)
-        rec = Recoveries(rec.state.copy(), rec.q, best, since, rec.then)
+        rec = Recoveries(rec.state.copy(), rec.q, best, since, rec.then, rec.way.copy())
         least = np.minimum(RECOVERY_ASK * self.ee_step, RECOVERY_ASK_OF_ERROR * error)
         ready = (rec.state == READY) & (asked2 >= least * least)
         at_limit = ((target_t <= arm.lower[:, None] + LIMIT_TOLERANCE)
@@ -539,8 +565,9 @@ class ReachSetup:
         going = np.union1d(blocked, stalled)
         if len(going):
             rec.q, rec.then = rec.q.copy(), rec.then.copy()
-            via, to = self.recovery_way(goal_t[:, going], q_t[:, going])
+            via, to, ways = self.recovery_way(goal_t[:, going], q_t[:, going], with_ways=True)
             rec.q[:, going], rec.then[:, going] = via, to
+            rec.way[going] = ways
             # a stall where no configuration reaches (a goal beyond the arm's reach): nowhere to go, this episode
             hopeless = ~np.isin(going, blocked) & ~self.task.is_success(self.goals_of(to).T, goal_t[:, going].T)
             rec.state[going] = np.where(hopeless, RECOVERED, RECOVERING)
@@ -549,14 +576,22 @@ class ReachSetup:
             return target_t, rec
         half = arm._half[:, None]
         # at its via point (the arm itself, which a safety layer may bring there later than its targets): onward
-        onward = recovering & (rec.then != rec.q).any(axis=0) & (np.abs(rec.q - q_t) <= RECOVERY_ARRIVED * half).all(
-            axis=0)
+        # (a planned way's next point, then its end)
+        more = np.array([len(w) > 0 for w in rec.way], dtype=np.bool_)
+        onward = recovering & ((rec.then != rec.q).any(axis=0) | more) & (
+            np.abs(rec.q - q_t) <= RECOVERY_ARRIVED * half).all(axis=0)
         if onward.any():
-            rec.q = np.where(onward, rec.then, rec.q)
+            rec.q = rec.q.copy()
+            for i in np.flatnonzero(onward):
+                if more[i]:
+                    rec.q[:, i], rec.way[i] = rec.way[i][0], rec.way[i][1:]
+                else:
+                    rec.q[:, i] = rec.then[:, i]
+            more = np.array([len(w) > 0 for w in rec.way], dtype=np.bool_)
         step = np.minimum(np.maximum(rec.q - q_t, -RECOVERY_STEP * half), RECOVERY_STEP * half)
         back = q_t + step
-        done = recovering & (rec.then == rec.q).all(axis=0) & (np.abs(rec.q - back) <= RECOVERY_ARRIVED * half).all(
-            axis=0)
+        done = recovering & (rec.then == rec.q).all(axis=0) & ~more & (
+            np.abs(rec.q - back) <= RECOVERY_ARRIVED * half).all(axis=0)
         rec.state = np.where(done, RECOVERED, rec.state).astype(np.int8)
         return np.where(recovering, back, target_t), rec
 
@@ -602,20 +637,26 @@ class ReachSetup:
         far = (((q - q_t[:, None, :]) / self.arm._half[:, None, None]) ** 2).sum(axis=0)
         return q, reached.reshape(k, m), error.reshape(k, m), far
 
-    def recovery_way(self, goal_t: np.ndarray, q_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(via, to), each (n, M): where the recovery takes arms at q_t (n, M) for goals goal_t (size, M): to is
-        reaching_configuration's answer and via is to, without a body. With one, a goal's search stops once an
+    def recovery_way(self, goal_t: np.ndarray, q_t: np.ndarray, with_ways: bool = False) -> tuple[np.ndarray, ...]:
+        """(via, to), each (n, M) (with_ways: and the ways' points between, (M,) of tuples): where the recovery
+        takes arms at q_t (n, M) for goals goal_t (size, M): to is reaching_configuration's answer and via is to,
+        without a body. With one, a goal's search stops once an
         answer reaches it clear of contacts, and where no way to its answers from recovery_seeds is clear, it
         starts again from every one of recovery_vias (from the seeds alone, every answer touched a box for 25 of 29
         goals missed among test/world.yaml, when the search stopped at any answer). Then to is the
         nearest such answer whose way (the recovery's own steps, every one checked, way_margin kept) is clear, and
         via is to; else, the nearest whose way through one of recovery_vias (there, then on) is, and via is that
-        point (the shorter way first). Where no way is clear, the nearest answer, straight (a collision will refuse
+        point (the shorter way first). Where no way is clear, a planned one (motion.JointPlanner: OMPL's RRT-Connect
+        over the body, way_margin kept, at most RECOVERY_PLAN_TIME s) to the nearest answers, its points a recovery
+        step apart so that each step goes straight along the planned path (through a safety layer, a period's travel
+        apart and RECOVERY_PLAN_PADDING more kept): via is its first point and the way's
+        points follow (with_ways). Where none is found either, the nearest answer, straight (a collision will refuse
         it and the policy has the arm again: Recoveries.give_up). Arm by arm: an arm's way does not depend on its
         batch."""
+        ways = _no_ways(q_t.shape[1])
         if self.body is None:
             to = self.reaching_configuration(goal_t, q_t)
-            return to, to
+            return (to, to, ways) if with_ways else (to, to)
         via, to = np.empty_like(q_t), np.empty_like(q_t)
         left = np.arange(q_t.shape[1])
         for seeds in (self.recovery_seeds, self.recovery_vias):     # the few seeds first: most goals need no more
@@ -647,7 +688,79 @@ class ReachSetup:
             left = left[~found]
             if not len(left):
                 break
-        return via, to
+        for j in left:
+            planned = self._planned_way(goal_t[:, j], q_t[:, j])
+            if planned is not None:
+                via[:, j], ways[j], to[:, j] = planned[0], tuple(map(tuple, planned[1:-1])), planned[-1]
+        return (via, to, ways) if with_ways else (via, to)
+
+    def clear_reaching_configurations(self, goal: np.ndarray, q: np.ndarray, margin: float,
+                                      box=None) -> tuple[np.ndarray, float]:
+        """(configurations (m, n) within box's lower and upper (the arm's limits by default) that reach goal clear
+        of contacts by margin, the nearest to q (n,) first; the least error found): the search's steps from where the
+        arm stands, home and recovery_seeds, then from GOAL_ROUND of GOAL_DRAWS fixed postures at a time until one
+        answer is clear. A joint whose range is more than a turn (a UR's +-2 pi) is taken at the turn nearest to q:
+        the same pose, but a shoulder at 6.03 rad from -1.57 must pass through the table to get there, where -0.25
+        need not."""
+        box = box if box is not None else self.arm
+        if self._goal_draws is None:
+            self._goal_draws = np.random.default_rng(2).uniform(self.arm.lower, self.arm.upper,
+                                                                (GOAL_DRAWS, self.arm.n)).T
+        q = np.asarray(q, dtype=float)
+        seeds = np.hstack((q[:, None], self.recovery_seeds))
+        parts = [seeds] + [self._goal_draws[:, k:k + GOAL_ROUND] for k in range(0, GOAL_DRAWS, GOAL_ROUND)]
+        found, best = np.zeros((0, self.arm.n)), np.inf
+        for part in parts:
+            answers, reached, error, _ = self._reaching_search(goal[:, None], q[:, None], part, clear=False)
+            best = min(best, float(error.min()))
+            candidates = answers[:, reached[:, 0], 0].T
+            candidates = candidates[np.all((candidates >= box.lower) & (candidates <= box.upper), axis=1)]
+            if len(candidates):
+                candidates = self._nearest_turns(candidates, q, box)
+                candidates = candidates[~self.body.in_collision(candidates, margin)]
+            if len(candidates):
+                found = candidates
+                break
+        order = np.argsort(np.linalg.norm((found - q) / self.arm._half, axis=1), kind='stable')
+        return found[order], best
+
+    def _nearest_turns(self, found: np.ndarray, q: np.ndarray, box) -> np.ndarray:
+        """The configurations, and before them the same ones with each joint whose range is more than a turn taken at
+        the turn nearest to q (where that is within box)."""
+        turning = [k for k, name in enumerate(self.arm.joints)
+                   if self.arm.tree.joints[name].type in ('revolute', 'continuous')
+                   and box.upper[k] - box.lower[k] > 2 * np.pi]
+        if not turning:
+            return found
+        near = found.copy()
+        for k in turning:
+            shifted = near[:, k] + 2 * np.pi * np.round((q[k] - near[:, k]) / (2 * np.pi))
+            inside = (shifted >= box.lower[k]) & (shifted <= box.upper[k])
+            near[inside, k] = shifted[inside]
+        return np.vstack((near, found[np.any(near != found, axis=1)]))
+
+    def _planned_way(self, goal: np.ndarray, q: np.ndarray) -> np.ndarray | None:
+        """The points (k, n) after q of a planned way to a configuration that reaches goal clear of contacts by
+        way_margin, a recovery step apart (no joint more than RECOVERY_STEP of its half range from one to the next:
+        each step lands on the next point, straight along the path); None without one."""
+        from robot_ai.motion import JointPlanner
+        from robot_ai.motion.timing import densify
+        box = self.limits if self.limits is not None else self.arm       # within the layer's positions
+        # through a layer the arm follows the points a little off the straight legs: a centimetre more kept
+        margin = self.way_margin + (RECOVERY_PLAN_PADDING if self.limits is not None else 0.0)
+        ends = self.clear_reaching_configurations(goal, q, margin, box)[0][:RECOVERY_PLAN_GOALS]
+        if not len(ends):
+            return None
+        if self._planner is None or self._planner[0] != margin:
+            self._planner = (margin, JointPlanner(box.lower, box.upper, lambda c: ~self.body.in_collision(c, margin),
+                                                  self.body.sweep(), spacing=max(margin, RECOVERY_PLAN_SPACING)))
+        path = self._planner[1].plan(q, ends, RECOVERY_PLAN_TIME)
+        if not path.found:
+            return None
+        step = RECOVERY_STEP * self.arm._half
+        if self.limits is not None:     # a period's travel at most: each joint reaches its point within the period
+            step = np.minimum(step, self.limits.velocity * self.control_period)
+        return (densify(path.waypoints / step, 1.0) * step)[1:]
 
     def _clear_way(self, q: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(via, to) from q (n,) to the first of ends (n, c) (clear of contacts; the first one's straight way
@@ -783,11 +896,13 @@ class ReachSetup:
         column = lambda v: np.array(v, dtype=np.float64)[:, None]     # noqa: E731
         to = column(recovery.q) if recovery.q is not None else np.zeros((self.arm.n, 1))
         then = column(recovery.then) if recovery.then is not None else to.copy()
+        way = np.empty(1, dtype=object)
+        way[0] = recovery.way
         rec = Recoveries(np.array([recovery.state], dtype=np.int8), to, np.array([recovery.best]),
-                         np.array([recovery.since], dtype=np.int32), then)
+                         np.array([recovery.since], dtype=np.int32), then, way)
         out, rec = self.recover(column(q), column(tip), column(target), column(a), column(goal), rec)
         return out[:, 0].tolist(), Recovery(int(rec.state[0]), tuple(rec.q[:, 0].tolist()), float(rec.best[0]),
-                                            int(rec.since[0]), tuple(rec.then[:, 0].tolist()))
+                                            int(rec.since[0]), tuple(rec.then[:, 0].tolist()), tuple(rec.way[0]))
 
     # ------------------------------------------------------------------------------- one arm (plain floats)
     def place_one(self, q: list) -> tuple[list, list | None]:
@@ -900,6 +1015,8 @@ class ReachEnv(gymnasium.Env):
                                                    np.array(target)[:, None])
             self._q, hit = self.setup.guard_one(self._q, q[:, 0].tolist())
             self._v = np.zeros_like(v) if hit else v
+            if hit:                                 # held: the targets sent are dropped (ReachVectorEnv._moved)
+                self._sent = np.repeat(np.array(self._q)[None, :, None], self._sent.shape[0], axis=0)
         else:
             self._q, hit = self.setup.guard_one(self._q, target)
         if hit:
@@ -1094,8 +1211,10 @@ class ReachVectorEnv(VectorEnv):
             q, v, self._sent[:, :, rows] = self.setup.advance(before, self._v[:, rows], self._sent[:, :, rows],
                                                               target)
             q, hit = self.setup.guard(before, q)
-            if hit is not None:
-                v[:, hit] = 0.0
+            if hit is not None and hit.any():    # the layer holds the arm: the targets it had sent are dropped (a
+                v[:, hit] = 0.0                  # way round starts from where it holds, not after them)
+                held = np.asarray(rows)[hit] if not isinstance(rows, slice) else np.arange(self.num_envs)[rows][hit]
+                self._sent[:, :, held] = q[None, :, hit]
             self._v[:, rows] = v
         rec.give_up(hit)
         self._recovery[rows] = rec

@@ -123,12 +123,14 @@ class Evaluation:
     """A policy over fresh goals: the success rate (tip within the threshold at the last step), the final
     distances (episodes,), the seed of the first episode, where episodes started ('home', 'random' or 'chained'),
     and the goals missed by reason (beyond reach, the last motion refused by a collision, at joint limits, none of
-    these: MISSES' keys)."""
+    these: MISSES' keys); planned: the share of the goals reached whose episode took a planned way round (the
+    planner's share; the policy's is the rest)."""
     success_rate: float
     distances: np.ndarray
     seed: int
     start: str = 'home'
     misses: dict[str, int] = field(default_factory=dict)
+    planned: float = 0.0
 
     @property
     def mean_distance(self) -> float:
@@ -264,7 +266,7 @@ def evaluate(policy, setup: ReachSetup, episodes: int = HELD_OUT_EPISODES, seed:
         setup.start = start
     chained = start == 'chained'
     width = min(episodes, CHAIN_ENVS if chained else batch)
-    distances, successes, goals, configurations, blocked = [], [], [], [], []
+    distances, successes, goals, configurations, blocked, planned = [], [], [], [], [], []
     for first in range(0, episodes, width if not chained else episodes):
         k = min(width, episodes - first)
         env = ReachVectorEnv(k, setup=setup)
@@ -273,8 +275,11 @@ def evaluate(policy, setup: ReachSetup, episodes: int = HELD_OUT_EPISODES, seed:
         for chain in range(-(-episodes // k) if chained else 1):
             if chain:                                        # the autoreset step: the next goal, the arm where it is
                 obs, *_ = env.step(np.zeros(env.action_space.shape, dtype=np.float32))
+            took = np.zeros(k, dtype=bool)
             for _ in range(env.max_episode_steps):
                 obs, _, _, _, infos = env.step(policy.act_batch(ars.flatten_batch(space, obs)))
+                took |= np.fromiter((len(w) > 0 for w in env._recovery.way), dtype=bool, count=k)
+            planned.append(took)
             distances.append(final_distance(obs))
             successes.append(infos['is_success'])
             blocked.append(infos.get('collision', np.zeros(k, dtype=bool)))     # its last motion was refused
@@ -291,7 +296,9 @@ def evaluate(policy, setup: ReachSetup, episodes: int = HELD_OUT_EPISODES, seed:
             continue
         kind = why_unreached(setup.arm, goals[i][:3], configurations[i], float(distances[i]))[0]
         misses['collision' if blocked[i] and kind != 'beyond' else kind] += 1
-    return Evaluation(float(successes.mean()), distances, seed, start, misses)
+    planned = np.concatenate(planned)[:episodes]
+    share = float((planned & successes).sum() / max(int(successes.sum()), 1))
+    return Evaluation(float(successes.mean()), distances, seed, start, misses, share)
 
 
 def p_controller(setup: ReachSetup, gain: float = 1.0):

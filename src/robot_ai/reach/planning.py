@@ -22,8 +22,6 @@ from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import ReachSetup
 from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, Limits
 
-GOAL_DRAWS = 240         # extra postures (fixed draws) a goal's configurations are sought from, beyond the setup's
-GOAL_ROUND = 48          # ... that many at a time, until one reaches clear of contacts
 GOAL_CONFIGURATIONS = 8  # reaching configurations given to the planner at most (the nearest to the start first)
 
 
@@ -51,7 +49,7 @@ class ReachPlanner:
 
     def __init__(self, setup: ReachSetup, margin: float = DEFAULT_MARGIN,
                  velocity_scale: float = DEFAULT_VELOCITY_SCALE, joint_limits=None,
-                 time_limit: float = DEFAULT_TIME_LIMIT, seed: int = 0):
+                 time_limit: float = DEFAULT_TIME_LIMIT):
         if setup.body is None:
             raise ReachError('a plan needs the arm\'s body: give collision=True (or obstacles)')
         if not margin >= 0:
@@ -67,9 +65,6 @@ class ReachPlanner:
         self.spacing = max(self.margin, 0.001)
         self.joints = JointPlanner(self.limits.lower, self.limits.upper, self.clear, self.body.sweep(),
                                    spacing=self.spacing)
-        draws = np.random.default_rng(seed + 2).uniform(self.limits.lower, self.limits.upper,
-                                                        (GOAL_DRAWS, self.arm.n))
-        self.seeds = np.ascontiguousarray(np.vstack((setup.recovery_seeds.T, draws)).T)
 
     def clear(self, q: np.ndarray) -> np.ndarray:
         """(N,) bool: configurations (N, n) clear of every contact by the margin."""
@@ -83,47 +78,12 @@ class ReachPlanner:
         inside = setup.obstacle_holding(goal)
         if inside is not None:
             return np.zeros((0, self.arm.n)), f'the goal is inside {inside}'
-        found, best = [], np.inf
-        seeds = np.hstack((np.asarray(q, dtype=float)[:, None], self.seeds))
-        first = 1 + setup.recovery_seeds.shape[1]          # where the arm stands, home and the setup's postures
-        for part in [seeds[:, :first]] + [seeds[:, k:k + GOAL_ROUND] for k in range(first, seeds.shape[1], GOAL_ROUND)]:
-            configurations, reached, error, far = setup._reaching_search(goal[:, None], np.asarray(q)[:, None], part,
-                                                                         clear=False)
-            best = min(best, float(error.min()))
-            candidates = configurations[:, reached[:, 0], 0].T
-            candidates = candidates[np.all((candidates >= self.limits.lower) & (candidates <= self.limits.upper),
-                                           axis=1)]
-            if len(candidates):
-                candidates = candidates[self.clear(candidates)]
-            found.extend(candidates)
-            if len(found) >= 1:
-                break
-        if not found:
+        found, best = setup.clear_reaching_configurations(goal, q, self.margin, self.limits)
+        if not len(found):
             if best > setup.task.distance_threshold:
-                return np.zeros((0, self.arm.n)), (f'the goal is beyond the arm\'s reach (no configuration found '
-                                                   f'within {best:.3f} m of it)')
-            return np.zeros((0, self.arm.n)), (f'no configuration reaches the goal clear of contacts by '
-                                               f'{self.margin:g} m')
-        found = self._nearest_turns(np.array(found), np.asarray(q, dtype=float))
-        found = found[self.clear(found)]
-        order = np.argsort(np.linalg.norm((found - q) / self.arm._half, axis=1), kind='stable')
-        return found[order][:GOAL_CONFIGURATIONS], ''
-
-    def _nearest_turns(self, found: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """The configurations, each with the same configurations a whole turn away on a joint whose range is more
-        than a turn (a UR's +-2 pi) put first, at the turn nearest to q: the same pose of the arm, but a shoulder at
-        6.03 rad from -1.57 must pass through the table to get there, where -0.25 rad need not."""
-        turning = [k for k, name in enumerate(self.arm.joints)
-                   if self.arm.tree.joints[name].type in ('revolute', 'continuous')
-                   and self.limits.upper[k] - self.limits.lower[k] > 2 * np.pi]
-        if not turning:
-            return found
-        near = found.copy()
-        for k in turning:
-            shifted = near[:, k] + 2 * np.pi * np.round((q[k] - near[:, k]) / (2 * np.pi))
-            inside = (shifted >= self.limits.lower[k]) & (shifted <= self.limits.upper[k])
-            near[inside, k] = shifted[inside]
-        return np.vstack((near, found[np.any(near != found, axis=1)]))
+                return found, f'the goal is beyond the arm\'s reach (no configuration found within {best:.3f} m of it)'
+            return found, f'no configuration reaches the goal clear of contacts by {self.margin:g} m'
+        return found[:GOAL_CONFIGURATIONS], ''
 
     def plan(self, q, goal, time_limit: float | None = None) -> ReachPlan:
         """The plan from joint positions q (n,) to the goal (a position, or a pose for pose goals)."""
