@@ -164,3 +164,27 @@ def test_the_env_goes_round_by_a_planned_way_where_its_via_points_find_none(monk
     assert with_planner.success_rate > without.success_rate, (with_planner, without)
     assert with_planner.success_rate >= 0.95 and with_planner.planned > 0
     assert without.planned == 0
+
+
+def test_a_step_between_two_clear_configurations_through_an_obstacle_is_refused(monkeypatch):
+    """The env checks a step's whole motion, not only its end: of random short motions of the Panda among the world
+    whose ends are both clear, those whose middle the body model finds in contact are refused by guard (they were
+    taken when only the end was checked), and a clear motion is taken as before."""
+    monkeypatch.setenv('ROS_PACKAGE_PATH', MESHES)
+    setup = ReachSetup(os.path.join(ROBOTS, 'panda.urdf'), tip='panda_hand', obstacles=WORLD, collision=True)
+    rng = np.random.default_rng(3)
+    a = rng.uniform(setup.arm.lower, setup.arm.upper, (4000, setup.arm.n))
+    b = np.clip(a + rng.normal(0, 0.4, a.shape), setup.arm.lower, setup.arm.upper)
+    ends_clear = ~setup.body.in_collision(a) & ~setup.body.in_collision(b)
+    middle_hit = setup.body.in_collision((a + b) / 2)
+    through = np.flatnonzero(ends_clear & middle_hit)
+    assert len(through) >= 5, 'the sample finds too few motions through an obstacle to test'
+    q, hit = setup.guard(a[through].T, b[through].T)
+    assert hit.all() and np.array_equal(q, a[through].T)
+    for i in through[:5]:                                        # one arm at a time: the same answer
+        assert setup.guard_one(a[i].tolist(), b[i].tolist()) == (a[i].tolist(), True)
+    free = np.flatnonzero(ends_clear & ~setup.body.in_collision(
+        (a[:, None] + (b - a)[:, None] * np.linspace(0, 1, 50)[None, :, None]).reshape(-1, setup.arm.n)).reshape(
+        len(a), 50).any(axis=1))[:50]
+    q, hit = setup.guard(a[free].T, b[free].T)
+    assert not hit.any() and np.array_equal(q, b[free].T)

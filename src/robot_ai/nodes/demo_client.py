@@ -240,7 +240,8 @@ def reach(ns: str, count: int, seed: int) -> tuple[list[str], list[str]]:
     setup = ReachSetup(urdf=rospy.get_param(f'{ns}/robot_description'),
                        tip=rospy.get_param(f'{controller}/tip', '') or None,
                        obstacles=rospy.get_param(f'{controller}/obstacles', '') or None,
-                       collision=bool(rospy.get_param(f'{controller}/collision', False)))
+                       collision=bool(rospy.get_param(f'{controller}/collision', False)),
+                       home=rospy.get_param(f'{controller}/home_position', None) or None)
     arm, threshold = setup.arm, setup.task.distance_threshold
     goals = arm.tip_positions(seeded_goal_configurations(setup, count, seed,
                                                          float(rospy.get_param(f'{controller}/collision_margin', 0.0))))

@@ -60,6 +60,10 @@ ROS Parameters
     ~nice (int, -10): the scheduling priority it asks for once trained, so that its commands reach the arm's
         controller within the layer's lead on a loaded machine (root or CAP_SYS_NICE; otherwise it runs as started,
         and says so); 0 leaves it (robot_ai.priority).
+    ~home_position (list or dict, []): the arm's home, where ~home takes it and a stalled goal is tried again from:
+        joint positions in the arm's order, or {joint: position} (the others mid-range); empty: the policy file's, or
+        the middle of every joint's range. Outside the limits or in contact: the node does not start, saying which
+        pair touches; within ~collision_margin: ~home is refused (said at start).
     ~obstacles (str or list, ""): obstacles in the arm's base frame, a YAML file (or a list parameter) of
         {box: [sx, sy, sz], position: [x, y, z], rpy: [r, p, y]} or {sphere: r, position: [x, y, z]}; empty: the
         world the policy file learned in, if any; rviz draws them (~obstacle_markers).
@@ -215,8 +219,14 @@ class ReachController:
         goal_kind = str_param('~goal', '')
         if goal_kind not in ('', *GOALS):
             raise ValueError(f'~goal must be one of {", ".join(GOALS)} (or empty: the policy\'s), got {goal_kind!r}')
+        home = rospy.get_param('~home_position', None)
+        if home in (None, [], {}, ''):
+            home = None
+        elif not isinstance(home, (list, dict)):
+            raise ValueError(f'~home_position must be a list of joint positions in the arm\'s order or a dict '
+                             f'{{joint: position}}, got {home!r}')
         self.policy, self.setup, info, success = self._policy(xml, str_param('~policy', ''), str_param('~tip', ''),
-                                                              starting, world, goal_kind)
+                                                              starting, world, goal_kind, home)
         self._announce(info, success)
         arm = self.setup.arm
         self.base, self.tip = arm.base, arm.tip
@@ -373,27 +383,29 @@ class ReachController:
         rospy.loginfo(f'reach_controller: driving with {info}')
 
     @staticmethod
-    def _policy(xml: str, path: str, tip: str, starting: Starting, world=None, goal: str = ''):
+    def _policy(xml: str, path: str, tip: str, starting: Starting, world=None, goal: str = '', home=None):
         """(an object with act_batch(flat observations), the reach setup it acts in, a line on it, its success rate)
         of ~policy, or of an ARS run on the robot description when it is empty; world: ~obstacles; goal: ~goal
-        ('' : the policy file's, or position); starting: told each stage (main makes it, and readies it however
-        the start ends)."""
+        ('' : the policy file's, or position); home: ~home_position (None: the policy file's, or mid-range);
+        starting: told each stage (main makes it, and readies it however the start ends)."""
         if path:
             starting.stage = f'loading ~policy {path}'
             try:
                 policy, setup, note = policy_files.load(path, urdf=xml, tip=tip or None, obstacles=world,
-                                                        goal=goal or None)
+                                                        goal=goal or None, home=home)
             except (policies.PolicyError, ReachError) as e:
-                raise ValueError(f'~policy: {e}') from None
+                raise ValueError(f'~policy or ~home_position: {e}') from None
             if note:
                 rospy.logwarn(note)
             return policy.actor, setup, policy.describe(), policy.metadata.get('success_rate')
         pose = dict(goal='pose') if goal == 'pose' else {}
         starting.stage = 'reading the arm and ~obstacles'
+        if home is not None:
+            pose['home'] = home
         try:
             setup = ReachSetup(urdf=xml, tip=tip or None, obstacles=world, **pose)
         except ReachError as e:
-            raise ValueError(f'~tip or ~obstacles: {e}') from None
+            raise ValueError(f'~tip, ~obstacles or ~home_position: {e}') from None
         for warning in setup.arm.warnings:
             rospy.logwarn(f'reach_controller: {warning}')
         rospy.loginfo(f'reach_controller: no ~policy: ARS learns to reach with {setup.arm.describe()} (seconds; '
