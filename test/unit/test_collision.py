@@ -228,3 +228,20 @@ def test_obstacles_beyond_the_arm_s_reach_are_left_out_of_the_checks_and_said():
     m = setup.body.moving_spheres                    # a bound: no configuration puts a sphere farther out
     farthest = np.linalg.norm(setup.body.sphere_centres(q)[:, m], axis=-1) + setup.body.radii[m]
     assert farthest.max() <= setup.body.reach()
+
+
+def test_a_floating_base_robot_has_its_body_below_the_floating_joint():
+    """A floating base (a humanoid's pelvis) with a body: the arm's chain starts at the pelvis, its links and the
+    pelvis are the body (Unitree H1_2's `train --collision` ended in KeyError: 'pelvis'), and the spheres agree with the
+    exact meshes: a configuration folding the arm onto the pelvis is a contact of both, the straight one of neither."""
+    path = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', 'urdf', 'floating_body_arm.urdf')
+    model = load_model(path)
+    arm = Arm(model.tree)
+    body = CollisionModel(model.tree, model.urdf, arm)
+    assert arm.base == 'pelvis' and set(body.links) == {'pelvis', 'l1', 'l2', 'l3'}
+    q = np.array([[0.0, 0.0, 0.0], [0.0, 2.6, 2.6]])        # straight up; folded down onto the pelvis
+    exact = Exact(body)
+    poses = body.link_poses(q)
+    assert [bool(exact.contacts(poses, n)) for n in range(2)] == [False, True]
+    assert body.in_collision(q).tolist() == [False, True]
+    assert any('pelvis' in pair for pair in body.contacts(q[1]))

@@ -460,7 +460,12 @@ class CollisionModel:
             isinstance(o, Obstacle) for o in obstacles)) else obstacles
         shapes, self.missing = link_shapes(urdf, urdf_dir)
         rng = np.random.default_rng(seed)
+        # the links the arm's base carries: from the root, or (a floating base: the root's floating joint is skipped,
+        # as robot_state_publisher skips it) from the arm's base down
         reachable = set(tree.link_poses())
+        self.floating = arm.base not in reachable
+        if self.floating:
+            reachable = set(tree.link_poses(base=arm.base))
         # a link whose geometry cannot be read is never left empty: it gets a stand-in, said once per process
         unread = sorted({m.split(': ')[0] for m in self.missing} & reachable)
         for link in unread:
@@ -654,6 +659,9 @@ class CollisionModel:
     def link_poses(self, q) -> dict[str, np.ndarray]:
         """{link: (N, 4, 4)} of the body's links in the arm's base frame."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
+        if self.floating:           # below a floating joint: configuration by configuration, from the arm's base
+            each = [self.tree.link_poses(dict(zip(self.arm.joints, row)), base=self.arm.base) for row in q]
+            return {link: np.stack([p[link] for p in each]) for link in self.links}
         poses = self.tree.link_poses_batch(q, names=self.arm.joints)
         if self.arm.base == self.tree.root:
             return {link: poses[link] for link in self.links}
@@ -766,9 +774,12 @@ class CollisionModel:
         self._moved_origins = {j.name for j in self._plan if j.matrix[:3, 3].any()}
         self._live_entries = {j.name: _live_entries(j.axis) for j in self._plan if j.axis is not None}
         self._wanted = below_arm
-        at_home = self.tree.link_poses_batch(self.arm.home[None], names=self.arm.joints)
-        base = np.linalg.inv(at_home[self.arm.base][0])
-        self._at_home = {link: base @ p[0] for link, p in at_home.items()}
+        if self.floating:
+            self._at_home = self.tree.link_poses(dict(zip(self.arm.joints, self.arm.home)), base=self.arm.base)
+        else:
+            at_home = self.tree.link_poses_batch(self.arm.home[None], names=self.arm.joints)
+            base = np.linalg.inv(at_home[self.arm.base][0])
+            self._at_home = {link: base @ p[0] for link, p in at_home.items()}
         self._still = np.zeros((3, len(self.radii)))
         for i, link in enumerate(self.links):
             idx = np.flatnonzero(self.owner == i)
