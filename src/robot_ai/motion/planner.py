@@ -52,15 +52,18 @@ class PlannedPath:
         return float(np.linalg.norm(np.diff(self.waypoints, axis=0), axis=1).sum())
 
 
+OMPL_SEED = 0                 # OMPL's random numbers: seeded once per process, before their first use (OMPL's rule),
+_seeded = []                  # so that the same plans in the same order give the same paths
+
+
 def _ompl():
     from ompl import base as ob, geometric as og, util as ou
+    if not _seeded:
+        _seeded.append(True)
+        ou.setLogLevel(ou.LOG_ERROR)      # its warning that a seed came late, if another user of OMPL came first
+        ou.RNG.setSeed(OMPL_SEED)
+        ou.setLogLevel(ou.LOG_WARN)
     return ob, og, ou
-
-
-def seed_ompl(seed: int) -> None:
-    """OMPL's random numbers from seed: only before its first use in the process takes effect (OMPL's rule)."""
-    _, _, ou = _ompl()
-    ou.RNG.setSeed(int(seed))
 
 
 class JointPlanner:
@@ -118,7 +121,6 @@ class JointPlanner:
         and dropped after it: kept, the validator (a Python object that OMPL holds) outlives the interpreter's
         teardown and nanobind reports it as a leak at exit."""
         ob, og, ou = _ompl()
-        ou.setLogLevel(ou.LOG_WARN)
         space = ob.RealVectorStateSpace(self.n)
         bounds = ob.RealVectorBounds(self.n)
         for i in range(self.n):
@@ -151,7 +153,8 @@ class JointPlanner:
             s[i] = float(v)
         return s
 
-    def _tree_search(self, start: np.ndarray, goals: np.ndarray, time_limit: float) -> tuple[np.ndarray | None, str]:
+    def _tree_search(self, start: np.ndarray, goals: np.ndarray, time_limit: float,
+                     budget: int | None) -> tuple[np.ndarray | None, str]:
         ob, og, _ = _ompl()
         space, si, validator = self._space()
         ss = og.SimpleSetup(si)
@@ -164,20 +167,30 @@ class JointPlanner:
         if hasattr(planner, 'setRange'):
             planner.setRange(RANGE_SHARE * float(np.linalg.norm(self.upper - self.lower)))
         ss.setPlanner(planner)
-        began = time.monotonic()
-        ss.solve(float(time_limit))
+        began, checked = time.monotonic(), self.motions
+        done = ob.timedPlannerTerminationCondition(float(time_limit))
+        if budget is not None:          # a budget of motion checks: the same answer on a loaded machine
+            spent = ob.PlannerTerminationCondition(lambda: self.motions - checked >= budget)
+            done = ob.plannerOrTerminationCondition(spent, done)
+        ss.solve(done)
         if not ss.haveExactSolutionPath():
-            return None, f'no path found in {time_limit:g} s'
-        searched = time.monotonic() - began
-        ss.simplifySolution(max(SIMPLIFY_LEAST, SIMPLIFY_SHARE * searched))
+            return None, (f'no path found in {budget} motion checks' if budget is not None
+                          and self.motions - checked >= budget else f'no path found in {time_limit:g} s')
+        if budget is None:
+            ss.simplifySolution(max(SIMPLIFY_LEAST, SIMPLIFY_SHARE * (time.monotonic() - began)))
+        else:                           # shortened by a fixed count of tries: no clock in the answer
+            simplifier = og.PathSimplifier(si)
+            simplifier.reduceVertices(ss.getSolutionPath())
+            simplifier.ropeShortcutPath(ss.getSolutionPath())
         path = ss.getSolutionPath()
         waypoints = np.array([[path.getState(k)[i] for i in range(self.n)] for k in range(path.getStateCount())])
         return waypoints, ''
 
     # ------------------------------------------------------------------------------------------ planning
-    def plan(self, start, goals, time_limit: float = DEFAULT_TIME_LIMIT) -> PlannedPath:
+    def plan(self, start, goals, time_limit: float = DEFAULT_TIME_LIMIT, budget: int | None = None) -> PlannedPath:
         """A path from start (n,) to one of goals ((m, n): configurations that reach the same target, nearest
-        first is best), or the reason there is none: the start or every goal in contact, or no path in the time."""
+        first is best), or the reason there is none: the start or every goal in contact, or no path in the time
+        (or, with budget, in that many motion checks: an answer that a loaded machine does not change)."""
         began = time.monotonic()
         motions, states = self.motions, self.state_count
         start = np.asarray(start, dtype=float).reshape(self.n)
@@ -200,7 +213,7 @@ class JointPlanner:
             k = int(index[straight.argmax()])
             return answer(np.array([start, goals[k]]), k, '', 'straight')
         chosen = index[:MAX_GOALS]
-        waypoints, reason = self._tree_search(start, goals[chosen], time_limit)
+        waypoints, reason = self._tree_search(start, goals[chosen], time_limit, budget)
         if waypoints is None:
             return answer(None, -1, reason, self.planner_name)
         k = int(chosen[np.linalg.norm(goals[chosen] - waypoints[-1], axis=1).argmin()])

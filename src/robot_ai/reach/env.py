@@ -104,7 +104,8 @@ GUARD_SPACING = 0.04         # m: a step's motion is checked at configurations a
 GUARD_ARC = 1.25             # the longest path of a sphere over its chord that the checks allow for
 GOAL_DRAWS = 240             # postures (fixed draws) beyond recovery_seeds that a goal's clear configurations are
 GOAL_ROUND = 48              # sought from, that many at a time, until one reaches clear of contacts
-RECOVERY_PLAN_TIME = 0.5    # s a planned way round may take (where the via points find none)
+RECOVERY_PLAN_BUDGET = 300   # motion checks a planned way round may take (where the via points find none): a
+RECOVERY_PLAN_TIME = 5.0     # budget, not a time, so that a loaded machine plays the same episodes; s at most
 RECOVERY_PLAN_GOALS = 8      # reaching configurations the planner is given, the nearest first
 RECOVERY_PLAN_PADDING = 0.01  # m kept beyond way_margin by a planned way through a safety layer (velocity_scale)
 RECOVERY_PLAN_SPACING = 0.01  # m: a planned way's checks at most this far apart along the body (its margin, if more)
@@ -674,10 +675,10 @@ class ReachSetup:
         nearest such answer whose way (the recovery's own steps, every one checked, way_margin kept) is clear, and
         via is to; else, the nearest whose way through one of recovery_vias (there, then on) is, and via is that
         point (the shorter way first). Where no way is clear, a planned one (motion.JointPlanner: OMPL's RRT-Connect
-        over the body, way_margin kept, at most RECOVERY_PLAN_TIME s) to the nearest answers, its points a recovery
-        step apart so that each step goes straight along the planned path (through a safety layer, a period's travel
-        apart and RECOVERY_PLAN_PADDING more kept): via is its first point and the way's
-        points follow (with_ways). Where none is found either, the nearest answer, straight (a collision will refuse
+        over the body, way_margin kept, at most RECOVERY_PLAN_BUDGET motion checks) to the nearest answers, its
+        points a recovery step apart so that each step goes straight along the planned path (through a safety layer,
+        a period's travel apart and RECOVERY_PLAN_PADDING more kept): via is its first point and the way's points
+        follow (with_ways). Where none is found either, the nearest answer, straight (a collision will refuse
         it and the policy has the arm again: Recoveries.give_up). Arm by arm: an arm's way does not depend on its
         batch."""
         ways = _no_ways(q_t.shape[1])
@@ -686,7 +687,17 @@ class ReachSetup:
             return (to, to, ways) if with_ways else (to, to)
         via, to = np.empty_like(q_t), np.empty_like(q_t)
         left = np.arange(q_t.shape[1])
+        if self.limits is not None:     # through a safety layer: a planned way first, whose points a period apart
+            planned = []                # the layer's steps follow (two straight legs, each joint on its own
+            for j in left:              # trapezoid, left them by centimetres)
+                way = self._planned_way(goal_t[:, j], q_t[:, j])
+                if way is not None:
+                    via[:, j], ways[j], to[:, j] = way[0], tuple(map(tuple, way[1:-1])), way[-1]
+                    planned.append(j)
+            left = np.setdiff1d(left, planned)
         for seeds in (self.recovery_seeds, self.recovery_vias):     # the few seeds first: most goals need no more
+            if not len(left):
+                break
             q, reached, error, far = self._reaching_search(goal_t[:, left], q_t[:, left], seeds, clear=True)
             orders = []
             for i in range(len(left)):                 # each arm's answers, the nearest reaching one first
@@ -768,20 +779,25 @@ class ReachSetup:
 
     def _planned_way(self, goal: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """The points (k, n) after q of a planned way to a configuration that reaches goal clear of contacts by
-        way_margin, a recovery step apart (no joint more than RECOVERY_STEP of its half range from one to the next:
-        each step lands on the next point, straight along the path); None without one."""
+        way_margin (less where q itself is nearer than that to a contact), a recovery step apart (no joint more than
+        RECOVERY_STEP of its half range from one to the next: each step lands on the next point, straight along the
+        path); None without one."""
         from robot_ai.motion import JointPlanner
         from robot_ai.motion.timing import densify
         box = self.limits if self.limits is not None else self.arm       # within the layer's positions
-        # through a layer the arm follows the points a little off the straight legs: a centimetre more kept
-        margin = self.way_margin + (RECOVERY_PLAN_PADDING if self.limits is not None else 0.0)
+        # through a layer the arm follows the points a little off the straight legs: a centimetre more kept. An arm
+        # that stands within that already (a policy drove it there) is planned for with the margin it has, else
+        # with none, as the layer lets it move out (it refuses only motions that would touch then)
+        wanted = self.way_margin + (RECOVERY_PLAN_PADDING if self.limits is not None else 0.0)
+        margin = next((m for m in (wanted, 0.5 * wanted) if not self.body.in_collision(q[None], m)[0]), 0.0)
         ends = self.clear_reaching_configurations(goal, q, margin, box)[0][:RECOVERY_PLAN_GOALS]
         if not len(ends):
             return None
         if self._planner is None or self._planner[0] != margin:
-            self._planner = (margin, JointPlanner(box.lower, box.upper, lambda c: ~self.body.in_collision(c, margin),
+            self._planner = (margin, JointPlanner(box.lower, box.upper,
+                                                  lambda c, m=margin: ~self.body.in_collision(c, m),
                                                   self.body.sweep(), spacing=max(margin, RECOVERY_PLAN_SPACING)))
-        path = self._planner[1].plan(q, ends, RECOVERY_PLAN_TIME)
+        path = self._planner[1].plan(q, ends, RECOVERY_PLAN_TIME, budget=RECOVERY_PLAN_BUDGET)
         if not path.found:
             return None
         step = RECOVERY_STEP * self.arm._half
@@ -1038,8 +1054,11 @@ class ReachEnv(gymnasium.Env):
             raise ResetNeeded('Cannot call env.step() before calling env.reset()')
         a = self.setup.check_action_one(action)
         target = self.setup.move_one(self._q, self._jac, a)
+        was = self._recovery.state
         target, self._recovery = self.setup.recover_one(self._q, self._tip, target, a, self._goal, self._recovery)
         if self.setup.limits is not None:           # through the safety layer: one control period toward it
+            if self._recovery.state == RECOVERING and was != RECOVERING and self._recovery.way:   # (_moved's rule)
+                self._sent = np.repeat(np.array(self._q)[None, :, None], self._sent.shape[0], axis=0)
             q, v, self._sent = self.setup.advance(np.array(self._q)[:, None], self._v, self._sent,
                                                    np.array(target)[:, None])
             self._q, hit = self.setup.guard_one(self._q, q[:, 0].tolist())
@@ -1237,6 +1256,14 @@ class ReachVectorEnv(VectorEnv):
         if self.setup.limits is None:
             q, hit = self.setup.guard(before, target)
         else:
+            # a planned way round starts from where the arm is: the targets queued are dropped (through the
+            # layer they ran the arm into the contact the way goes round, and the way was given up at its start)
+            starting = (rec.state == RECOVERING) & (self._recovery.state[rows] != RECOVERING) & np.fromiter(
+                (len(w) > 0 for w in rec.way), dtype=bool, count=len(rec.state))
+            if starting.any():
+                sent = self._sent[:, :, rows]
+                sent[:, :, starting] = before[None, :, starting]
+                self._sent[:, :, rows] = sent
             q, v, self._sent[:, :, rows] = self.setup.advance(before, self._v[:, rows], self._sent[:, :, rows],
                                                               target)
             q, hit = self.setup.guard(before, q)
