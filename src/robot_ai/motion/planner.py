@@ -24,7 +24,6 @@ import numpy as np
 DEFAULT_TIME_LIMIT = 1.0      # s a plan may take
 SIMPLIFY_SHARE = 0.25         # of the time the search took (at least SIMPLIFY_LEAST s): for shortening the path
 SIMPLIFY_LEAST = 0.02
-RANGE_SHARE = 0.2             # RRT-Connect's step: this share of the joint space's diagonal (OMPL's own default)
 MAX_GOALS = 16                # goal configurations given to the tree search (the nearest ones)
 
 
@@ -156,17 +155,14 @@ class JointPlanner:
     def _tree_search(self, start: np.ndarray, goals: np.ndarray, time_limit: float,
                      budget: int | None) -> tuple[np.ndarray | None, str]:
         ob, og, _ = _ompl()
-        space, si, validator = self._space()
+        space, si, validator = self._space()        # the validator held here for the search: OMPL calls it
         ss = og.SimpleSetup(si)
         ss.setStartState(self._state(space, start))
         goal = ob.GoalStates(si)
         for q in goals:
             goal.addState(self._state(space, q))
         ss.setGoal(goal)
-        planner = getattr(og, self.planner_name)(si)
-        if hasattr(planner, 'setRange'):
-            planner.setRange(RANGE_SHARE * float(np.linalg.norm(self.upper - self.lower)))
-        ss.setPlanner(planner)
+        ss.setPlanner(getattr(og, self.planner_name)(si))      # its step: OMPL's, a fifth of the box's diagonal
         began, checked = time.monotonic(), self.motions
         done = ob.timedPlannerTerminationCondition(float(time_limit))
         if budget is not None:          # a budget of motion checks: the same answer on a loaded machine

@@ -12,6 +12,7 @@ limits, and the timing is stretched until the motion, sampled finely, is within 
 """
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from typing import Callable
@@ -85,7 +86,8 @@ def _toppra(waypoints: np.ndarray, velocity: np.ndarray, acceleration: np.ndarra
     import toppra
     import toppra.algorithm
     import toppra.constraint
-    toppra.setup_logging('WARNING') if hasattr(toppra, 'setup_logging') else None
+    # its warnings only (toppra.setup_logging would add a handler at every call: a line said n times after n plans)
+    logging.getLogger('toppra').setLevel(logging.WARNING)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(waypoints, axis=0), axis=1))])
     s /= s[-1]
     path = toppra.SplineInterpolator(s, waypoints, bc_type='clamped')
@@ -107,11 +109,9 @@ def _rest_to_rest(waypoints: np.ndarray, velocity: np.ndarray, acceleration: np.
     """Each segment a straight motion from rest to rest, every joint on the same trapezoid of the segment's share."""
     segments = []           # (start time, duration, a, b, peak share speed, share acceleration, ramp time)
     t0 = 0.0
-    for a, b in zip(waypoints[:-1], waypoints[1:]):
+    for a, b in zip(waypoints[:-1], waypoints[1:]):     # time_path keeps no segment that does not move
         d = np.abs(b - a)
         moving = d > 0
-        if not moving.any():
-            continue
         v = float((velocity[moving] / d[moving]).min())         # of the share s in [0, 1]
         acc = float((acceleration[moving] / d[moving]).min())
         if v * v / acc >= 1.0:             # never reaches v: a triangle
@@ -124,8 +124,6 @@ def _rest_to_rest(waypoints: np.ndarray, velocity: np.ndarray, acceleration: np.
         segments.append((t0, span, a, b, v, acc, ramp))
         t0 += span
     duration = t0
-    if not segments:
-        segments.append((0.0, 0.0, waypoints[0], waypoints[0], 0.0, 0.0, 0.0))
 
     def share(u, span, v, acc, ramp, order):
         if order == 0:
@@ -147,7 +145,7 @@ def _rest_to_rest(waypoints: np.ndarray, velocity: np.ndarray, acceleration: np.
             rows = which == k
             if rows.any():
                 u = np.clip(flat[rows] - s0, 0.0, span)
-                s = share(u, span, v, acc, ramp, order) if span > 0 else np.full(u.shape, 1.0 if order == 0 else 0.0)
+                s = share(u, span, v, acc, ramp, order)
                 out[rows] = (a if order == 0 else 0.0) + s[:, None] * (b - a)
         return out if np.ndim(t) else out[0]
     return at, duration

@@ -100,15 +100,18 @@ def add_home(p: argparse.ArgumentParser, default: str = '') -> None:
 
 
 def home(a, parser) -> dict:
-    """--home as an env kwarg: a list of numbers, or {joint: value}; none given: none."""
-    if a.home is None:
-        return {}
+    """--home as an env kwarg (joint_positions'); none given: none."""
+    return {} if a.home is None else {'home': joint_positions(a.home, '--home', parser)}
+
+
+def joint_positions(tokens: list[str], flag: str, parser) -> list[float] | dict[str, float]:
+    """A configuration given on the command line: numbers in the arm's order, or name=value pairs ({joint: value})."""
     try:
-        if all('=' in token for token in a.home):
-            return {'home': {name: float(value) for name, _, value in (t.partition('=') for t in a.home)}}
-        return {'home': [float(token) for token in a.home]}
+        if all('=' in token for token in tokens):
+            return {name: float(value) for name, _, value in (t.partition('=') for t in tokens)}
+        return [float(token) for token in tokens]
     except ValueError:
-        refuse(parser, f'--home must be numbers, or name=value pairs, got {" ".join(a.home)}')
+        refuse(parser, f'{flag} must be numbers, or name=value pairs, got {" ".join(tokens)}')
 
 
 def add_layer(p: argparse.ArgumentParser, default: str = '') -> None:
@@ -382,8 +385,7 @@ def run_plan(a, parser) -> int:
                                time_limit=a.time_limit)
         start = setup.home
         if a.start_q is not None:
-            given = home(argparse.Namespace(home=a.start_q), parser)['home']
-            start = setup.configuration(given, '--from', setup.home)
+            start = setup.configuration(joint_positions(a.start_q, '--from', parser), '--from', setup.home)
     except ReachError as e:
         refuse(parser, str(e))
     print(f'robot             {setup.arm.describe()}')

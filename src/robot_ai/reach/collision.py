@@ -459,6 +459,7 @@ class CollisionModel:
         self.obstacles = parse_obstacles(obstacles) if not (isinstance(obstacles, tuple) and all(
             isinstance(o, Obstacle) for o in obstacles)) else obstacles
         shapes, self.missing = link_shapes(urdf, urdf_dir)
+        self._sweep = None          # sweep()'s answer, once asked
         rng = np.random.default_rng(seed)
         # the links the arm's base carries: from the root, or (a floating base: the root's floating joint is skipped,
         # as robot_state_publisher skips it) from the arm's base down
@@ -504,42 +505,51 @@ class CollisionModel:
         parent_joint = {j.child: j for j in self.tree.joints.values()}
         worst = 0.0
         for k in self.moving_spheres:
-            link, length = self.links[self.owner[k]], 0.0
-            while link != self.arm.base:
-                joint = parent_joint.get(link)
-                if joint is None:
-                    return math.inf
-                length += float(np.linalg.norm(joint.xyz))
-                if joint.type == 'prismatic':
-                    length += max(abs(joint.lower or 0.0), abs(joint.upper or 0.0)) or 1.0
-                link = joint.parent
-            worst = max(worst, length + float(np.linalg.norm(self.centres[k])) + float(self.radii[k]))
+            _, bound = self._up_from(k, parent_joint)
+            if bound == math.inf:
+                return math.inf
+            worst = max(worst, bound)
         return worst
 
     def sweep(self) -> np.ndarray:
         """(n,): a bound on how far (m) any point of a moving sphere moves per radian (or metre) of each of the arm's
         joints: for a revolute joint, the longest way from its origin to a sphere's far side below it (the offsets of
         the joints between, prismatic travel added); for a prismatic one, 1; a mimic joint adds its multiplier's share
-        to its source's. A motion's checks are spaced by it (motion.JointPlanner)."""
+        to its source's. A motion's checks are spaced by it (motion.JointPlanner). Worked out once."""
+        if self._sweep is not None:
+            return self._sweep.copy()
         parent_joint = {j.child: j for j in self.tree.joints.values()}
         index = {name: k for k, name in enumerate(self.arm.joints)}
         out = np.zeros(self.arm.n)
         for k in self.moving_spheres:
-            link, below = self.links[self.owner[k]], float(np.linalg.norm(self.centres[k])) + float(self.radii[k])
             share = np.zeros(self.arm.n)
-            while link != self.arm.base and link in parent_joint:
-                joint = parent_joint[link]
+            for joint, below in self._up_from(k, parent_joint)[0]:
                 source, factor = joint.name, 1.0
                 if joint.mimic is not None:
                     source, factor = joint.mimic[0], abs(float(joint.mimic[1]))
                 if source in index:
                     share[index[source]] += factor * (1.0 if joint.type == 'prismatic' else below)
-                below += float(np.linalg.norm(joint.xyz))
-                if joint.type == 'prismatic':
-                    below += max(abs(joint.lower or 0.0), abs(joint.upper or 0.0)) or 1.0
-                link = joint.parent
             out = np.maximum(out, share)
-        return np.maximum(out, 1e-3)
+        self._sweep = np.maximum(out, 1e-3)
+        return self._sweep.copy()
+
+    def _up_from(self, k: int, parent_joint: dict) -> tuple[list, float]:
+        """The joints from moving sphere k's link up to the arm's base, each with the longest way from its origin to
+        the sphere's far side (the offsets of the joints between, prismatic travel added, the sphere's centre and
+        radius), and that way from the base (inf where the link is not below the base)."""
+        link, length = self.links[self.owner[k]], 0.0
+        centre, radius = float(np.linalg.norm(self.centres[k])), float(self.radii[k])
+        steps = []
+        while link != self.arm.base:
+            joint = parent_joint.get(link)
+            if joint is None:
+                return steps, math.inf
+            steps.append((joint, length + centre + radius))
+            length += float(np.linalg.norm(joint.xyz))
+            if joint.type == 'prismatic':
+                length += max(abs(joint.lower or 0.0), abs(joint.upper or 0.0)) or 1.0
+            link = joint.parent
+        return steps, length + centre + radius
 
     def _cull(self, padding: float = 1.0) -> int:
         """Obstacles no moving sphere can come within padding of (1 m: any ~collision_margin) are left out of the

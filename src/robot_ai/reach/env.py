@@ -168,6 +168,10 @@ class Recoveries:
         self.then[:, rows] = other.then
         self.way[rows] = other.way
 
+    def planned(self) -> np.ndarray:
+        """(N,) bool: the arms on a planned way (points of it still ahead)."""
+        return np.fromiter((len(w) > 0 for w in self.way), dtype=np.bool_, count=len(self.way))
+
     def restart(self, rows) -> None:
         """A new episode for these arms."""
         self.state[rows], self.best[rows], self.since[rows] = READY, np.inf, 0
@@ -605,7 +609,7 @@ class ReachSetup:
         half = arm._half[:, None]
         # at its via point (the arm itself, which a safety layer may bring there later than its targets): onward
         # (a planned way's next point, then its end)
-        more = np.array([len(w) > 0 for w in rec.way], dtype=np.bool_)
+        more = rec.planned()
         onward = recovering & ((rec.then != rec.q).any(axis=0) | more) & (
             np.abs(rec.q - q_t) <= RECOVERY_ARRIVED * half).all(axis=0)
         if onward.any():
@@ -615,7 +619,7 @@ class ReachSetup:
                     rec.q[:, i], rec.way[i] = rec.way[i][0], rec.way[i][1:]
                 else:
                     rec.q[:, i] = rec.then[:, i]
-            more = np.array([len(w) > 0 for w in rec.way], dtype=np.bool_)
+            more = rec.planned()
         step = np.minimum(np.maximum(rec.q - q_t, -RECOVERY_STEP * half), RECOVERY_STEP * half)
         back = q_t + step
         done = recovering & (rec.then == rec.q).all(axis=0) & ~more & (
@@ -688,13 +692,8 @@ class ReachSetup:
         via, to = np.empty_like(q_t), np.empty_like(q_t)
         left = np.arange(q_t.shape[1])
         if self.limits is not None:     # through a safety layer: a planned way first, whose points a period apart
-            planned = []                # the layer's steps follow (two straight legs, each joint on its own
-            for j in left:              # trapezoid, left them by centimetres)
-                way = self._planned_way(goal_t[:, j], q_t[:, j])
-                if way is not None:
-                    via[:, j], ways[j], to[:, j] = way[0], tuple(map(tuple, way[1:-1])), way[-1]
-                    planned.append(j)
-            left = np.setdiff1d(left, planned)
+            # the layer's steps follow (two straight legs, each joint on its own trapezoid, left them by centimetres)
+            left = left[~self._take_planned_ways(goal_t, q_t, left, via, to, ways)]
         for seeds in (self.recovery_seeds, self.recovery_vias):     # the few seeds first: most goals need no more
             if not len(left):
                 break
@@ -726,11 +725,20 @@ class ReachSetup:
             left = left[~found]
             if not len(left):
                 break
-        for j in left:
-            planned = self._planned_way(goal_t[:, j], q_t[:, j])
-            if planned is not None:
-                via[:, j], ways[j], to[:, j] = planned[0], tuple(map(tuple, planned[1:-1])), planned[-1]
+        self._take_planned_ways(goal_t, q_t, left, via, to, ways)
         return (via, to, ways) if with_ways else (via, to)
+
+    def _take_planned_ways(self, goal_t: np.ndarray, q_t: np.ndarray, arms: np.ndarray, via: np.ndarray,
+                           to: np.ndarray, ways: np.ndarray) -> np.ndarray:
+        """(len(arms),) bool: the arms (columns of goal_t and q_t) a planned way was found for, whose via (its first
+        point), to (its last) and ways (the points between) are set."""
+        found = np.zeros(len(arms), dtype=np.bool_)
+        for i, j in enumerate(arms):
+            way = self._planned_way(goal_t[:, j], q_t[:, j])
+            if way is not None:
+                via[:, j], ways[j], to[:, j] = way[0], tuple(map(tuple, way[1:-1])), way[-1]
+                found[i] = True
+        return found
 
     def clear_reaching_configurations(self, goal: np.ndarray, q: np.ndarray, margin: float,
                                       box=None) -> tuple[np.ndarray, float]:
@@ -777,12 +785,18 @@ class ReachSetup:
             near[inside, k] = shifted[inside]
         return np.vstack((near, found[np.any(near != found, axis=1)]))
 
+    def joint_planner(self, margin: float, box, spacing: float):
+        """A motion.JointPlanner within box's lower and upper (Limits, or the Arm) whose configurations are clear of
+        every contact of the body by margin, its motions checked spacing metres apart along the body."""
+        from robot_ai.motion import JointPlanner
+        return JointPlanner(box.lower, box.upper, lambda q: ~self.body.in_collision(q, margin), self.body.sweep(),
+                            spacing=spacing)
+
     def _planned_way(self, goal: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """The points (k, n) after q of a planned way to a configuration that reaches goal clear of contacts by
         way_margin (less where q itself is nearer than that to a contact), a recovery step apart (no joint more than
         RECOVERY_STEP of its half range from one to the next: each step lands on the next point, straight along the
         path); None without one."""
-        from robot_ai.motion import JointPlanner
         from robot_ai.motion.timing import densify
         box = self.limits if self.limits is not None else self.arm       # within the layer's positions
         # through a layer the arm follows the points a little off the straight legs: a centimetre more kept. An arm
@@ -794,9 +808,7 @@ class ReachSetup:
         if not len(ends):
             return None
         if self._planner is None or self._planner[0] != margin:
-            self._planner = (margin, JointPlanner(box.lower, box.upper,
-                                                  lambda c, m=margin: ~self.body.in_collision(c, m),
-                                                  self.body.sweep(), spacing=max(margin, RECOVERY_PLAN_SPACING)))
+            self._planner = (margin, self.joint_planner(margin, box, max(margin, RECOVERY_PLAN_SPACING)))
         path = self._planner[1].plan(q, ends, RECOVERY_PLAN_TIME, budget=RECOVERY_PLAN_BUDGET)
         if not path.found:
             return None
@@ -1058,13 +1070,13 @@ class ReachEnv(gymnasium.Env):
         target, self._recovery = self.setup.recover_one(self._q, self._tip, target, a, self._goal, self._recovery)
         if self.setup.limits is not None:           # through the safety layer: one control period toward it
             if self._recovery.state == RECOVERING and was != RECOVERING and self._recovery.way:   # (_moved's rule)
-                self._sent = np.repeat(np.array(self._q)[None, :, None], self._sent.shape[0], axis=0)
+                self._drop_sent()
             q, v, self._sent = self.setup.advance(np.array(self._q)[:, None], self._v, self._sent,
                                                    np.array(target)[:, None])
             self._q, hit = self.setup.guard_one(self._q, q[:, 0].tolist())
             self._v = np.zeros_like(v) if hit else v
             if hit:                                 # held: the targets sent are dropped (ReachVectorEnv._moved)
-                self._sent = np.repeat(np.array(self._q)[None, :, None], self._sent.shape[0], axis=0)
+                self._drop_sent()
         else:
             self._q, hit = self.setup.guard_one(self._q, target)
         if hit:
@@ -1078,6 +1090,10 @@ class ReachEnv(gymnasium.Env):
             distance = goal_distance_one(self._tip, self._goal)
             reward, info['is_success'] = self.task.reward_one(distance), distance < self.task.distance_threshold
         return self.setup.observation_one(self._q, self._tip, self._goal), reward, False, False, info
+
+    def _drop_sent(self) -> None:
+        """The targets sent to the layer replaced by where the arm is: it holds there."""
+        self._sent = np.repeat(np.array(self._q)[None, :, None], self._sent.shape[0], axis=0)
 
     def _info(self) -> dict:
         if self.setup.pose:
@@ -1258,19 +1274,15 @@ class ReachVectorEnv(VectorEnv):
         else:
             # a planned way round starts from where the arm is: the targets queued are dropped (through the
             # layer they ran the arm into the contact the way goes round, and the way was given up at its start)
-            starting = (rec.state == RECOVERING) & (self._recovery.state[rows] != RECOVERING) & np.fromiter(
-                (len(w) > 0 for w in rec.way), dtype=bool, count=len(rec.state))
-            if starting.any():
-                sent = self._sent[:, :, rows]
-                sent[:, :, starting] = before[None, :, starting]
-                self._sent[:, :, rows] = sent
+            arms = np.arange(self.num_envs)[rows]
+            starting = (rec.state == RECOVERING) & (self._recovery.state[rows] != RECOVERING) & rec.planned()
+            self._sent[:, :, arms[starting]] = before[None, :, starting]
             q, v, self._sent[:, :, rows] = self.setup.advance(before, self._v[:, rows], self._sent[:, :, rows],
                                                               target)
             q, hit = self.setup.guard(before, q)
             if hit is not None and hit.any():    # the layer holds the arm: the targets it had sent are dropped (a
                 v[:, hit] = 0.0                  # way round starts from where it holds, not after them)
-                held = np.asarray(rows)[hit] if not isinstance(rows, slice) else np.arange(self.num_envs)[rows][hit]
-                self._sent[:, :, held] = q[None, :, hit]
+                self._sent[:, :, arms[hit]] = q[None, :, hit]
             self._v[:, rows] = v
         rec.give_up(hit)
         self._recovery[rows] = rec

@@ -278,7 +278,7 @@ def evaluate(policy, setup: ReachSetup, episodes: int = HELD_OUT_EPISODES, seed:
             took = np.zeros(k, dtype=bool)
             for _ in range(env.max_episode_steps):
                 obs, _, _, _, infos = env.step(policy.act_batch(ars.flatten_batch(space, obs)))
-                took |= np.fromiter((len(w) > 0 for w in env._recovery.way), dtype=bool, count=k)
+                took |= env._recovery.planned()
             planned.append(took)
             distances.append(final_distance(obs))
             successes.append(infos['is_success'])

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robot_ai.motion import JointPlanner, PlannedPath, TimedPath, time_path
+from robot_ai.motion import PlannedPath, TimedPath, time_path
 from robot_ai.motion.planner import DEFAULT_TIME_LIMIT
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.env import ReachSetup
@@ -63,8 +63,7 @@ class ReachPlanner:
         # checked states at most `spacing` apart, each with the margin as padding: the body between two of them keeps
         # at least half the margin (and touches nothing with no margin: 1 mm steps then)
         self.spacing = max(self.margin, 0.001)
-        self.joints = JointPlanner(self.limits.lower, self.limits.upper, self.clear, self.body.sweep(),
-                                   spacing=self.spacing)
+        self.joints = setup.joint_planner(self.margin, self.limits, self.spacing)
 
     def clear(self, q: np.ndarray) -> np.ndarray:
         """(N,) bool: configurations (N, n) clear of every contact by the margin."""
