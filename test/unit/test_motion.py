@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from robot_ai.motion import JointPlanner, time_path
+from robot_ai.nodes.reach_controller import PLAN_BUDGET
 from robot_ai.reach.env import ReachSetup
 from robot_ai.reach.planning import ReachPlanner
 
@@ -188,3 +189,78 @@ def test_a_step_between_two_clear_configurations_through_an_obstacle_is_refused(
         len(a), 50).any(axis=1))[:50]
     q, hit = setup.guard(a[free].T, b[free].T)
     assert not hit.any() and np.array_equal(q, b[free].T)
+
+
+def follow_through_layer(setup, goal, start, period=0.05, margin=0.02, most=3000):
+    """What reach_controller does with a goal where the arm has a body: the way planned through its safety layer
+    (ReachSetup.planned_way), then followed by the recovery's steps (recover_one, the policy asking nothing), every
+    step made by the node's SafetyLayer (trajectory commands, the arm following them in time). (the way, the plans
+    sent, the steps refused, the arm's configuration at the end)."""
+    from robot_ai.reach.env import RECOVERED, RECOVERING, Recovery
+    from robot_ai.reach.safety import Limits, SafetyLayer
+    limits = Limits.of(setup.arm, velocity_scale=0.25)
+    moving = setup.through(limits, period, margin)
+    layer = SafetyLayer(limits, period, setup.body, margin)
+    way = moving.planned_way(np.asarray(goal, dtype=float), np.asarray(start, dtype=float), PLAN_BUDGET)
+    if not way.found:
+        return way, [], 0, np.asarray(start)
+    points = [tuple(p) for p in way.points.tolist()]
+    recovery = Recovery(RECOVERING, points[0], then=points[-1], way=tuple(points[1:-1]))
+    layer.plan(0.0, start, start)
+    refused, t, nothing = 0, 0.0, [0.0] * 3
+    for _ in range(most):
+        q = layer.commanded_at(t).tolist()
+        target, recovery = moving.recover_one(q, moving.place_one(q)[0], q, nothing, list(goal), recovery)
+        if recovery.state == RECOVERED:     # the policy has the arm again: here, asked to hold the way's end
+            target = points[-1]
+            if np.abs(layer.last.rest() - target).max() < 1e-9:
+                break
+        refused += bool(layer.plan(t, target, None).held)
+        t += period
+    return way, list(layer.history), refused, layer.last.rest()
+
+
+def test_a_goal_planned_as_reach_controller_plans_it_is_followed_through_the_safety_layer(arm_world):
+    """reach_controller plans a goal first where the arm has a body and follows the way through its safety layer:
+    no step of a way found is refused, the arm ends at the goal, and the motion the layer sent never brings the
+    meshes (python-fcl) into contact, from random starts among the table and two objects. (Most are found: how many
+    is the bench's figure; the UR5's fat spheres leave pockets no way leaves with the margin.)"""
+    import copy
+    robot, setup = arm_world
+    exact = Exact(setup.body)
+    drawing = copy.copy(setup)
+    drawing.start = 'random'
+    goals, starts = drawing.first_states([np.random.default_rng(200 + i) for i in range(24)])
+    usable = ~setup.body.in_collision(goals.T, 0.02) & ~setup.body.in_collision(starts.T, 0.02)
+    assert usable.sum() >= 5, f'{robot}: the world leaves too few clear problems to test'
+    found = 0
+    for i in np.flatnonzero(usable)[:5]:
+        goal = setup.goals_of(goals[:, i:i + 1])[:, 0]
+        way, plans, refused, end = follow_through_layer(setup, goal, starts[:, i])
+        if not way.found:
+            assert way.reason.startswith('no path found in'), f'{robot} problem {i}: {way.reason}'
+            continue
+        found += 1
+        assert refused == 0, f'{robot} problem {i}: {refused} steps of the way refused by the layer'
+        assert np.linalg.norm(setup.goals_of(end[:, None])[:, 0] - goal) < setup.task.distance_threshold
+        sent = np.vstack([p.samples(0.01) for p in plans])
+        assert exact.contacts_along(setup.body.link_poses(sent), len(sent)) == [], f'{robot} problem {i}'
+    assert found >= 4, f'{robot}: {found} of 5 goals planned'
+
+
+def test_a_way_given_from_outside_is_followed_without_the_limit_recovery(monkeypatch):
+    """A policy file from before the limit recovery drives without it, but the way reach_controller plans for it is
+    followed all the same (recover_one takes a RECOVERING way whatever limit_recovery is); READY stays the policy's."""
+    from robot_ai.reach.env import READY, Recovery
+    monkeypatch.setenv('ROS_PACKAGE_PATH', MESHES)
+    tip, home = ARMS['ur5.urdf']
+    setup = ReachSetup(os.path.join(ROBOTS, 'ur5.urdf'), tip=tip, home=home, obstacles=WORLD, collision=True,
+                       limit_recovery=False)
+    goals, _ = setup.first_states([np.random.default_rng(7)])
+    goal = setup.goals_of(goals)[:, 0]
+    way, plans, refused, end = follow_through_layer(setup, goal, setup.home)
+    assert way.found and refused == 0 and len(plans) > 2
+    assert np.linalg.norm(setup.goals_of(end[:, None])[:, 0] - goal) < setup.task.distance_threshold
+    q = setup.home.tolist()
+    assert setup.recover_one(q, setup.place_one(q)[0], q, [1.0, 0, 0], goal.tolist(), Recovery()) == (q, Recovery())
+    assert Recovery().state == READY

@@ -20,6 +20,11 @@ the limits; a command that comes late, or never, leaves the arm stopping on a ch
 Goals come from rviz's Publish Point tool (/clicked_point), ~goal, ~goal_pose or the interactive marker
 ~pose_marker (dragged and released in rviz), in any frame tf knows; the goal is drawn as a marker and its distance
 published. ~goal pose: a goal is the tip's position and orientation (a point keeps the tip's orientation now).
+With the arm's body, each goal is planned first (ReachSetup.planned_way: OMPL's RRT-Connect over the body and
+the world, the layer's margin and a centimetre more kept; `planned in <ms> (straight in joint space | round the
+contacts, RRTConnect, <k> steps)`): the arm follows the way, a step each period through the safety layer (checked as
+every command is), and the policy has it for the rest; a way a collision still holds the arm on is planned again from
+where it stands (MAX_REPLANS times); with no way (`no plan (<why>)`) the policy drives.
 It says `reached <goal> in <s> s (<d> m)` once the tip is within the policy's thresholds. When the distance stops
 shrinking within the arm's reach (joints at their limits, a collision, a
 configuration the policy cannot leave: a goal the arm must come at another way), it takes the arm home and tries
@@ -130,7 +135,7 @@ from robot_ai.priority import NICE, raise_priority
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.collision import CollisionModel
-from robot_ai.reach.env import RECOVERING, READY, ReachSetup, Recovery
+from robot_ai.reach.env import RECOVERING, READY, PlannedWay, ReachSetup, Recovery
 from robot_ai.reach.safety import (DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, SAMPLE_STEP, Limits, Plan, SafetyLayer,
                                    StampClock, measure_lead)
 from robot_ai.reach.task import GOALS, goal_angle, goal_distance_one, why_unreached
@@ -148,6 +153,9 @@ TRAIL_STEP = 0.02          # rad between the configurations kept of the way the 
 MAX_TRAIL = 5000           # configurations kept (the oldest go first)
 REROUTE = 25               # configurations of the way home passed before a straighter way is looked for again
 PREDICTION_GOALS = 200     # fresh goals of the in-process prediction through the safety layer (a second or two)
+PLAN_BUDGET = 3000         # motion checks a goal's plan may take (RRT-Connect's; 5 s at most): 300 found 9 of 13
+                           # UR5 goals from random starts among a table and two objects, 3,000 found 10
+MAX_REPLANS = 3            # a goal's plans made again after a collision held the arm on its planned way
 
 
 def _quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
@@ -280,7 +288,12 @@ class ReachController:
         self.holding = False                      # a goal said not reached: the arm holds at its closest
         self.homing = False                       # stalled at joint limits: going home to try again from there
         self.retried = False                      # the goal's one retry from home was made
-        self.recovery = Recovery()                # the goal's limit recovery (ReachSetup.recover), as the env's
+        self.recovery = Recovery()                # the goal's limit recovery (ReachSetup.recover), as the env's,
+                                                  # or the goal's planned way (RECOVERING along its points)
+        self.planning: int | None = None          # with a body: the goal version a plan is being made for (the arm
+                                                  # holds meanwhile), None when none is
+        self.replans = 0                          # the goal's plans made again (at most MAX_REPLANS)
+        self.plan_lock = threading.Lock()         # one plan at a time (the setup's planner is one)
         self.homing_since = 0.0
         self.route_home = False                   # the way home chosen (_way_home) from where the arm is
         self.route_came = 0                       # the way home is chosen again when this much of it is left
@@ -526,10 +539,13 @@ class ReachController:
             self.improved_at = self.goal_since
             self.going_home = False
             self.version += 1
+            self.replans = 0
+            version = self.version
         self._draw(goal)
         self.marker_placed = True
         self._offer_marker(goal)
         rospy.loginfo(f'goal {self._shown(goal)} in {self.base}')
+        self._start_planning(goal, version)
         if hasattr(self, 'timer'):
             self._step(None)              # the first command at once, not at the next tick
 
@@ -794,7 +810,7 @@ class ReachController:
             goal, joints, speeds, policy = self.goal, dict(self.joints), dict(self.speeds), self.policy
             holding, homing, enabled, going_home = self.holding, self.homing, self.enabled, self.going_home
             measured_at, version = dict(self.measured), self.version
-            recovery = self.recovery
+            recovery, planning = self.recovery, self.planning == self.version
         arm = self.setup.arm
         if not self.marker_placed and goal is None:
             self._place_marker()
@@ -838,6 +854,8 @@ class ReachController:
                 target = self.best_q
             elif homing:
                 target = self._home_target(goal, q)
+            elif planning:
+                target = None              # the plan is being made: the arm comes to rest along its last command
             else:
                 target = self._policy_target(policy, q, tip, goal, recovery, version)
                 if target is None:       # a verdict at once, said once: the arm holds where it is (no flapping log)
@@ -858,10 +876,17 @@ class ReachController:
         if plan.held and target is not None:
             blocked = ', '.join(plan.contacts) or plan.held
             rospy.logwarn_throttle(2.0, f'holding: {plan.held}, so the motion was not sent')
+            replan = False
             with self.lock:           # a step a collision refuses, as in the env: a way round it was on is given up,
                 if version == self.version:   # and it is a step without progress (the recovery goes round);
+                    replan = (plan.contacts and self.recovery.state == RECOVERING and not homing
+                              and self.replans < MAX_REPLANS)
+                    self.replans += replan
                     self.recovery = (self.recovery.give_up() if plan.contacts    # a step held for any other
                                      else dataclasses.replace(self.recovery, since=0))   # reason is no step
+            if replan:                # held on its way round: a plan from where the arm stands, once or twice more
+                rospy.loginfo(f'held on the way round by a collision ({blocked}): planning again from here')
+                self._start_planning(goal, version)
         elif self.layer.body is not None and goal is not None and not homing and not holding and (
                 not self.trail or max(abs(a - b) for a, b in zip(q, self.trail[-1])) > TRAIL_STEP):
             self.trail.append(q)          # where the arm is: clear of contacts, the way back home
@@ -965,6 +990,71 @@ class ReachController:
         if self.recovery.since:
             self.recovery = dataclasses.replace(self.recovery, since=0)
 
+    def _start_planning(self, goal: list[float], version: int, q: list[float] | None = None) -> None:
+        """With a body: the goal (of goal version `version`) planned in a thread of its own from q (None: where the
+        arm comes to rest), the arm holding meanwhile (_plan_goal)."""
+        if self.moving.body is None:
+            return
+        with self.lock:
+            if version != self.version:
+                return
+            self.planning = version
+        threading.Thread(target=self._plan_goal, args=(goal, version, q), daemon=True, name='planning').start()
+
+    def _plan_goal(self, goal: list[float], version: int, q: list[float] | None) -> None:
+        """A planned way to the goal (ReachSetup.planned_way through the layer: OMPL's RRT-Connect over the arm's
+        body and the world, the layer's margin and a centimetre more kept, its points a control period's travel
+        apart). Where the straight way is clear the policy drives (a local controller where the way is clear, as
+        MoveIt users pair a planner with one); where it is not, the arm follows the planned way, each step through
+        the safety layer (checked as every command is), and the policy has it again at its end; with no way, the
+        policy drives and the reason is said."""
+        began = time.monotonic()
+        way = PlannedWay(None, '', 'a newer goal came first')
+        try:
+            with self.plan_lock:
+                if q is None:
+                    q = self._planning_start()
+                with self.lock:
+                    current = version == self.version
+                if current and q is not None:
+                    way = self.moving.planned_way(np.asarray(goal, dtype=float), np.asarray(q, dtype=float),
+                                                  PLAN_BUDGET)
+                elif current:
+                    way = PlannedWay(None, '', 'joint_states does not report every joint of the arm yet')
+        except Exception as e:        # noqa: BLE001 (a plan that fails leaves the policy to drive)
+            way = PlannedWay(None, '', f'the planner failed ({type(e).__name__}: {e})')
+        finally:
+            with self.lock:
+                current = version == self.version
+                if current:
+                    self.planning = None
+                    if way.found:
+                        points = [tuple(p) for p in way.points.tolist()]
+                        self.recovery = Recovery(RECOVERING, points[0], then=points[-1], way=tuple(points[1:-1]))
+                    self._restart_stall_clock()       # the time it took is no stall
+        if not current:
+            return
+        took = f'{1000 * (time.monotonic() - began):.0f} ms'
+        if not way.found:
+            rospy.loginfo(f'no plan ({way.reason}, {took}): the policy drives')
+        else:
+            how = 'straight in joint space' if way.how == 'straight' else f'round the contacts, {way.how}'
+            rospy.loginfo(f'planned in {took} ({how}, {len(way.points)} steps): the arm follows it through the safety '
+                          f'layer, then the policy')
+
+    def _planning_start(self) -> list[float] | None:
+        """Where a plan starts: where the arm comes to rest along the last command (it holds while the plan is
+        made), or where joint_states has it at rest; None while a joint of the arm is not reported."""
+        last = self.layer.last
+        if last is not None and not self.layer.resting(self._now()):
+            return last.rest().tolist()
+        with self.lock:
+            joints = dict(self.joints)
+        arm = self.setup.arm
+        if not all(n in joints for n in arm.joints):
+            return None
+        return [min(max(float(joints[n]), lo), hi) for n, lo, hi in zip(arm.joints, arm._lower, arm._upper)]
+
     def _home_target(self, goal: list[float], q: list[float]) -> list[float] | None:
         """On the way home for a retry: home (with a body, along _way_home: straight where that is clear of
         contacts, else back the way the arm came first) until every joint is there (or the stall window has passed
@@ -979,12 +1069,18 @@ class ReachController:
             with self.lock:      # chosen again once past the straight part and REROUTE more of the way on
                 self.route_home, self.trail, self.route_came = True, way, min(came, len(way) - REROUTE)
         with self.lock:
-            if there or time.monotonic() - self.homing_since > 2 * self.stall_window + 30.0:
+            done = there or time.monotonic() - self.homing_since > 2 * self.stall_window + 30.0
+            if done:
                 self.homing = False
                 self._restart_stall_clock()
+                self.recovery = Recovery()            # the retry's own way, planned from here
                 if there:
                     self.trail = [home]
-                return q
+            version = self.version
+        if done:
+            self._start_planning(goal, version, q)
+            return q
+        with self.lock:
             while self.trail and max(abs(a - b) for a, b in zip(q, self.trail[-1])) < 2 * TRAIL_STEP:
                 self.trail.pop()          # passed: the next one back
             if 0 < len(self.trail) <= self.route_came:

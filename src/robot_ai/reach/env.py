@@ -102,8 +102,10 @@ RECOVERY_VIAS = 56           # with a body: fixed draws beside the seeds, clear 
                              # obstacles and the arm's own links may pass (and the search starts from)
 GUARD_SPACING = 0.04         # m: a step's motion is checked at configurations about this far apart along the body
 GUARD_ARC = 1.25             # the longest path of a sphere over its chord that the checks allow for
-GOAL_DRAWS = 240             # postures (fixed draws) beyond recovery_seeds that a goal's clear configurations are
-GOAL_ROUND = 48              # sought from, that many at a time, until one reaches clear of contacts
+GOAL_DRAWS = 4032            # postures (fixed draws) beyond recovery_seeds that a goal's clear configurations are
+GOAL_ROUND = 48              # sought from, that many at a time, until one reaches clear of contacts (a UR5 goal
+                             # 15 cm above the table beside its base: 2 found clear in 4,000 draws, none in 960)
+GOAL_REACHING_ROUNDS = 5     # rounds after which a goal that no answer reaches at all is given up (beyond reach)
 RECOVERY_PLAN_BUDGET = 300   # motion checks a planned way round may take (where the via points find none): a
 RECOVERY_PLAN_TIME = 5.0     # budget, not a time, so that a loaded machine plays the same episodes; s at most
 RECOVERY_PLAN_GOALS = 8      # reaching configurations the planner is given, the nearest first
@@ -130,6 +132,20 @@ class Recovery:
         """Recoveries.give_up for this arm, whose motion a collision refused: a way round it was on ends there (the
         policy has the arm again); the count of steps without progress goes on."""
         return dataclasses.replace(self, state=RECOVERED, way=()) if self.state == RECOVERING else self
+
+
+@dataclasses.dataclass(frozen=True)
+class PlannedWay:
+    """ReachSetup.planned_way's answer: the way's points after the start (k, n; None without a way), how the planner
+    found it ('straight': the straight motion was clear; 'RRTConnect': round the contacts) and the reason there is
+    none (one line; '' with a way)."""
+    points: np.ndarray | None
+    how: str
+    reason: str
+
+    @property
+    def found(self) -> bool:
+        return self.points is not None
 
 
 def _no_ways(count: int) -> np.ndarray:
@@ -572,8 +588,8 @@ class ReachSetup:
         through a via point where the straight way touches (the next leg starts once the arm itself is there). A
         stalled arm for whose goal no configuration is found (a goal beyond its reach) stays where it is: the
         recovery is spent for the episode. An arm's result does not depend on its batch."""
-        if not self.limit_recovery:
-            return target_t, rec
+        if not self.limit_recovery and not (rec.state == RECOVERING).any():
+            return target_t, rec         # a way given from outside (reach_controller's plan) is followed all the same
         arm = self.arm
         asked = actions_t * self.ee_step
         asked2 = (asked * asked).sum(axis=0)
@@ -581,7 +597,7 @@ class ReachSetup:
         best, since = self._stall_count(error, tip_t, goal_t, actions_t, rec.best, rec.since)
         rec = Recoveries(rec.state.copy(), rec.q, best, since, rec.then, rec.way.copy())
         least = np.minimum(RECOVERY_ASK * self.ee_step, RECOVERY_ASK_OF_ERROR * error)
-        ready = (rec.state == READY) & (asked2 >= least * least)
+        ready = (rec.state == READY) & (asked2 >= least * least) & self.limit_recovery
         at_limit = ((target_t <= arm.lower[:, None] + LIMIT_TOLERANCE)
                     | (target_t >= arm.upper[:, None] - LIMIT_TOLERANCE)).any(axis=0)
         check = np.flatnonzero(ready & at_limit)
@@ -745,9 +761,9 @@ class ReachSetup:
         """(configurations (m, n) within box's lower and upper (the arm's limits by default) that reach goal clear
         of contacts by margin, the nearest to q (n,) first; the least error found): the search's steps from where the
         arm stands, home and recovery_seeds, then from GOAL_ROUND of GOAL_DRAWS fixed postures at a time until one
-        answer is clear. A joint whose range is more than a turn (a UR's +-2 pi) is taken at the turn nearest to q:
-        the same pose, but a shoulder at 6.03 rad from -1.57 must pass through the table to get there, where -0.25
-        need not."""
+        answer is clear (after GOAL_REACHING_ROUNDS rounds, only while some answer reaches the goal at all). A
+        joint whose range is more than a turn (a UR's +-2 pi) is taken at the turn nearest to q: the same pose, but
+        a shoulder at 6.03 rad from -1.57 must pass through the table to get there, where -0.25 need not."""
         box = box if box is not None else self.arm
         if self._goal_draws is None:
             self._goal_draws = np.random.default_rng(2).uniform(self.arm.lower, self.arm.upper,
@@ -756,7 +772,9 @@ class ReachSetup:
         seeds = np.hstack((q[:, None], self.recovery_seeds))
         parts = [seeds] + [self._goal_draws[:, k:k + GOAL_ROUND] for k in range(0, GOAL_DRAWS, GOAL_ROUND)]
         found, best = np.zeros((0, self.arm.n)), np.inf
-        for part in parts:
+        for k, part in enumerate(parts):
+            if k > GOAL_REACHING_ROUNDS and best > self.task.distance_threshold:
+                break            # none reaches at all (beyond reach): more draws find none clear, only time goes
             answers, reached, error, _ = self._reaching_search(goal[:, None], q[:, None], part, clear=False)
             best = min(best, float(error.min()))
             candidates = answers[:, reached[:, 0], 0].T
@@ -793,29 +811,44 @@ class ReachSetup:
                             spacing=spacing)
 
     def _planned_way(self, goal: np.ndarray, q: np.ndarray) -> np.ndarray | None:
-        """The points (k, n) after q of a planned way to a configuration that reaches goal clear of contacts by
-        way_margin (less where q itself is nearer than that to a contact), a recovery step apart (no joint more than
-        RECOVERY_STEP of its half range from one to the next: each step lands on the next point, straight along the
-        path); None without one."""
+        """planned_way's points, or None without a way."""
+        return self.planned_way(goal, q).points
+
+    def planned_way(self, goal: np.ndarray, q: np.ndarray, budget: int = RECOVERY_PLAN_BUDGET) -> PlannedWay:
+        """A planned way from q (n,) to a configuration that reaches goal clear of contacts by way_margin (less
+        where q itself is nearer than that to a contact), its points after q a recovery step apart (no joint more
+        than RECOVERY_STEP of its half range from one to the next, through a safety layer a period's travel: each
+        step lands on the next point, straight along the path), found within `budget` motion checks (and
+        RECOVERY_PLAN_TIME); or
+        why there is none (one line)."""
         from robot_ai.motion.timing import densify
         box = self.limits if self.limits is not None else self.arm       # within the layer's positions
         # through a layer the arm follows the points a little off the straight legs: a centimetre more kept. An arm
         # that stands within that already (a policy drove it there) is planned for with the margin it has, else
         # with none, as the layer lets it move out (it refuses only motions that would touch then)
+        # (the layer's own margin next: an arm clear by it is checked with it, so a way planned with less could be
+        # refused at its first step); a goal reached clear by the layer's margin only: planned with that
         wanted = self.way_margin + (RECOVERY_PLAN_PADDING if self.limits is not None else 0.0)
-        margin = next((m for m in (wanted, 0.5 * wanted) if not self.body.in_collision(q[None], m)[0]), 0.0)
-        ends = self.clear_reaching_configurations(goal, q, margin, box)[0][:RECOVERY_PLAN_GOALS]
+        tried = (wanted, self.way_margin, 0.5 * self.way_margin, 0.25 * self.way_margin)
+        margin = next((m for m in tried if not self.body.in_collision(q[None], m)[0]), 0.0)
+        ends, best = self.clear_reaching_configurations(goal, q, margin, box)
+        if not len(ends) and margin > self.way_margin:
+            margin = self.way_margin
+            ends, best = self.clear_reaching_configurations(goal, q, margin, box)
         if not len(ends):
-            return None
+            if best > self.task.distance_threshold:
+                return PlannedWay(None, '', f'the goal is beyond the arm\'s reach (no configuration found within '
+                                            f'{best:.3f} m of it)')
+            return PlannedWay(None, '', f'no configuration reaches the goal clear of contacts by {margin:g} m')
         if self._planner is None or self._planner[0] != margin:
             self._planner = (margin, self.joint_planner(margin, box, max(margin, RECOVERY_PLAN_SPACING)))
-        path = self._planner[1].plan(q, ends, RECOVERY_PLAN_TIME, budget=RECOVERY_PLAN_BUDGET)
+        path = self._planner[1].plan(q, ends[:RECOVERY_PLAN_GOALS], RECOVERY_PLAN_TIME, budget=budget)
         if not path.found:
-            return None
+            return PlannedWay(None, path.how, path.reason)
         step = RECOVERY_STEP * self.arm._half
         if self.limits is not None:     # a period's travel at most: each joint reaches its point within the period
             step = np.minimum(step, self.limits.velocity * self.control_period)
-        return (densify(path.waypoints / step, 1.0) * step)[1:]
+        return PlannedWay((densify(path.waypoints / step, 1.0) * step)[1:], path.how, '')
 
     def _clear_way(self, q: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(via, to) from q (n,) to the first of ends (n, c) (clear of contacts; the first one's straight way
@@ -939,7 +972,7 @@ class ReachSetup:
     def recover_one(self, q: list, tip: list, target: list, a: list, goal: list,
                     recovery: Recovery) -> tuple[list, Recovery]:
         """recover's numbers for one arm at q with its tip (achieved goal) tip (a: the action's floats, clipped)."""
-        if not self.limit_recovery or recovery.state == RECOVERED:
+        if recovery.state == RECOVERED or (recovery.state == READY and not self.limit_recovery):
             return target, recovery
         if recovery.state == READY:         # recover's bookkeeping alone, while nothing can block or stall
             error = self._error_one(tip, goal)
