@@ -4,11 +4,15 @@ meshes (../shared/robots/meshes), the KUKA LWR and the PR2's right arm; among a 
 and with the body alone; from home, random starts and chained (each goal from where the last plan left the arm).
 Beside it, in the same run, the reference a MoveIt user gets: OMPL's RRT-Connect with a one-at-a-time state check
 (OMPL's discrete motion validator, the same spacing) on the same starts and goal configurations. Then Reach-v0's
-P-controller among the same world, with and without the planned way round, and the planner's share.
+P-controller among the same world, with and without the planned way round, and the planner's share; goals planned
+and followed through the safety layer as reach_controller drives them; and how tight the spheres are against the
+meshes themselves (python-fcl through trimesh, the FCL MoveIt uses): the share of random configurations the spheres
+refuse while every pair they flag is more than 2 cm apart by the meshes (over-conservative), and contacts missed.
 
 A goal counts when its drawn configuration is clear of contacts by the margin (it has a clear reaching configuration).
 
-    python bench/reach_planner.py [--problems 30] [--reference-limit 1.0]
+    python bench/reach_planner.py [--problems 30] [--reference-limit 1.0] [--episodes 200] [--follow 40]
+                                  [--tightness 3000]
 """
 from __future__ import annotations
 
@@ -25,7 +29,7 @@ os.environ['ROS_PACKAGE_PATH'] = os.path.join(ROBOTS, 'meshes') + os.pathsep + o
 
 from robot_ai.reach import learn  # noqa: E402
 from robot_ai.reach.env import ReachSetup  # noqa: E402
-from robot_ai.reach.planning import ReachPlanner  # noqa: E402
+from robot_ai.reach.planning import ReachPlanner, follow_through_layer  # noqa: E402
 
 WORLD = [{'box': [2.0, 2.0, 0.05], 'position': [0, 0, -0.105], 'name': 'table'},
          {'box': [0.2, 0.2, 0.5], 'position': [0.45, 0.15, 0.25], 'rpy': [0, 0, 0.5], 'name': 'box'},
@@ -93,12 +97,72 @@ def run(robot, tip, home, world, start_kind, problems, reference_limit, seed=0):
     return len(counted), ok, np.array(times), reasons, ref_ok, np.array(ref_times)
 
 
+def follow(robot, tip, home, start_kind, goals_wanted, seed=2000):
+    """(goals counted, reached, refused steps, reasons missed) of goals planned and followed through the safety
+    layer at velocity_scale 0.25 as reach_controller drives them (planning.follow_through_layer), among the world."""
+    setup = ReachSetup(os.path.join(ROBOTS, robot), tip=tip, home=home, obstacles=WORLD, collision=True,
+                       start='random' if start_kind == 'random' else 'home')
+    goals, starts = setup.first_states([np.random.default_rng(seed + i) for i in range(4 * goals_wanted)])
+    clear = ~setup.body.in_collision(goals.T, 0.02) & (~setup.body.in_collision(starts.T, 0.02)
+                                                       if start_kind == 'random' else True)
+    counted = np.flatnonzero(clear)[:goals_wanted]
+    q, reached, refused, reasons = setup.home.copy(), 0, 0, {}
+    for i in counted:
+        goal = setup.goals_of(goals[:, i:i + 1])[:, 0]
+        start = starts[:, i] if start_kind == 'random' else (setup.home if start_kind == 'home' else q)
+        done = follow_through_layer(setup, goal, start)
+        refused += done.refused
+        if not done.way.found:
+            reasons[done.way.reason] = reasons.get(done.way.reason, 0) + 1
+            continue
+        q = done.end
+        reached += np.linalg.norm(setup.goals_of(q[:, None])[:, 0] - goal) < setup.task.distance_threshold
+    return len(counted), reached, refused, reasons
+
+
+def tightness(robot, tip, samples, seed=3):
+    """(refused, over-conservative, missed) shares of random configurations: the sphere body against the meshes
+    themselves (python-fcl through trimesh's collision manager), the checked pairs only."""
+    import trimesh
+    from trimesh.collision import CollisionManager
+    setup = ReachSetup(os.path.join(ROBOTS, robot), tip=tip, collision=True)
+    body = setup.body
+    q = np.random.default_rng(seed).uniform(setup.arm.lower, setup.arm.upper, (samples, setup.arm.n))
+    hit = body.in_collision(q)
+    poses = body.link_poses(q)
+    whole, single = CollisionManager(), {}
+    for link in body.links:
+        whole.add_object(link, body.meshes[link])
+        single[link] = CollisionManager()
+        single[link].add_object(link, body.meshes[link])
+    pairs = {tuple(sorted((body.links[i], body.links[j]))) for i, j in body.link_pairs}
+    over = missed = 0
+    for n in range(samples):
+        for link in body.links:
+            whole.set_transform(link, poses[link][n])
+        _, names = whole.in_collision_internal(return_names=True)
+        touching = {tuple(sorted(pair)) for pair in names} & pairs
+        missed += bool(touching) and not hit[n]
+        if hit[n] and not touching:
+            apart = []
+            for a, b in (c.split(' - ') for c in body.contacts(q[n])):
+                single[a].set_transform(a, poses[a][n])
+                apart.append(single[a].min_distance_single(body.meshes[b], transform=poses[b][n]))
+            over += min(apart) > 0.02
+    del trimesh
+    return hit.mean(), over / samples, missed / samples
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument('--problems', type=int, default=30, help='goals per arm, world and start')
     p.add_argument('--reference-limit', type=float, default=1.0,
                    help='seconds the reference may take per problem (0: no reference)')
     p.add_argument('--episodes', type=int, default=200, help='Reach-v0 goals per arm and start (0: none)')
+    p.add_argument('--follow', type=int, default=40,
+                   help='goals per arm and start planned and followed through the safety layer (0: none)')
+    p.add_argument('--tightness', type=int, default=3000,
+                   help='random configurations the spheres are held to the meshes on (0: none)')
     a = p.parse_args(argv)
     print(f'{"arm":<22s}{"world":<8s}{"start":<9s}{"reached":>12s}{"median":>9s}{"p95":>9s}   '
           f'{"reference reached":>18s}{"median":>9s}{"p95":>9s}')
@@ -136,6 +200,23 @@ def main(argv=None) -> int:
                 print(f'{robot:<22s}{start:<9s}{100 * on.success_rate:>8.1f}%{100 * on.planned:>14.1f}%'
                       f'{100 * off.success_rate:>20.1f}%')
                 sys.stdout.flush()
+    if a.follow:
+        print(f'\nGoals planned and followed through the safety layer (velocity_scale 0.25) as reach_controller '
+              f'drives them, among the table and two objects, {a.follow} per arm and start (seed 2000)')
+        print(f'{"arm":<22s}{"start":<9s}{"reached":>12s}{"steps refused":>15s}')
+        for robot, tip, home in ARMS:
+            for start in ('home', 'random', 'chained'):
+                n, ok, refused, reasons = follow(robot, tip, home, start, a.follow)
+                print(f'{robot:<22s}{start:<9s}{ok:>6d}/{n:<5d}{refused:>15d}'
+                      + (f'   missed: {reasons}' if reasons else ''))
+                sys.stdout.flush()
+    if a.tightness:
+        print(f'\nThe spheres against the meshes (python-fcl), {a.tightness} random configurations, the body alone')
+        print(f'{"arm":<22s}{"refused":>9s}{"over-conservative":>19s}{"missed":>9s}')
+        for robot, tip, _ in ARMS[:2]:                       # the arms whose real meshes are here
+            refused, over, missed = tightness(robot, tip, a.tightness)
+            print(f'{robot:<22s}{100 * refused:>8.1f}%{100 * over:>18.1f}%{100 * missed:>8.2f}%')
+            sys.stdout.flush()
     return 0
 
 

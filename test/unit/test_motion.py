@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from robot_ai.motion import JointPlanner, time_path
-from robot_ai.nodes.reach_controller import PLAN_BUDGET
 from robot_ai.reach.env import ReachSetup
-from robot_ai.reach.planning import ReachPlanner
+from robot_ai.reach.planning import ReachPlanner, follow_through_layer
 
 from exact_meshes import MESHES, ROBOTS, Exact
 
@@ -191,35 +190,6 @@ def test_a_step_between_two_clear_configurations_through_an_obstacle_is_refused(
     assert not hit.any() and np.array_equal(q, b[free].T)
 
 
-def follow_through_layer(setup, goal, start, period=0.05, margin=0.02, most=3000):
-    """What reach_controller does with a goal where the arm has a body: the way planned through its safety layer
-    (ReachSetup.planned_way), then followed by the recovery's steps (recover_one, the policy asking nothing), every
-    step made by the node's SafetyLayer (trajectory commands, the arm following them in time). (the way, the plans
-    sent, the steps refused, the arm's configuration at the end)."""
-    from robot_ai.reach.env import RECOVERED, RECOVERING, Recovery
-    from robot_ai.reach.safety import Limits, SafetyLayer
-    limits = Limits.of(setup.arm, velocity_scale=0.25)
-    moving = setup.through(limits, period, margin)
-    layer = SafetyLayer(limits, period, setup.body, margin)
-    way = moving.planned_way(np.asarray(goal, dtype=float), np.asarray(start, dtype=float), PLAN_BUDGET)
-    if not way.found:
-        return way, [], 0, np.asarray(start)
-    points = [tuple(p) for p in way.points.tolist()]
-    recovery = Recovery(RECOVERING, points[0], then=points[-1], way=tuple(points[1:-1]))
-    layer.plan(0.0, start, start)
-    refused, t, nothing = 0, 0.0, [0.0] * 3
-    for _ in range(most):
-        q = layer.commanded_at(t).tolist()
-        target, recovery = moving.recover_one(q, moving.place_one(q)[0], q, nothing, list(goal), recovery)
-        if recovery.state == RECOVERED:     # the policy has the arm again: here, asked to hold the way's end
-            target = points[-1]
-            if np.abs(layer.last.rest() - target).max() < 1e-9:
-                break
-        refused += bool(layer.plan(t, target, None).held)
-        t += period
-    return way, list(layer.history), refused, layer.last.rest()
-
-
 def test_a_goal_planned_as_reach_controller_plans_it_is_followed_through_the_safety_layer(arm_world):
     """reach_controller plans a goal first where the arm has a body and follows the way through its safety layer:
     no step of a way found is refused, the arm ends at the goal, and the motion the layer sent never brings the
@@ -236,7 +206,8 @@ def test_a_goal_planned_as_reach_controller_plans_it_is_followed_through_the_saf
     found = 0
     for i in np.flatnonzero(usable)[:5]:
         goal = setup.goals_of(goals[:, i:i + 1])[:, 0]
-        way, plans, refused, end = follow_through_layer(setup, goal, starts[:, i])
+        followed = follow_through_layer(setup, goal, starts[:, i])
+        way, plans, refused, end = followed.way, followed.plans, followed.refused, followed.end
         if not way.found:
             assert way.reason.startswith('no path found in'), f'{robot} problem {i}: {way.reason}'
             continue
@@ -258,7 +229,8 @@ def test_a_way_given_from_outside_is_followed_without_the_limit_recovery(monkeyp
                        limit_recovery=False)
     goals, _ = setup.first_states([np.random.default_rng(7)])
     goal = setup.goals_of(goals)[:, 0]
-    way, plans, refused, end = follow_through_layer(setup, goal, setup.home)
+    followed = follow_through_layer(setup, goal, setup.home)
+    way, plans, refused, end = followed.way, followed.plans, followed.refused, followed.end
     assert way.found and refused == 0 and len(plans) > 2
     assert np.linalg.norm(setup.goals_of(end[:, None])[:, 0] - goal) < setup.task.distance_threshold
     q = setup.home.tolist()

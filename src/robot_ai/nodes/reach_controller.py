@@ -136,6 +136,7 @@ from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.collision import CollisionModel
 from robot_ai.reach.env import RECOVERING, READY, PlannedWay, ReachSetup, Recovery
+from robot_ai.reach.planning import PLAN_BUDGET
 from robot_ai.reach.safety import (DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, SAMPLE_STEP, Limits, Plan, SafetyLayer,
                                    StampClock, measure_lead)
 from robot_ai.reach.task import GOALS, goal_angle, goal_distance_one, why_unreached
@@ -153,8 +154,6 @@ TRAIL_STEP = 0.02          # rad between the configurations kept of the way the 
 MAX_TRAIL = 5000           # configurations kept (the oldest go first)
 REROUTE = 25               # configurations of the way home passed before a straighter way is looked for again
 PREDICTION_GOALS = 200     # fresh goals of the in-process prediction through the safety layer (a second or two)
-PLAN_BUDGET = 3000         # motion checks a goal's plan may take (RRT-Connect's; 5 s at most): 300 found 9 of 13
-                           # UR5 goals from random starts among a table and two objects, 3,000 found 10
 MAX_REPLANS = 3            # a goal's plans made again after a collision held the arm on its planned way
 
 
