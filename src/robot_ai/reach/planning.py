@@ -24,8 +24,9 @@ from robot_ai.reach.env import RECOVERED, RECOVERING, PlannedWay, ReachSetup, Re
 from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, Limits, Plan, SafetyLayer
 
 GOAL_CONFIGURATIONS = 8  # reaching configurations given to the planner at most (the nearest to the start first)
-PLAN_BUDGET = 3000       # motion checks reach_controller's plan of a goal may take (RRT-Connect's; 5 s at most): 300
-                         # found 9 of 13 UR5 goals from random starts among a table and two objects, 3,000 found 10
+PLAN_BUDGET = 1500       # motion checks reach_controller's plan of a goal may take (RRT-Connect's, twice where the
+                         # first finds none: ReachSetup.plan_path; 5 s each at most): 300 found 9 of 13 UR5 goals from
+                         # random starts among a table and two objects, 3,000 at once 10, 1,500 twice 14 of 15
 
 
 @dataclass
@@ -95,7 +96,8 @@ class ReachPlanner:
         configurations, reason = self.goal_configurations(goal, q)
         if reason:
             return ReachPlan(q, goal_array, None, None, reason, 0, time.monotonic() - began)
-        path = self.joints.plan(q, configurations, self.time_limit if time_limit is None else time_limit)
+        path = self.setup.plan_path(self.joints, np.asarray(goal, dtype=float), q, configurations, self.margin,
+                                    self.limits, self.time_limit if time_limit is None else time_limit)
         if not path.found:
             return ReachPlan(q, goal_array, path, None, path.reason, len(configurations), time.monotonic() - began)
         timed = time_path(path.waypoints, self.limits.velocity, self.limits.acceleration, self.joints.path_clear)
