@@ -186,11 +186,15 @@ def main(argv=None) -> int:
     if a.episodes:
         print(f'\nReach-v0 among the table and two objects, the P-controller on {a.episodes} goals (seed 1000), its '
               f'recovery going round by a planned way where its via points find none, beside the same without it')
-        print(f'{"arm":<22s}{"start":<9s}{"reached":>9s}{"planner share":>15s}{"without the planner":>21s}')
+        print(f'{"arm":<22s}{"start":<9s}{"reached":>9s}{"planner share":>15s}{"without the planner":>21s}'
+              f'{"through the layer (0.25)":>26s}')
         for robot, tip, home in ARMS:
             setup = ReachSetup(os.path.join(ROBOTS, robot), tip=tip, home=home, obstacles=WORLD, collision=True)
+            layered = ReachSetup(os.path.join(ROBOTS, robot), tip=tip, home=home, obstacles=WORLD, collision=True,
+                                 velocity_scale=0.25)
             for start in ('home', 'random', 'chained'):
                 on = learn.evaluate(learn.p_controller(setup), setup, a.episodes, 1000, start=start)
+                through = learn.evaluate(learn.p_controller(layered), layered, a.episodes, 1000, start=start)
                 planned_way = ReachSetup._planned_way
                 ReachSetup._planned_way = lambda self, goal, q: None
                 try:
@@ -198,7 +202,7 @@ def main(argv=None) -> int:
                 finally:
                     ReachSetup._planned_way = planned_way
                 print(f'{robot:<22s}{start:<9s}{100 * on.success_rate:>8.1f}%{100 * on.planned:>14.1f}%'
-                      f'{100 * off.success_rate:>20.1f}%')
+                      f'{100 * off.success_rate:>20.1f}%{100 * through.success_rate:>25.1f}%')
                 sys.stdout.flush()
     if a.follow:
         print(f'\nGoals planned and followed through the safety layer (velocity_scale 0.25) as reach_controller '
