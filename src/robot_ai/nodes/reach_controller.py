@@ -883,7 +883,7 @@ class ReachController:
                     self.replans += replan
                     self.recovery = (self.recovery.give_up() if plan.contacts    # a step held for any other
                                      else dataclasses.replace(self.recovery, since=0))   # reason is no step
-            if replan:                # held on its way round: a plan from where the arm stands, once or twice more
+            if replan:                # held on its way: a plan from where the arm stands, MAX_REPLANS times at most
                 rospy.loginfo(f'held on the way round by a collision ({blocked}): planning again from here')
                 self._start_planning(goal, version)
         elif self.layer.body is not None and goal is not None and not homing and not holding and (
@@ -1003,10 +1003,10 @@ class ReachController:
     def _plan_goal(self, goal: list[float], version: int, q: list[float] | None) -> None:
         """A planned way to the goal (ReachSetup.planned_way through the layer: OMPL's RRT-Connect over the arm's
         body and the world, the layer's margin and a centimetre more kept, its points a control period's travel
-        apart). Where the straight way is clear the policy drives (a local controller where the way is clear, as
-        MoveIt users pair a planner with one); where it is not, the arm follows the planned way, each step through
-        the safety layer (checked as every command is), and the policy has it again at its end; with no way, the
-        policy drives and the reason is said."""
+        apart; the straight way in joint space where that is clear). The arm follows it, each step through the
+        safety layer (checked as every command is), and the policy has it at its end for the rest of the way to the
+        goal (a local controller, as MoveIt users pair a planner with one); with no way, the policy drives and the
+        reason is said."""
         began = time.monotonic()
         way = PlannedWay(None, '', 'a newer goal came first')
         try:

@@ -103,8 +103,8 @@ RECOVERY_VIAS = 56           # with a body: fixed draws beside the seeds, clear 
 GUARD_SPACING = 0.04         # m: a step's motion is checked at configurations about this far apart along the body
 GUARD_ARC = 1.25             # the longest path of a sphere over its chord that the checks allow for
 GOAL_DRAWS = 4032            # postures (fixed draws) beyond recovery_seeds that a goal's clear configurations are
-GOAL_ROUND = 48              # sought from, that many at a time, until one reaches clear of contacts (a UR5 goal
-                             # 15 cm above the table beside its base: 2 found clear in 4,000 draws, none in 960)
+GOAL_ROUND = 48              # sought from, that many at a time, until one reaches clear of contacts (4,032: a UR5
+                             # goal 15 cm above the table beside its base had 2 clear in 4,000 draws, none in 960)
 GOAL_REACHING_ROUNDS = 5     # rounds after which a goal that no answer reaches at all is given up (beyond reach)
 RECOVERY_PLAN_BUDGET = 300   # motion checks a planned way round may take (where the via points find none): a
 RECOVERY_PLAN_TIME = 5.0     # budget, not a time, so that a loaded machine plays the same episodes; s at most
@@ -764,9 +764,9 @@ class ReachSetup:
         of contacts by margin, the nearest to q (n,) first; the least error found): the search's steps from where the
         arm stands, home and recovery_seeds, then from GOAL_ROUND of GOAL_DRAWS fixed postures at a time until one
         answer is clear, or `least` are (after GOAL_REACHING_ROUNDS rounds, only while some answer reaches the goal at
-        all). A
-        joint whose range is more than a turn (a UR's +-2 pi) is taken at the turn nearest to q: the same pose, but
-        a shoulder at 6.03 rad from -1.57 must pass through the table to get there, where -0.25 need not."""
+        all). A joint whose range is more than a turn (a UR's +-2 pi) is taken at the turn nearest to q: the same
+        pose, but a shoulder at 6.03 rad from -1.57 must pass through the table to get there, where -0.25 need
+        not."""
         box = box if box is not None else self.arm
         if self._goal_draws is None:
             self._goal_draws = np.random.default_rng(2).uniform(self.arm.lower, self.arm.upper,
@@ -826,8 +826,7 @@ class ReachSetup:
         where q itself is nearer than that to a contact), its points after q a recovery step apart (no joint more
         than RECOVERY_STEP of its half range from one to the next, through a safety layer a period's travel: each
         step lands on the next point, straight along the path), found within `budget` motion checks (and
-        RECOVERY_PLAN_TIME); or
-        why there is none (one line)."""
+        RECOVERY_PLAN_TIME; twice where plan_path tries a spread); or why there is none (one line)."""
         from robot_ai.motion.timing import densify
         box = self.limits if self.limits is not None else self.arm       # within the layer's positions
         # through a layer the arm follows the points a little off the straight legs: a centimetre more kept. An arm
