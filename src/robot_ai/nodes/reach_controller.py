@@ -1028,8 +1028,7 @@ class ReachController:
                 if current:
                     self.planning = None
                     if way.found:
-                        points = [tuple(p) for p in way.points.tolist()]
-                        self.recovery = Recovery(RECOVERING, points[0], then=points[-1], way=tuple(points[1:-1]))
+                        self.recovery = Recovery.along(way.points)
                     self._restart_stall_clock()       # the time it took is no stall
         if not current:
             return

@@ -130,6 +130,12 @@ class Recovery:
     then: tuple[float, ...] | None = None
     way: tuple[tuple[float, ...], ...] = ()
 
+    @classmethod
+    def along(cls, points: np.ndarray) -> Recovery:
+        """The arm on a planned way (its points after where it stands, (k, n)): to the first, then on to the last."""
+        points = [tuple(p) for p in np.asarray(points, dtype=float).tolist()]
+        return cls(RECOVERING, points[0], then=points[-1], way=tuple(points[1:-1]))
+
     def give_up(self) -> Recovery:
         """Recoveries.give_up for this arm, whose motion a collision refused: a way round it was on ends there (the
         policy has the arm again); the count of steps without progress goes on."""

@@ -20,7 +20,7 @@ import numpy as np
 from robot_ai.motion import PlannedPath, TimedPath, time_path
 from robot_ai.motion.planner import DEFAULT_TIME_LIMIT
 from robot_ai.reach.arm import ReachError
-from robot_ai.reach.env import RECOVERED, RECOVERING, PlannedWay, ReachSetup, Recovery
+from robot_ai.reach.env import RECOVERED, PlannedWay, ReachSetup, Recovery
 from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, Limits, Plan, SafetyLayer
 
 GOAL_CONFIGURATIONS = 8  # reaching configurations given to the planner at most (the nearest to the start first)
@@ -128,15 +128,14 @@ def follow_through_layer(setup: ReachSetup, goal, start, velocity_scale: float =
     way = moving.planned_way(np.asarray(goal, dtype=float), start, PLAN_BUDGET)
     if not way.found:
         return Followed(way, [], 0, start)
-    points = [tuple(p) for p in way.points.tolist()]
-    recovery = Recovery(RECOVERING, points[0], then=points[-1], way=tuple(points[1:-1]))
+    recovery, end = Recovery.along(way.points), way.points[-1]
     layer.plan(0.0, start, start)
     refused, t, nothing = 0, 0.0, [0.0] * len(setup.action_space.low)
     for _ in range(most):
         q = layer.commanded_at(t).tolist()
         target, recovery = moving.recover_one(q, moving.place_one(q)[0], q, nothing, list(goal), recovery)
         if recovery.state == RECOVERED:     # the policy has the arm again: here, asked to hold the way's end
-            target = points[-1]
+            target = end
             if np.abs(layer.last.rest() - target).max() < 1e-9:
                 break
         refused += bool(layer.plan(t, target, None).held)
