@@ -801,6 +801,12 @@ class ReachSetup:
         order = np.argsort(np.linalg.norm((found - q) / self.arm._half, axis=1), kind='stable')
         return found[order], best
 
+    def none_clear(self, best: float, margin: float) -> str:
+        """Why clear_reaching_configurations found none, one line, from the least error its search met (best)."""
+        if best > self.task.distance_threshold:
+            return f'the goal is beyond the arm\'s reach (no configuration found within {best:.3f} m of it)'
+        return f'no configuration reaches the goal clear of contacts by {margin:g} m'
+
     def _nearest_turns(self, found: np.ndarray, q: np.ndarray, box) -> np.ndarray:
         """The configurations, and before them the same ones with each joint whose range is more than a turn taken at
         the turn nearest to q (where that is within box)."""
@@ -836,10 +842,10 @@ class ReachSetup:
         from robot_ai.motion.timing import densify
         box = self.limits if self.limits is not None else self.arm       # within the layer's positions
         # through a layer the arm follows the points a little off the straight legs: a centimetre more kept. An arm
-        # that stands within that already (a policy drove it there) is planned for with the margin it has, else
-        # with none, as the layer lets it move out (it refuses only motions that would touch then)
-        # (the layer's own margin next: an arm clear by it is checked with it, so a way planned with less could be
-        # refused at its first step); a goal reached clear by the layer's margin only: planned with that
+        # that stands within that already (a policy drove it there) is planned for with the layer's own margin (an
+        # arm clear by it is checked with it: a way planned with less was refused at its first step), else with
+        # what it has, else none, as the layer lets it move out (it refuses only motions that would touch then).
+        # A goal reached clear by the layer's margin only: planned with that
         wanted = self.way_margin + (RECOVERY_PLAN_PADDING if self.limits is not None else 0.0)
         tried = (wanted, self.way_margin, 0.5 * self.way_margin, 0.25 * self.way_margin)
         margin = next((m for m in tried if not self.body.in_collision(q[None], m)[0]), 0.0)
@@ -848,10 +854,7 @@ class ReachSetup:
             margin = self.way_margin
             ends, best = self.clear_reaching_configurations(goal, q, margin, box)
         if not len(ends):
-            if best > self.task.distance_threshold:
-                return PlannedWay(None, '', f'the goal is beyond the arm\'s reach (no configuration found within '
-                                            f'{best:.3f} m of it)')
-            return PlannedWay(None, '', f'no configuration reaches the goal clear of contacts by {margin:g} m')
+            return PlannedWay(None, '', self.none_clear(best, margin))
         if self._planner is None or self._planner[0] != margin:
             self._planner = (margin, self.joint_planner(margin, box, max(margin, RECOVERY_PLAN_SPACING)))
         path = self.plan_path(self._planner[1], goal, q, ends, margin, box, RECOVERY_PLAN_TIME, budget)

@@ -83,9 +83,7 @@ class ReachPlanner:
             return np.zeros((0, self.arm.n)), f'the goal is inside {inside}'
         found, best = setup.clear_reaching_configurations(goal, q, self.margin, self.limits)
         if not len(found):
-            if best > setup.task.distance_threshold:
-                return found, f'the goal is beyond the arm\'s reach (no configuration found within {best:.3f} m of it)'
-            return found, f'no configuration reaches the goal clear of contacts by {self.margin:g} m'
+            return found, setup.none_clear(best, self.margin)
         return found[:GOAL_CONFIGURATIONS], ''
 
     def plan(self, q, goal, time_limit: float | None = None) -> ReachPlan:
@@ -102,7 +100,6 @@ class ReachPlanner:
             return ReachPlan(q, goal_array, path, None, path.reason, len(configurations), time.monotonic() - began)
         timed = time_path(path.waypoints, self.limits.velocity, self.limits.acceleration, self.joints.path_clear)
         return ReachPlan(q, goal_array, path, timed, '', len(configurations), time.monotonic() - began)
-
 
 
 @dataclass
