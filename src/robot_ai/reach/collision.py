@@ -442,6 +442,13 @@ def _fit(mesh, rng: np.random.Generator) -> tuple[tuple[np.ndarray, np.ndarray],
             (np.array(centres) @ axes + middle, np.array(radii)))
 
 
+def _stacked(spheres: list) -> tuple[np.ndarray, np.ndarray]:
+    """(centres (K, 3), radii (K,)) of a list of (centres, radii)."""
+    if not spheres:
+        return np.zeros((0, 3)), np.zeros(0)
+    return np.concatenate([c for c, _ in spheres]), np.concatenate([r for _, r in spheres])
+
+
 # Rodrigues' rotation about a unit axis k by an angle (c = cos, s = sin, v = 1 - cos), entry by entry: the formulas of
 # CollisionModel._moving_poses, c I + s [k]x + v k k^T
 _RODRIGUES = {
@@ -526,12 +533,11 @@ class CollisionModel:
         # the pairs checked are chosen with the wider spheres, as before the least balls: with the tight ones, pairs
         # of the Panda that touch at home (left unchecked, as MoveIt's 'default') came apart there and were checked,
         # refusing more configurations whose meshes are centimetres apart, not fewer (6.6 % -> 14.6 %)
-        for spheres in (loose, tight):
-            self.centres = np.concatenate([c for c, _ in spheres]) if spheres else np.zeros((0, 3))
-            self.radii = np.concatenate([r for _, r in spheres]) if spheres else np.zeros(0)
-            self._prepare_poses()
-            if spheres is loose:
-                self.link_pairs, self.excluded = self._choose_pairs(samples, rng)
+        self.centres, self.radii = _stacked(loose)
+        self._prepare_poses()
+        self.link_pairs, self.excluded = self._choose_pairs(samples, rng)
+        self.centres, self.radii = _stacked(tight)
+        self._place_still()
         self.pair_a, self.pair_b = self._sphere_pairs(self.link_pairs)
         self.margins = {link: self._margin(i, shapes[link], rng) for i, link in enumerate(self.links)}
         self.beyond = self._cull()
@@ -829,8 +835,8 @@ class CollisionModel:
 
     def _prepare_poses(self) -> None:
         """What every check reuses: the joints from the arm's base down to the moving links (in the tree's order),
-        every link's pose at home (those that do not move stay there) and the spheres of the links that do not
-        move, (3, K) (the moving ones' columns are overwritten by each check)."""
+        every link's pose at home (those that do not move stay there) and the spheres of the links that do not move
+        (_place_still)."""
         below_arm = {link for link, m in zip(self.links, self.moving) if m}
         parent = {j.child: j for j in self.tree.joints.values()}
         needed = set()
@@ -849,6 +855,11 @@ class CollisionModel:
             at_home = self.tree.link_poses_batch(self.arm.home[None], names=self.arm.joints)
             base = np.linalg.inv(at_home[self.arm.base][0])
             self._at_home = {link: base @ p[0] for link, p in at_home.items()}
+        self._place_still()
+
+    def _place_still(self) -> None:
+        """The spheres of the links that do not move, where they stay (3, K) (the moving ones' columns are
+        overwritten by each check)."""
         self._still = np.zeros((3, len(self.radii)))
         for i, link in enumerate(self.links):
             idx = np.flatnonzero(self.owner == i)
