@@ -122,34 +122,22 @@ def follow(robot, tip, home, start_kind, goals_wanted, seed=2000):
 
 def tightness(robot, tip, samples, seed=3):
     """(refused, over-conservative, missed) shares of random configurations: the sphere body against the meshes
-    themselves (python-fcl through trimesh's collision manager), the checked pairs only."""
-    import trimesh
-    from trimesh.collision import CollisionManager
+    themselves (the tests' exact check: python-fcl through trimesh's collision manager), the checked pairs only."""
+    sys.path.insert(0, os.path.join(HERE, '..', 'test', 'unit'))
+    from exact_meshes import Exact
     setup = ReachSetup(os.path.join(ROBOTS, robot), tip=tip, collision=True)
     body = setup.body
+    exact = Exact(body)
     q = np.random.default_rng(seed).uniform(setup.arm.lower, setup.arm.upper, (samples, setup.arm.n))
     hit = body.in_collision(q)
     poses = body.link_poses(q)
-    whole, single = CollisionManager(), {}
-    for link in body.links:
-        whole.add_object(link, body.meshes[link])
-        single[link] = CollisionManager()
-        single[link].add_object(link, body.meshes[link])
-    pairs = {tuple(sorted((body.links[i], body.links[j]))) for i, j in body.link_pairs}
     over = missed = 0
     for n in range(samples):
-        for link in body.links:
-            whole.set_transform(link, poses[link][n])
-        _, names = whole.in_collision_internal(return_names=True)
-        touching = {tuple(sorted(pair)) for pair in names} & pairs
+        touching = exact.contacts(poses, n)
         missed += bool(touching) and not hit[n]
         if hit[n] and not touching:
-            apart = []
-            for a, b in (c.split(' - ') for c in body.contacts(q[n])):
-                single[a].set_transform(a, poses[a][n])
-                apart.append(single[a].min_distance_single(body.meshes[b], transform=poses[b][n]))
+            apart = [exact.distance(poses, n, *c.split(' - ')) for c in body.contacts(q[n])]
             over += min(apart) > 0.02
-    del trimesh
     return hit.mean(), over / samples, missed / samples
 
 
