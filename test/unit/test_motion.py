@@ -62,6 +62,30 @@ def test_of_several_goals_the_reachable_one_and_reasons_in_one_line():
     assert not shut.found and shut.reason == 'no path found in 0.2 s' and '\n' not in shut.reason
 
 
+def test_the_same_problem_gets_the_same_path_whatever_was_planned_before_it_or_beside_it():
+    """OMPL draws its random numbers from one stream per process: each search is seeded from its problem, so that
+    a vector env and gymnasium's SyncVectorEnv (or a node's thread beside a prediction) plan the same ways."""
+    import threading
+    planner = JointPlanner([-1, -1], [1, 1], wall, sweep=1.0, spacing=0.01)
+
+    def walled(y=0.0):
+        return planner.plan([-0.5, y], [[0.5, 0.0]], budget=2000).waypoints
+    first = walled()
+    assert first is not None and len(first) > 2                 # round the wall: a search, not the straight way
+    for y in (-0.3, 0.2, -0.6):                                   # other searches between
+        assert walled(y) is not None
+    np.testing.assert_array_equal(walled(), first)
+    beside = []
+    threads = [threading.Thread(target=lambda: beside.append(walled())) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for path in beside:
+        np.testing.assert_array_equal(path, first)
+    assert not np.array_equal(walled(-0.3), first)               # another problem, another path
+
+
 def test_a_motion_is_checked_finely_enough_for_its_sweep():
     planner = JointPlanner([-1, -1], [1, 1], wall, sweep=[0.5, 2.0], spacing=0.01)
     assert planner.states(np.zeros(2), np.array([0.1, 0.0])) == 6           # 0.05 m swept, every 1 cm

@@ -11,11 +11,16 @@ the spacing then covers the configurations between the checked ones.
 
 Before any tree is grown, the straight motion to each goal is checked (all of them in one call): in open space that
 is the answer, at the cost of one check. Found paths are shortened by OMPL's PathSimplifier.
+
+Each search's random numbers come from a seed of its own problem (start, goals and budget): with a budget of motion
+checks (not a time), the same problem gets the same path in any process, whatever was planned before it.
 """
 from __future__ import annotations
 
 import math
+import threading
 import time
+import zlib
 from dataclasses import dataclass
 from typing import Callable
 
@@ -51,18 +56,39 @@ class PlannedPath:
         return float(np.linalg.norm(np.diff(self.waypoints, axis=0), axis=1).sum())
 
 
-OMPL_SEED = 0                 # OMPL's random numbers: seeded once per process, before their first use (OMPL's rule),
-_seeded = []                  # so that the same plans in the same order give the same paths
+OMPL_SEED = 0                 # mixed into every search's seed: another number, other paths (the same ones each time)
+_search_lock = threading.Lock()   # one search at a time: its random numbers are drawn from its own seed
+_quiet = []
 
 
 def _ompl():
     from ompl import base as ob, geometric as og, util as ou
-    if not _seeded:
-        _seeded.append(True)
-        ou.setLogLevel(ou.LOG_ERROR)      # its warning that a seed came late, if another user of OMPL came first
-        ou.RNG.setSeed(OMPL_SEED)
-        ou.setLogLevel(ou.LOG_WARN)
+    if not _quiet:
+        _quiet.append(True)
+        ou.setLogLevel(ou.LOG_WARN)       # not its progress of every search (info and debug lines)
     return ob, og, ou
+
+
+def _seed_from(*arrays: np.ndarray) -> int:
+    """A seed for OMPL (1 to 2**31 - 1) from the problem itself: the same problem is searched with the same random
+    numbers whatever was planned before it in the process (or on another thread, or in another process)."""
+    digest = zlib.crc32(np.asarray(OMPL_SEED, dtype=np.int64).tobytes())
+    for a in arrays:
+        digest = zlib.crc32(np.ascontiguousarray(a, dtype=np.float64).tobytes(), digest)
+    return 1 + digest % (2 ** 31 - 1)
+
+
+def _reseed(ou, seed: int) -> None:
+    """OMPL's random numbers from here on from seed. OMPL draws each new generator's seed (a planner's, its
+    sampler's, its nearest-neighbour structure's, a PathSimplifier's) from one stream per process, seeded once: that
+    stream is seeded again before a search, every object of which is made after it. OMPL says, as an error, that
+    a seed given after the first draw is not deterministic (for the objects made before): not so here, so not said."""
+    level = ou.getLogLevel()
+    ou.setLogLevel(ou.LOG_NONE)
+    try:
+        ou.RNG.setSeed(int(seed))
+    finally:
+        ou.setLogLevel(level)
 
 
 class JointPlanner:
@@ -154,7 +180,13 @@ class JointPlanner:
 
     def _tree_search(self, start: np.ndarray, goals: np.ndarray, time_limit: float,
                      budget: int | None) -> tuple[np.ndarray | None, str]:
-        ob, og, _ = _ompl()
+        with _search_lock:
+            return self._seeded_search(start, goals, time_limit, budget)
+
+    def _seeded_search(self, start: np.ndarray, goals: np.ndarray, time_limit: float,
+                       budget: int | None) -> tuple[np.ndarray | None, str]:
+        ob, og, ou = _ompl()
+        _reseed(ou, _seed_from(start, goals, np.array([-1 if budget is None else budget])))
         space, si, validator = self._space()        # the validator held here for the search: OMPL calls it
         ss = og.SimpleSetup(si)
         ss.setStartState(self._state(space, start))
