@@ -95,6 +95,29 @@ def test_every_sphere_check_agrees_with_the_exact_meshes_on_10000_configurations
     assert spheres.any() and not spheres.all()     # the world is neither empty nor full: the check means something
 
 
+@pytest.mark.parametrize('robot, tip', [('pr2.urdf', 'r_gripper_tool_frame'), ('ur5.urdf', None),
+                                        ('panda.urdf', 'panda_hand')])
+def test_the_broad_phase_gives_the_dense_check_s_answers_to_the_bit(robot, tip, monkeypatch):
+    """Beyond BROAD_PHASE sphere pairs (the PR2's 12,393), a link pair's spheres are compared only where the links'
+    bounds meet: the same answer as every pair compared, on random configurations, along motions and one at a time,
+    with and without padding (smaller bodies forced through it too)."""
+    monkeypatch.setenv('ROS_PACKAGE_PATH', MESHES)
+    model = load_model(os.path.join(ROBOTS, robot))
+    arm = Arm(model.tree, tip)
+    body = CollisionModel(model.tree, model.urdf, arm, obstacles=WORLD)
+    monkeypatch.setattr(collision, 'BROAD_PHASE', 0)
+    rng = np.random.default_rng(11)
+    q = rng.uniform(arm.lower, arm.upper, (600, arm.n))
+    motions = np.concatenate([np.linspace(a, b, 60) for a, b in zip(q[:10], q[10:20])])
+    for batch in (q, motions, q[:1], q[1:2]):
+        x, y, z = body._centres_by_coordinate(batch)
+        for padding in (0.0, 0.02):
+            dense = body._touching(x, y, z, body.pair_a, body.pair_b, padding).any(axis=0)
+            np.testing.assert_array_equal(body._self_contacts(x, y, z, padding), dense)
+    x, y, z = body._centres_by_coordinate(q)
+    assert body._touching(x, y, z, body.pair_a, body.pair_b).any()           # the arm does fold onto itself
+
+
 def test_the_pairs_excluded_as_moveit_does():
     model = load_model(os.path.join(ROBOTS, 'kuka_lwr_arm.urdf'))
     arm = Arm(model.tree)

@@ -218,6 +218,29 @@ def lockstep(n: int, seed: int, steps: int, count, **kwargs) -> int:
     return total
 
 
+def test_through_the_layer_with_a_body_each_goal_is_planned_first_and_equal_to_sync_vector_env():
+    """Through a safety layer with a body, each episode's goal is planned at its start (ReachSetup.first_way, as
+    reach_controller plans a goal) and the arm follows the way before the policy moves it; ReachVectorEnv still
+    equals SyncVectorEnv bit for bit (each OMPL search is seeded from its own problem). plan_first=False: the
+    policy first; plan_first without a body is one line."""
+    kwargs = dict(model=KUKA, obstacles=WORLD, velocity_scale=0.25, start='chained')
+    assert lockstep(3, 5, 300, lambda rec: int(rec.planned().sum()), **kwargs) > 0
+    first, policy = ReachEnv(**kwargs), ReachEnv(plan_first=False, **kwargs)
+    assert first.setup.plans_first and not policy.setup.plans_first
+    assert not ReachSetup(model=KUKA, obstacles=WORLD).plans_first          # in-process: the policy first
+    planned = 0
+    for seed in range(6):
+        first.reset(seed=seed)
+        policy.reset(seed=seed)
+        planned += first._recovery.state == RECOVERING
+        assert policy._recovery == Recovery()
+    assert planned >= 4, planned
+    with pytest.raises(ReachError, match='plan_first plans round the arm'):
+        ReachSetup(model=KUKA, plan_first=True)
+    with pytest.raises(ReachError, match='plan_first must be true or false'):
+        ReachSetup(model=KUKA, obstacles=WORLD, plan_first='yes')
+
+
 def test_the_setting_is_kept_by_policy_files_and_older_files_learned_without_it(tmp_path):
     """A new file keeps limit_recovery (true); a file from before the recovery has none and acts without it, as it
     learned; joints control has none; a setting that is not a bool is one line."""

@@ -35,6 +35,9 @@ SURFACE_POINTS = 600        # points of a shape's surface the spheres are fitted
 MAX_SPHERES = 8             # spheres per shape at most
 PAIR_SAMPLES = 2000         # random configurations that decide which link pairs can ever touch
 ALWAYS = 0.95               # a pair in contact in this share of them is always in contact: not checked
+BROAD_PHASE = 2000          # sphere pairs checked beyond which a link pair's spheres are compared only where the
+                            # links' bounds meet (the PR2's 12,393 pairs: 3-4x faster; the UR5's 249: dense is)
+BOUND_SLACK = 1e-6          # m added to a link's bound: its rounding never hides a contact
 
 
 @dataclass(frozen=True)
@@ -539,6 +542,7 @@ class CollisionModel:
         self.centres, self.radii = _stacked(tight)
         self._place_still()
         self.pair_a, self.pair_b = self._sphere_pairs(self.link_pairs)
+        self._prepare_bounds()
         self.margins = {link: self._margin(i, shapes[link], rng) for i, link in enumerate(self.links)}
         self.beyond = self._cull()
 
@@ -722,6 +726,54 @@ class CollisionModel:
             b += list(np.tile(ib, len(ia)))
         return np.array(a, dtype=int), np.array(b, dtype=int)
 
+    def _prepare_bounds(self) -> None:
+        """Each link's bound for the broad phase: a ball about one of its spheres' centres (the one nearest their
+        middle: a point the check places anyway) holding all its spheres; the checked link pairs' bounds, and where
+        each link pair's sphere pairs start among pair_a and pair_b (_sphere_pairs' order)."""
+        anchor, bound = np.zeros(len(self.links), dtype=int), np.zeros(len(self.links))
+        for i in range(len(self.links)):
+            idx = np.flatnonzero(self.owner == i)
+            if not len(idx):
+                continue
+            c = self.centres[idx]
+            k = idx[np.linalg.norm(c - c.mean(axis=0), axis=1).argmin()]
+            anchor[i] = k
+            bound[i] = (np.linalg.norm(c - self.centres[k], axis=1) + self.radii[idx]).max() + BOUND_SLACK
+        pairs = np.array(self.link_pairs, dtype=int).reshape(-1, 2)
+        self._bound_a, self._bound_b = anchor[pairs[:, 0]], anchor[pairs[:, 1]]
+        self._bound_reach = bound[pairs[:, 0]] + bound[pairs[:, 1]]
+        sizes = np.array([np.count_nonzero(self.owner == i) * np.count_nonzero(self.owner == j) for i, j in pairs],
+                         dtype=np.intp)
+        self._group_size, self._group_start = sizes, np.cumsum(sizes) - sizes
+
+    def _self_contacts(self, x, y, z, padding: float = 0.0) -> np.ndarray:
+        """(N,) bool: some checked pair of spheres touches (or comes within padding), for centres given as (K, N)
+        x, y and z. Beyond BROAD_PHASE pairs, only the pairs of links whose bounds meet in a configuration are
+        compared there, with _touching's numbers in its order (the same answers to the bit)."""
+        if len(self.pair_a) <= BROAD_PHASE:
+            return self._touching(x, y, z, self.pair_a, self.pair_b, padding).any(axis=0)
+        a, b = self._bound_a, self._bound_b
+        d2 = (x[a] - x[b]) ** 2 + (y[a] - y[b]) ** 2 + (z[a] - z[b]) ** 2
+        group, column = np.nonzero(d2 <= ((self._bound_reach + padding)[:, None] ** 2))
+        hit = np.zeros(x.shape[1], dtype=bool)
+        if not len(group):
+            return hit
+        sizes = self._group_size[group]
+        ends = np.cumsum(sizes)
+        pair = np.repeat(self._group_start[group] - ends + sizes, sizes) + np.arange(ends[-1])
+        column = np.repeat(column, sizes)
+        a, b = self.pair_a[pair], self.pair_b[pair]
+        d2 = x[a, column]
+        d2 -= x[b, column]
+        d2 *= d2
+        for coordinate in (y, z):
+            d = coordinate[a, column]
+            d -= coordinate[b, column]
+            d *= d
+            d2 += d
+        hit[column[d2 < (self.radii[a] + self.radii[b] + padding) ** 2]] = True
+        return hit
+
     def _pair_contacts(self, q: np.ndarray, pairs: list) -> np.ndarray:
         """(N, len(pairs)) bool: whether the spheres of link pair k touch in configuration n."""
         x, y, z = self._centres_by_coordinate(np.atleast_2d(q))
@@ -756,7 +808,7 @@ class CollisionModel:
         x, y, z = self._centres_by_coordinate(q)
         hit = np.zeros(len(q), dtype=bool)
         if len(self.pair_a):
-            hit |= self._touching(x, y, z, self.pair_a, self.pair_b, padding).any(axis=0)
+            hit |= self._self_contacts(x, y, z, padding)
         if self.obstacles and len(self.moving_spheres):
             for touching in self._obstacle_contacts(x, y, z, padding):
                 hit |= touching.any(axis=0)

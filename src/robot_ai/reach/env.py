@@ -111,6 +111,12 @@ RECOVERY_PLAN_TIME = 5.0     # budget, not a time, so that a loaded machine play
 RECOVERY_PLAN_GOALS = 8      # reaching configurations the planner is given, the nearest first
 SPREAD_SEARCH = 64           # and where it finds no way to them: reaching configurations sought from more postures,
 SPREAD_GOALS = 16            # of which this many, spread from the nearest to the farthest, are given to it again
+PLAN_BUDGET = 1500           # motion checks a goal's plan at an episode's start may take (plan_first; reach_controller
+                             # plans so too: RRT-Connect's, twice where the first finds none: plan_path): 300 found 9 of
+                             # 13 UR5 goals from random starts among a table and two objects, 3,000 at once 10, 1,500
+                             # twice 14
+FIRST_PLAN_TIME = 60.0       # s such a plan may take in the env: its budget bounds it (the same episodes on a loaded
+                             # machine), the time only a stuck one
 RECOVERY_PLAN_PADDING = 0.01  # m kept beyond way_margin by a planned way through a safety layer (velocity_scale)
 RECOVERY_PLAN_SPACING = 0.01  # m: a planned way's checks at most this far apart along the body (its margin, if more)
 READY, RECOVERING, RECOVERED = 0, 1, 2      # an arm's limit recovery in its episode
@@ -196,6 +202,15 @@ class Recoveries:
         """(N,) bool: the arms on a planned way (points of it still ahead)."""
         return np.fromiter((len(w) > 0 for w in self.way), dtype=np.bool_, count=len(self.way))
 
+    def take(self, i: int, one: Recovery) -> None:
+        """Arm i's state set to one's (a Recovery)."""
+        self.state[i], self.best[i], self.since[i] = one.state, one.best, one.since
+        if one.q is not None:
+            self.q[:, i] = one.q
+        if one.then is not None:
+            self.then[:, i] = one.then
+        self.way[i] = one.way
+
     def restart(self, rows) -> None:
         """A new episode for these arms."""
         self.state[rows], self.best[rows], self.since[rows] = READY, np.inf, 0
@@ -233,7 +248,8 @@ class ReachSetup:
                  limit_avoidance: float = LIMIT_AVOIDANCE, obstacles=None, collision: bool | None = None,
                  goal: str = 'position', angle_threshold: float = ANGLE_THRESHOLD, angle_step: float | None = None,
                  velocity_scale: float | None = None, acceleration_scale: float | None = None, joint_limits=None,
-                 control_period: float = CONTROL_PERIOD, limit_recovery: bool = True):
+                 control_period: float = CONTROL_PERIOD, limit_recovery: bool = True,
+                 plan_first: bool | None = None):
         if control not in CONTROLS:
             raise ReachError(f'control must be one of {", ".join(CONTROLS)}, got {control!r}')
         if start not in STARTS:
@@ -294,6 +310,11 @@ class ReachSetup:
             draws = np.random.default_rng(1).uniform(self.arm.lower, self.arm.upper, (RECOVERY_VIAS, self.arm.n))
             vias = np.vstack((self.recovery_seeds.T, draws))
             self.recovery_vias = np.ascontiguousarray(vias[~self.body.in_collision(vias)].T)
+        if plan_first is not None and not isinstance(plan_first, (bool, np.bool_)):
+            raise ReachError(f'plan_first must be true or false, got {plan_first!r}')
+        if plan_first and self.body is None:
+            raise ReachError('plan_first plans round the arm\'s body: give collision=True (or obstacles)')
+        self.plan_first = None if plan_first is None else bool(plan_first)
         bound = self.arm.radius + 1e-6
         goal_low = np.full(3, -bound) if not self.pose else np.concatenate((np.full(3, -bound), -np.ones(4)))
         goal_high = -goal_low
@@ -421,6 +442,23 @@ class ReachSetup:
         out.episode_steps = episode_steps(limits)
         out.stall_steps = stall_steps(out.episode_steps)
         return out
+
+    @property
+    def plans_first(self) -> bool:
+        """Each episode's goal is planned at its start and the arm follows the way first, the policy then (as
+        reach_controller drives a goal): plan_first, by default where the arm has a body and moves through a
+        safety layer."""
+        return self.body is not None and (self.limits is not None if self.plan_first is None else self.plan_first)
+
+    def first_way(self, goal, q) -> Recovery:
+        """An episode's start where the setup plans first: the arm on its planned way from q (n,) to goal
+        (planned_way within PLAN_BUDGET motion checks, as reach_controller plans); a fresh Recovery (the policy
+        drives) where it does not plan first or finds no way."""
+        if not self.plans_first:
+            return Recovery()
+        way = self.planned_way(np.asarray(goal, dtype=float), np.asarray(q, dtype=float), PLAN_BUDGET,
+                               FIRST_PLAN_TIME)
+        return Recovery.along(way.points) if way.found else Recovery()
 
     def motion_start(self, q_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(velocities (n, N), the targets already sent (LEAD_PERIODS, n, N)) of arms at rest at q_t."""
@@ -798,8 +836,14 @@ class ReachSetup:
                     break
         if kept:
             found = np.concatenate(kept)
-        order = np.argsort(np.linalg.norm((found - q) / self.arm._half, axis=1), kind='stable')
+        order = np.argsort(np.linalg.norm((found - q) / self._speed(box), axis=1), kind='stable')
         return found[order], best
+
+    def _speed(self, box) -> np.ndarray:
+        """(n,) what a joint's motion costs per unit is 1 / this: through a safety layer (box a Limits) its velocity
+        limit (the nearest configuration is the soonest reached: the PR2's torso lifts at 0.013 m/s, its arm turns at
+        2 rad/s), else its half range (the recovery's steps)."""
+        return box.velocity if isinstance(box, Limits) else self.arm._half
 
     def none_clear(self, best: float, margin: float) -> str:
         """Why clear_reaching_configurations found none, one line, from the least error its search met (best)."""
@@ -827,18 +871,19 @@ class ReachSetup:
         every contact of the body by margin, its motions checked spacing metres apart along the body."""
         from robot_ai.motion import JointPlanner
         return JointPlanner(box.lower, box.upper, lambda q: ~self.body.in_collision(q, margin), self.body.sweep(),
-                            spacing=spacing)
+                            spacing=spacing, speed=box.velocity if isinstance(box, Limits) else 1.0)
 
     def _planned_way(self, goal: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """planned_way's points, or None without a way."""
         return self.planned_way(goal, q).points
 
-    def planned_way(self, goal: np.ndarray, q: np.ndarray, budget: int = RECOVERY_PLAN_BUDGET) -> PlannedWay:
+    def planned_way(self, goal: np.ndarray, q: np.ndarray, budget: int = RECOVERY_PLAN_BUDGET,
+                    time_limit: float = RECOVERY_PLAN_TIME) -> PlannedWay:
         """A planned way from q (n,) to a configuration that reaches goal clear of contacts by way_margin (less
         where q itself is nearer than that to a contact), its points after q a recovery step apart (no joint more
         than RECOVERY_STEP of its half range from one to the next, through a safety layer a period's travel: each
         step lands on the next point, straight along the path), found within `budget` motion checks (and
-        RECOVERY_PLAN_TIME; twice where plan_path tries a spread); or why there is none (one line)."""
+        time_limit s; twice where plan_path tries a spread); or why there is none (one line)."""
         from robot_ai.motion.timing import densify
         box = self.limits if self.limits is not None else self.arm       # within the layer's positions
         # through a layer the arm follows the points a little off the straight legs: a centimetre more kept. An arm
@@ -849,15 +894,16 @@ class ReachSetup:
         wanted = self.way_margin + (RECOVERY_PLAN_PADDING if self.limits is not None else 0.0)
         tried = (wanted, self.way_margin, 0.5 * self.way_margin, 0.25 * self.way_margin)
         margin = next((m for m in tried if not self.body.in_collision(q[None], m)[0]), 0.0)
-        ends, best = self.clear_reaching_configurations(goal, q, margin, box)
+        least = RECOVERY_PLAN_GOALS if self.limits is not None else 1
+        ends, best = self.clear_reaching_configurations(goal, q, margin, box, least)
         if not len(ends) and margin > self.way_margin:
             margin = self.way_margin
-            ends, best = self.clear_reaching_configurations(goal, q, margin, box)
+            ends, best = self.clear_reaching_configurations(goal, q, margin, box, least)
         if not len(ends):
             return PlannedWay(None, '', self.none_clear(best, margin))
         if self._planner is None or self._planner[0] != margin:
             self._planner = (margin, self.joint_planner(margin, box, max(margin, RECOVERY_PLAN_SPACING)))
-        path = self.plan_path(self._planner[1], goal, q, ends, margin, box, RECOVERY_PLAN_TIME, budget)
+        path = self.plan_path(self._planner[1], goal, q, ends, margin, box, time_limit, budget)
         if not path.found:
             return PlannedWay(None, path.how, path.reason)
         step = RECOVERY_STEP * self.arm._half
@@ -1070,7 +1116,10 @@ class ReachEnv(gymnasium.Env):
     of collisions, and a step whose motion would touch is not made: the arm holds, info['collision'] is True, the
     episode goes on. goal ('position' or 'pose'), angle_threshold (0.1 rad) and angle_step (0.2 rad): pose goals,
     see the module's docstring. velocity_scale, acceleration_scale, joint_limits, control_period: the arm moved as
-    reach_controller's safety layer moves it. limit_recovery (ee control, default True): ReachSetup.recover."""
+    reach_controller's safety layer moves it. limit_recovery (ee control, default True): ReachSetup.recover.
+    plan_first (default: on with a body through the safety layer, as reach_controller plans each goal): each
+    episode's goal planned at its start round the body (ReachSetup.first_way), the arm following that way before
+    the policy's actions move it."""
 
     metadata = {'render_modes': ['rgb_array'], 'render_fps': RENDER_FPS}
 
@@ -1081,13 +1130,13 @@ class ReachEnv(gymnasium.Env):
                  collision: bool | None = None, goal: str = 'position', angle_threshold: float = ANGLE_THRESHOLD,
                  angle_step: float | None = None, velocity_scale: float | None = None,
                  acceleration_scale: float | None = None, joint_limits=None, control_period: float = CONTROL_PERIOD,
-                 limit_recovery: bool = True):
+                 limit_recovery: bool = True, plan_first: bool | None = None):
         if render_mode not in (None, *self.metadata['render_modes']):
             raise ReachError(f'render_mode must be one of {self.metadata["render_modes"]} or None, got {render_mode!r}')
         self.setup = ReachSetup(model, xacro_args, tip, control, start, reward_type, distance_threshold, ee_step,
                                 damping, home, urdf, limit_avoidance, obstacles, collision, goal, angle_threshold,
                                 angle_step, velocity_scale, acceleration_scale, joint_limits, control_period,
-                                limit_recovery)
+                                limit_recovery, plan_first)
         self.arm = self.setup.arm
         self.task = self.setup.task
         self.observation_space = self.setup.observation_space
@@ -1118,7 +1167,10 @@ class ReachEnv(gymnasium.Env):
         if self.setup.limits is not None and (self.setup.start != 'chained' or self._v is None
                                               or q != self._q):   # chained: the arm goes on as it was going
             self._v, self._sent = self.setup.motion_start(np.array(q)[:, None])
-        self._goal, self._q, self._recovery = goal, q, Recovery()
+        self._goal, self._q = goal, q
+        self._recovery = self.setup.first_way(goal, q)
+        if self._recovery.state == RECOVERING and self.setup.limits is not None:
+            self._drop_sent()                       # the way starts from where the arm is (_reset_envs' rule)
         self._tip, self._jac = self.setup.place_one(self._q)
         if self._renderer is not None:
             self._renderer.new_episode()
@@ -1249,6 +1301,13 @@ class ReachVectorEnv(VectorEnv):
             self._jac[:, :, chosen] = jac
         self._elapsed[chosen] = 0
         self._recovery.restart(chosen)
+        if self.setup.plans_first:          # each goal planned first (as reach_controller plans it): the way
+            for k, i in enumerate(chosen):  # starts from where the arm is, the targets queued dropped
+                first = self.setup.first_way(goal[:, k], q[:, k])
+                if first.state == RECOVERING:
+                    self._recovery.take(i, first)
+                    if self.setup.limits is not None:
+                        self._sent[:, :, i] = q[None, :, k]
         self._started[chosen] = True
         if self._renderers is not None:
             for i in chosen:

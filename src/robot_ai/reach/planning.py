@@ -20,13 +20,10 @@ import numpy as np
 from robot_ai.motion import PlannedPath, TimedPath, time_path
 from robot_ai.motion.planner import DEFAULT_TIME_LIMIT
 from robot_ai.reach.arm import ReachError
-from robot_ai.reach.env import RECOVERED, PlannedWay, ReachSetup, Recovery
+from robot_ai.reach.env import PLAN_BUDGET, RECOVERED, PlannedWay, ReachSetup, Recovery
 from robot_ai.reach.safety import DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, Limits, Plan, SafetyLayer
 
 GOAL_CONFIGURATIONS = 8  # reaching configurations given to the planner at most (the nearest to the start first)
-PLAN_BUDGET = 1500       # motion checks reach_controller's plan of a goal may take (RRT-Connect's, twice where the
-                         # first finds none: ReachSetup.plan_path; 5 s each at most): 300 found 9 of 13 UR5 goals from
-                         # random starts among a table and two objects, 3,000 at once 10, 1,500 twice 14 of 15
 
 
 @dataclass
