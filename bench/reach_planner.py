@@ -4,7 +4,8 @@ meshes (../shared/robots/meshes), the KUKA LWR and the PR2's right arm; among a 
 and with the body alone; from home, random starts and chained (each goal from where the last plan left the arm).
 Beside it, in the same run, the reference a MoveIt user gets: OMPL's RRT-Connect with a one-at-a-time state check
 (OMPL's discrete motion validator, the same spacing) on the same starts and goal configurations. Then Reach-v0's
-P-controller among the same world, with and without the planned way round, and the planner's share; goals planned
+P-controller among the same world, with and without the planned way round, and the planner's share, in-process and
+through the safety layer (each goal planned first, as reach_controller plans it, beside the policy first); goals planned
 and followed through the safety layer as reach_controller drives them; and how tight the spheres are against the
 meshes themselves (python-fcl through trimesh, the FCL MoveIt uses): the share of random configurations the spheres
 refuse while every pair they flag is more than 2 cm apart by the meshes (over-conservative), and contacts missed.
@@ -175,14 +176,17 @@ def main(argv=None) -> int:
         print(f'\nReach-v0 among the table and two objects, the P-controller on {a.episodes} goals (seed 1000), its '
               f'recovery going round by a planned way where its via points find none, beside the same without it')
         print(f'{"arm":<22s}{"start":<9s}{"reached":>9s}{"planner share":>15s}{"without the planner":>21s}'
-              f'{"through the layer (0.25)":>26s}')
+              f'{"through the layer (0.25)":>26s}{"policy first":>14s}')
         for robot, tip, home in ARMS:
             setup = ReachSetup(os.path.join(ROBOTS, robot), tip=tip, home=home, obstacles=WORLD, collision=True)
             layered = ReachSetup(os.path.join(ROBOTS, robot), tip=tip, home=home, obstacles=WORLD, collision=True,
                                  velocity_scale=0.25)
+            policy_first = ReachSetup(os.path.join(ROBOTS, robot), tip=tip, home=home, obstacles=WORLD,
+                                      collision=True, velocity_scale=0.25, plan_first=False)
             for start in ('home', 'random', 'chained'):
                 on = learn.evaluate(learn.p_controller(setup), setup, a.episodes, 1000, start=start)
                 through = learn.evaluate(learn.p_controller(layered), layered, a.episodes, 1000, start=start)
+                policy = learn.evaluate(learn.p_controller(policy_first), policy_first, a.episodes, 1000, start=start)
                 planned_way = ReachSetup._planned_way
                 ReachSetup._planned_way = lambda self, goal, q: None
                 try:
@@ -190,7 +194,8 @@ def main(argv=None) -> int:
                 finally:
                     ReachSetup._planned_way = planned_way
                 print(f'{robot:<22s}{start:<9s}{100 * on.success_rate:>8.1f}%{100 * on.planned:>14.1f}%'
-                      f'{100 * off.success_rate:>20.1f}%{100 * through.success_rate:>25.1f}%')
+                      f'{100 * off.success_rate:>20.1f}%{100 * through.success_rate:>25.1f}%'
+                      f'{100 * policy.success_rate:>13.1f}%')
                 sys.stdout.flush()
     if a.follow:
         print(f'\nGoals planned and followed through the safety layer (velocity_scale 0.25) as reach_controller '

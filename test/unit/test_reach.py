@@ -411,6 +411,48 @@ def test_the_null_space_term_leaves_the_tip_where_it_is_and_moves_the_joints_off
     assert (h_kept[free] <= h_plain[free] + 1e-9).mean() > 0.95 and h_kept[free].sum() < h_plain[free].sum()
 
 
+@pytest.mark.parametrize('path, tip', [(robot_path('pr2.urdf'), 'r_gripper_tool_frame'),
+                                       (robot_path('panda.urdf'), None)])
+def test_through_a_layer_a_slow_joint_is_asked_for_its_share_one_arm_as_the_batch(path, tip):
+    """Weighted least squares (through a safety layer, each joint by its velocity limit over the fastest): the PR2's
+    torso (0.013 m/s beside 2 rad/s) is asked for a fraction of what plain least squares asks, the tip still moves
+    by the step asked (to first order); one arm's numbers are the batch's bit for bit, near limits and with the
+    null-space term; weights of 1 are plain least squares to the bit."""
+    setup = ReachSetup(model=path, tip=tip, velocity_scale=0.25)
+    arm, w = setup.arm, setup.joint_weights
+    assert w.max() == 1.0 and (w > 0).all()
+    rng = np.random.default_rng(4)
+    middle, half = (arm.lower + arm.upper) / 2, (arm.upper - arm.lower) / 2
+    q = middle + half * rng.uniform(-0.99, 0.99, (100, arm.n))
+    q_t = np.ascontiguousarray(q.T)
+    tip_t, axes, origins = arm.forward(q_t)
+    jac_t = arm.jacobian_t(tip_t, axes, origins)
+    dx = rng.uniform(-1, 1, (3, 100)) * setup.ee_step
+    plain = arm.move_t(q_t, jac_t, dx, setup.damping, limit_gain=setup.limit_gain)
+    weighted = arm.move_t(q_t, jac_t, dx, setup.damping, limit_gain=setup.limit_gain, weights=w)
+    np.testing.assert_array_equal(arm.move_t(q_t, jac_t, dx, setup.damping, limit_gain=setup.limit_gain,
+                                             weights=np.ones(arm.n)), plain)
+    clamped = 0
+    for i in range(100):
+        jac = jac_t[:, :, i].tolist()
+        one = arm.move_one(q[i].tolist(), jac, dx[:, i].tolist(), setup.damping, limit_gain=setup.limit_gain,
+                           weights=w.tolist())
+        assert one == weighted[:, i].tolist(), i
+        clamped += bool(((weighted[:, i] <= arm.lower) | (weighted[:, i] >= arm.upper)).any())
+    assert clamped > 0                                             # the clamping passes were met too
+    slow = int(w.argmin())
+    small = 0.01 * setup.ee_step
+    tiny_plain = arm.move_t(q_t, jac_t, dx * 0.01, setup.damping)
+    tiny = arm.move_t(q_t, jac_t, dx * 0.01, setup.damping, weights=w)
+    free = ((tiny > arm.lower[:, None]) & (tiny < arm.upper[:, None])).all(axis=0)
+    moved = arm.forward(tiny, with_axes=False)[0] - tip_t
+    assert np.median(np.linalg.norm(moved - dx * 0.01, axis=0)[free] / small) < 0.1     # the step asked
+    if w[slow] < 0.1:                                              # the PR2's torso
+        asked = np.abs(tiny - q_t)[slow][free] / w[slow]
+        asked_plain = np.abs(tiny_plain - q_t)[slow][free] / w[slow]
+        assert np.median(asked) < 0.2 * np.median(asked_plain)     # in time, a fraction of what it was asked
+
+
 def test_a_chained_start_is_where_the_last_episode_left_the_arm():
     env = ReachEnv(model=PACKAGE_UR5, start='chained')
     obs, _ = env.reset(seed=5)

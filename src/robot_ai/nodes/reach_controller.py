@@ -911,7 +911,7 @@ class ReachController:
             self.no_action = str(e)
             return None
         own_tip, jac = self.setup.place_one(q)
-        moved = self.setup.move_one(q, jac, a)
+        moved = self.moving.move_one(q, jac, a)       # through the layer: each joint's share weighted by its speed
         target, after = self.moving.recover_one(q, own_tip, moved, a, goal, recovery)   # its stall: the layer's steps
         with self.lock:
             if version != self.version:

@@ -402,7 +402,7 @@ class Arm:
         return g_t - self.damped_least_squares(jac_t, jg, damping)
 
     def move_t(self, q_t: np.ndarray, jac_t: np.ndarray, dx_t: np.ndarray, damping: float,
-               passes: int = CLAMP_PASSES, limit_gain: float = 0.0) -> np.ndarray:
+               passes: int = CLAMP_PASSES, limit_gain: float = 0.0, weights: np.ndarray | None = None) -> np.ndarray:
         """Joint positions (n, N) after moving the tip by dx_t (3, N) from q_t (n, N), within the limits (or its pose
         by dx_t (6, N), with jacobian6_t's rows and weight).
 
@@ -412,10 +412,29 @@ class Arm:
         A pass changes nothing for an arm that locks no new joint, so an arm's result does not depend on its batch.
         limit_gain > 0 (rad or m per step at a limit): plus the joints' steps away from their limits
         (limit_gradient_t) in the Jacobian's null space (null_space_t, damped by NULL_DAMPING x damping), which the
-        tip does not feel."""
+        tip does not feel. weights (n,) in (0, 1]: each joint's share of the motion, least squares of dq_k / w_k (a
+        joint of weight w moves as if its column of the Jacobian were w times as long, then w times what it is
+        solved for): joints that move slowly (through a safety layer, each within its own velocity limit) are asked
+        for less; None: all alike (weights of 1 are the same numbers to the bit)."""
+        if weights is None:
+            return self._move_t(q_t, jac_t, dx_t, damping, passes, limit_gain)
+        w = np.asarray(weights, dtype=float)[:, None]
+        scaled = jac_t * w[None]
+        dq = self.damped_least_squares(scaled, dx_t, damping) * w
+        if limit_gain > 0:
+            dq = dq + self.null_space_t(scaled, self.limit_gradient_t(q_t, limit_gain) / w, damping * NULL_DAMPING) * w
+        return self._clamped(q_t, jac_t, dx_t, damping, passes, dq, scaled, w)
+
+    def _move_t(self, q_t: np.ndarray, jac_t: np.ndarray, dx_t: np.ndarray, damping: float, passes: int,
+                limit_gain: float) -> np.ndarray:
         dq = self.damped_least_squares(jac_t, dx_t, damping)
         if limit_gain > 0:
             dq = dq + self.null_space_t(jac_t, self.limit_gradient_t(q_t, limit_gain), damping * NULL_DAMPING)
+        return self._clamped(q_t, jac_t, dx_t, damping, passes, dq)
+
+    def _clamped(self, q_t: np.ndarray, jac_t: np.ndarray, dx_t: np.ndarray, damping: float, passes: int,
+                 dq: np.ndarray, scaled: np.ndarray | None = None, w: np.ndarray | None = None) -> np.ndarray:
+        """move_t's clamping passes from the step dq (n, N); with weights, scaled is the weighted Jacobian."""
         lower, upper = self.lower[:, None], self.upper[:, None]
         locked = np.zeros(q_t.shape, dtype=bool)
         fixed = np.zeros(q_t.shape)               # the locked joints' motion, to their limit
@@ -426,11 +445,12 @@ class Arm:
                 break
             locked |= newly
             fixed = np.where(newly, np.minimum(np.maximum(target, lower), upper) - q_t, fixed)
-            free = jac_t * ~locked[None]
+            free = (jac_t if scaled is None else scaled) * ~locked[None]
             done = jac_t[:, 0] * fixed[0]
             for k in range(1, self.n):
                 done = done + jac_t[:, k] * fixed[k]
-            solved = np.where(locked, fixed, self.damped_least_squares(free, dx_t - done, damping))
+            step = self.damped_least_squares(free, dx_t - done, damping)
+            solved = np.where(locked, fixed, step if w is None else step * w)
             dq = np.where(locked.any(axis=0), solved, dq)    # an arm with no joint locked keeps its step as it was
         return self.clip(q_t + dq)
 
@@ -513,19 +533,29 @@ class Arm:
         return [jac[0][k] * y[0] + jac[1][k] * y[1] + jac[2][k] * y[2] for k in range(n)]
 
     def move_one(self, q: list, jac: list, dx: list, damping: float, passes: int = CLAMP_PASSES,
-                 limit_gain: float = 0.0) -> list[float]:
-        """As move_t for one arm."""
+                 limit_gain: float = 0.0, weights: list | None = None) -> list[float]:
+        """As move_t for one arm (weights: n floats, or None)."""
         n, lower, upper = self.n, self._lower, self._upper
+        actual, w = jac, weights
+        if w is not None:
+            jac = [[row[k] * w[k] for k in range(n)] for row in jac]
         dq = self.damped_least_squares_one(jac, dx, damping)
+        if w is not None:
+            dq = [dq[k] * w[k] for k in range(n)]
         if limit_gain > 0:
             middle, half = self._home_list, self._half_list
             u = [(q[k] - middle[k]) / half[k] for k in range(n)]
             g = [-limit_gain * (u[k] * abs(u[k])) for k in range(n)]
+            if w is not None:
+                g = [g[k] / w[k] for k in range(n)]
             jg = [jac[i][0] * g[0] for i in range(3)]
             for k in range(1, n):
                 jg = [jg[i] + jac[i][k] * g[k] for i in range(3)]
             back = self.damped_least_squares_one(jac, jg, damping * NULL_DAMPING)
-            dq = [dq[k] + (g[k] - back[k]) for k in range(n)]
+            if w is None:
+                dq = [dq[k] + (g[k] - back[k]) for k in range(n)]
+            else:
+                dq = [dq[k] + (g[k] - back[k]) * w[k] for k in range(n)]
         locked, fixed = [False] * n, [0.0] * n
         for _ in range(passes):
             target = [q[k] + dq[k] for k in range(n)]
@@ -536,10 +566,12 @@ class Arm:
             fixed = [min(max(target[k], lower[k]), upper[k]) - q[k] if newly[k] else fixed[k] for k in range(n)]
             keep = [0.0 if locked[k] else 1.0 for k in range(n)]
             free = [[row[k] * keep[k] for k in range(n)] for row in jac]
-            done = [jac[i][0] * fixed[0] for i in range(3)]
+            done = [actual[i][0] * fixed[0] for i in range(3)]
             for k in range(1, n):
-                done = [done[i] + jac[i][k] * fixed[k] for i in range(3)]
+                done = [done[i] + actual[i][k] * fixed[k] for i in range(3)]
             solved = self.damped_least_squares_one(free, [dx[i] - done[i] for i in range(3)], damping)
+            if w is not None:
+                solved = [solved[k] * w[k] for k in range(n)]
             dq = [fixed[k] if locked[k] else solved[k] for k in range(n)]
         return [min(max(q[k] + dq[k], lower[k]), upper[k]) for k in range(n)]
 
