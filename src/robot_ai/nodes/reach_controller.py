@@ -22,9 +22,10 @@ Goals come from rviz's Publish Point tool (/clicked_point), ~goal, ~goal_pose or
 published. ~goal pose: a goal is the tip's position and orientation (a point keeps the tip's orientation now).
 With the arm's body, each goal is planned first (ReachSetup.planned_way: OMPL's RRT-Connect over the body and
 the world, the layer's margin and a centimetre more kept; `planned in <ms> (straight in joint space | round the
-contacts, RRTConnect, <k> steps)`): the arm follows the way, a step each period through the safety layer (checked as
-every command is), and the policy has it for the rest; a way a collision still holds the arm on is planned again from
-where it stands (MAX_REPLANS times); with no way (`no plan (<why>)`) the policy drives.
+contacts, RRTConnect, <k> steps)`, and `planning a way ...` while a plan takes over a second): the arm follows the
+way, a step each period through the safety layer (checked as every command is), and the policy has it for the rest;
+a way a collision still holds the arm on is planned again from where it stands (MAX_REPLANS times); with no way
+(`no plan (<why>)`) the policy drives.
 It says `reached <goal> in <s> s (<d> m)` once the tip is within the policy's thresholds. When the distance stops
 shrinking within the arm's reach (joints at their limits, a collision, a
 configuration the policy cannot leave: a goal the arm must come at another way), it takes the arm home and tries
@@ -104,7 +105,7 @@ ROS Services
 Parameters it sets: ~policy_info (str): the policy that drives, in one line; ~success_rate (float): its success rate
 over fresh goals (held-out) as its file or its training says, -1 when unknown; ~predicted_success_rate (float): its
 success rate through this node's safety layer, predicted in-process (Reach-v0 velocity_scale: PREDICTION_GOALS fresh
-goals from home), -1 when it could not be played.
+goals from home, PREDICTION_PLANNED with a body, each planned first as here), -1 when it could not be played.
 """
 from __future__ import annotations
 
@@ -154,6 +155,9 @@ TRAIL_STEP = 0.02          # rad between the configurations kept of the way the 
 MAX_TRAIL = 5000           # configurations kept (the oldest go first)
 REROUTE = 25               # configurations of the way home passed before a straighter way is looked for again
 PREDICTION_GOALS = 200     # fresh goals of the in-process prediction through the safety layer (a second or two)
+PLANNING_SAID_AFTER = 1.0  # s a plan takes before the log says one is being made
+PREDICTION_PLANNED = 50    # as many where the arm has a body: each goal is planned first, as here (UR5 among a table
+                           # and two objects: 200 took 15 s, 50 take 3)
 MAX_REPLANS = 3            # a goal's plans made again after a collision held the arm on its planned way
 
 
@@ -373,18 +377,22 @@ class ReachController:
         return SafetyLayer(limits, 1.0 / self.rate, body, margin, follows_plans=self.command_kind == 'trajectory')
 
     # ------------------------------------------------------------------------------------------------ the policy
+    def _prediction_goals(self) -> int:
+        """Goals the prediction plays: fewer where each is planned first (the planning is its cost)."""
+        return PREDICTION_PLANNED if self.moving.plans_first else PREDICTION_GOALS
+
     def _predict(self, policy) -> None:
         """The policy's success rate through this node's safety layer (its limits, one step a control period),
         played in-process from home (a second or two), logged and set as ~predicted_success_rate."""
         setup = self.moving
         try:
-            rate = learn.evaluate(policy, setup, PREDICTION_GOALS).success_rate
+            rate = learn.evaluate(policy, setup, self._prediction_goals()).success_rate
         except (policies.PolicyError, ValueError) as e:       # a model that answers no action somewhere
             rospy.logwarn(f'reach_controller: no prediction through the safety layer: {e}')
             rate = -1.0
         else:
             rospy.loginfo(f'reach_controller: through its safety layer ({self.layer.limits.describe()}) the policy '
-                          f'reaches {percent(rate)} of {PREDICTION_GOALS} fresh goals from home within '
+                          f'reaches {percent(rate)} of {self._prediction_goals()} fresh goals from home within '
                           f'{setup.episode_steps * setup.control_period:g} s (predicted in-process)')
         rospy.set_param('~predicted_success_rate', float(rate))
 
@@ -638,13 +646,13 @@ class ReachController:
         threading.Thread(target=self._predict_between_steps, args=(policy.actor,), daemon=True).start()
         return LoadPolicyResponse(success=True, message=f'driving with {policy.describe()}' + (f' ({note})' if note
                                   else '') + f'; predicting its success through the safety layer over '
-                                  f'{PREDICTION_GOALS} goals now (the arm rests until then; the log and '
+                                  f'{self._prediction_goals()} goals now (the arm rests until then; the log and '
                                   f'~predicted_success_rate say it)')
 
     def _predict_between_steps(self, policy) -> None:
         with self.step_lock:
             rospy.loginfo(f'reach_controller: predicting the new policy\'s success through the safety layer over '
-                          f'{PREDICTION_GOALS} goals; the arm rests until then')
+                          f'{self._prediction_goals()} goals; the arm rests until then')
             self._predict(policy)
             with self.lock:
                 self._restart_stall_clock()       # the time it took is no stall
@@ -999,6 +1007,18 @@ class ReachController:
                 return
             self.planning = version
         threading.Thread(target=self._plan_goal, args=(goal, version, q), daemon=True, name='planning').start()
+        timer = threading.Timer(PLANNING_SAID_AFTER, self._say_planning, args=(version,))
+        timer.daemon = True
+        timer.start()
+
+    def _say_planning(self, version: int) -> None:
+        """A plan that takes a while is said while it is made: the arm holds meanwhile, and a held arm with nothing
+        said looks stuck."""
+        with self.lock:
+            still = self.planning == version and self.version == version
+        if still:
+            rospy.loginfo(f'planning a way round the arm\'s body and the world (the arm holds meanwhile, '
+                          f'{PLAN_BUDGET} motion checks at most)')
 
     def _plan_goal(self, goal: list[float], version: int, q: list[float] | None) -> None:
         """A planned way to the goal (ReachSetup.planned_way through the layer: OMPL's RRT-Connect over the arm's
