@@ -235,6 +235,12 @@ def test_through_the_layer_with_a_body_each_goal_is_planned_first_and_equal_to_s
         planned += first._recovery.state == RECOVERING
         assert policy._recovery == Recovery()
     assert planned >= 4, planned
+    joints = ReachEnv(control='joints', **kwargs)           # a joints policy's arm is planned for too: its goal
+    joints.reset(seed=1)                                    # configurations are sought by the tip's steps
+    assert joints._recovery.state == RECOVERING
+    for _ in range(joints.setup.episode_steps):
+        info = joints.step(np.zeros(joints.action_space.shape))[-1]
+    assert info['is_success'] and not info['collision']     # the way alone, the policy asking nothing
     with pytest.raises(ReachError, match='plan_first plans round the arm'):
         ReachSetup(model=KUKA, plan_first=True)
     with pytest.raises(ReachError, match='plan_first must be true or false'):

@@ -719,12 +719,13 @@ class ReachSetup:
         thresholds (and, clear, clear of collisions): (configurations (n, k, M), reached (k, M), error (k, M),
         squared distance from q_t in half ranges (k, M))."""
         n, k, m = self.arm.n, seeds.shape[1], goal_t.shape[1]
+        steps = self._tip_steps()
         q = np.repeat(seeds, m, axis=1)                 # column i * m + j: seed i, goal j
         goal = np.tile(goal_t, (1, k))
         going = np.arange(k * m)      # a goal's columns stop once one is well within the thresholds (batch-free)
         found = np.zeros(m, dtype=np.bool_)
         for _ in range(RECOVERY_ITERATIONS):
-            tip, jac = self.place(q[:, going])
+            tip, jac = steps.place(q[:, going])
             there = self._well_within(tip, goal[:, going])
             if there.any():
                 on = np.ones(len(going), dtype=np.bool_)
@@ -736,12 +737,21 @@ class ReachSetup:
                 going, tip, jac = going[on], tip[:, on], jac[..., on]
                 if not len(going):
                     break
-            q[:, going] = self.move(q[:, going], jac, self._p_action(tip, goal[:, going], RECOVERY_STRIDE))
+            q[:, going] = steps.move(q[:, going], jac, steps._p_action(tip, goal[:, going], RECOVERY_STRIDE))
         achieved = self.goals_of(q)
         reached, error = self.task.is_success(achieved.T, goal.T), self.task.error(achieved.T, goal.T)
         q = q.reshape(n, k, m)
         far = (((q - q_t[:, None, :]) / self.arm._half[:, None, None]) ** 2).sum(axis=0)
         return q, reached.reshape(k, m), error.reshape(k, m), far
+
+    def _tip_steps(self) -> ReachSetup:
+        """The setup whose steps the reaching search takes (the P-controller's on the tip): this one, or with joints
+        control its twin with ee control (a joints policy's arm planned for: its goal configurations are found so)."""
+        if self.control == 'ee':
+            return self
+        twin = copy.copy(self)
+        twin.control = 'ee'
+        return twin
 
     def recovery_way(self, goal_t: np.ndarray, q_t: np.ndarray, with_ways: bool = False) -> tuple[np.ndarray, ...]:
         """(via, to), each (n, M) (with_ways: and the ways' points between, (M,) of tuples): where the recovery
