@@ -142,17 +142,8 @@ def tightness(robot, tip, samples, seed=3):
     return hit.mean(), over / samples, missed / samples
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument('--problems', type=int, default=30, help='goals per arm, world and start')
-    p.add_argument('--reference-limit', type=float, default=1.0,
-                   help='seconds the reference may take per problem (0: no reference)')
-    p.add_argument('--episodes', type=int, default=200, help='Reach-v0 goals per arm and start (0: none)')
-    p.add_argument('--follow', type=int, default=40,
-                   help='goals per arm and start planned and followed through the safety layer (0: none)')
-    p.add_argument('--tightness', type=int, default=3000,
-                   help='random configurations the spheres are held to the meshes on (0: none)')
-    a = p.parse_args(argv)
+def planning(a) -> None:
+    """Goals planned by robot_ai.reach.planning beside the reference, per arm, world and start."""
     print(f'{"arm":<22s}{"world":<8s}{"start":<9s}{"reached":>12s}{"median":>9s}{"p95":>9s}   '
           f'{"reference reached":>18s}{"median":>9s}{"p95":>9s}')
     all_times, all_ok, all_n = [], 0, 0
@@ -172,6 +163,21 @@ def main(argv=None) -> int:
     times = np.concatenate(all_times)
     print(f'all: {all_ok}/{all_n} reached ({100.0 * all_ok / max(all_n, 1):.1f} %), planning time median '
           f'{np.median(times) * 1000:.0f} ms, 95th percentile {np.percentile(times, 95) * 1000:.0f} ms')
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument('--problems', type=int, default=30, help='goals per arm, world and start (0: none)')
+    p.add_argument('--reference-limit', type=float, default=1.0,
+                   help='seconds the reference may take per problem (0: no reference)')
+    p.add_argument('--episodes', type=int, default=200, help='Reach-v0 goals per arm and start (0: none)')
+    p.add_argument('--follow', type=int, default=40,
+                   help='goals per arm and start planned and followed through the safety layer (0: none)')
+    p.add_argument('--tightness', type=int, default=3000,
+                   help='random configurations the spheres are held to the meshes on (0: none)')
+    a = p.parse_args(argv)
+    if a.problems:
+        planning(a)
     if a.episodes:
         print(f'\nReach-v0 among the table and two objects, the P-controller on {a.episodes} goals (seed 1000), its '
               f'recovery going round by a planned way where its via points find none, beside the same without it')
