@@ -243,6 +243,25 @@ def test_a_goal_planned_as_reach_controller_plans_it_is_followed_through_the_saf
     assert found >= 4, f'{robot}: {found} of 5 goals planned'
 
 
+def test_a_start_within_the_centimetre_more_is_left_and_the_way_keeps_it_beyond(monkeypatch):
+    """A start clear by the layer's margin (2 cm) but not by the centimetre more that ways keep: planned with 2 cm
+    alone, the Panda's straight way passed its ball closer than the layer lets it, and the layer refused all 2,994
+    steps after its sixth. The way may keep 2 cm within 10 cm of motion from the start and keeps 3 cm beyond: no step
+    refused, the goal reached, the meshes untouched."""
+    monkeypatch.setenv('ROS_PACKAGE_PATH', MESHES)
+    tip, home = ARMS['panda.urdf']
+    setup = ReachSetup(os.path.join(ROBOTS, 'panda.urdf'), tip=tip, home=home, obstacles=WORLD, collision=True,
+                       start='random')
+    goals, starts = setup.first_states([np.random.default_rng(2029)])
+    start, goal = starts[:, 0], setup.goals_of(goals)[:, 0]
+    assert not setup.body.in_collision(start[None], 0.02)[0] and setup.body.in_collision(start[None], 0.03)[0]
+    followed = follow_through_layer(setup, goal, start)
+    assert followed.way.found and followed.refused == 0, (followed.way.reason, followed.refused)
+    assert np.linalg.norm(setup.goals_of(followed.end[:, None])[:, 0] - goal) < setup.task.distance_threshold
+    sent = np.vstack([p.samples(0.01) for p in followed.plans])
+    assert Exact(setup.body).contacts_along(setup.body.link_poses(sent), len(sent)) == []
+
+
 def test_a_way_given_from_outside_is_followed_without_the_limit_recovery(monkeypatch):
     """A policy file from before the limit recovery drives without it, but the way reach_controller plans for it is
     followed all the same (recover_one takes a RECOVERING way whatever limit_recovery is); READY stays the policy's."""

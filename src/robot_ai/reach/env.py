@@ -119,6 +119,7 @@ FIRST_PLAN_TIME = 60.0       # s such a plan may take in the env: its budget bou
                              # machine), the time only a stuck one
 RECOVERY_PLAN_PADDING = 0.01  # m kept beyond way_margin by a planned way through a safety layer (velocity_scale)
 RECOVERY_PLAN_SPACING = 0.01  # m: a planned way's checks at most this far apart along the body (its margin, if more)
+LEAVING = 0.1                # m of body motion from a start within the padding where the way may keep less of it
 READY, RECOVERING, RECOVERED = 0, 1, 2      # an arm's limit recovery in its episode
 
 
@@ -923,15 +924,41 @@ class ReachSetup:
             ends, best = self.clear_reaching_configurations(goal, q, margin, box, least)
         if not len(ends):
             return PlannedWay(None, '', self.none_clear(best, margin))
-        if self._planner is None or self._planner[0] != margin:
-            self._planner = (margin, self.joint_planner(margin, box, max(margin, RECOVERY_PLAN_SPACING)))
-        path = self.plan_path(self._planner[1], goal, q, ends, margin, box, time_limit, budget)
+        path = None
+        if margin < wanted and margin >= self.way_margin > 0:     # within the centimetre more: it is kept beyond
+            leaving = self._leaving_planner(q, margin, wanted, box)  # the start's neighbourhood (a way planned
+            path = self.plan_path(leaving, goal, q, ends, margin, box, time_limit, budget)   # with the margin alone
+            if not path.found:                                    # hugged a ball, and the layer refused it there)
+                path = None
+        if path is None:
+            if self._planner is None or self._planner[0] != margin:
+                self._planner = (margin, self.joint_planner(margin, box, max(margin, RECOVERY_PLAN_SPACING)))
+            path = self.plan_path(self._planner[1], goal, q, ends, margin, box, time_limit, budget)
         if not path.found:
             return PlannedWay(None, path.how, path.reason)
         step = RECOVERY_STEP * self.arm._half
         if self.limits is not None:     # a period's travel at most: each joint reaches its point within the period
             step = np.minimum(step, self.limits.velocity * self.control_period)
         return PlannedWay((densify(path.waypoints / step, 1.0) * step)[1:], path.how, '')
+
+    def _leaving_planner(self, q: np.ndarray, margin: float, wanted: float, box):
+        """A motion.JointPlanner for a start clear by margin but not by wanted: configurations clear by wanted, or
+        by margin within LEAVING metres of body motion from q (sweep), so that the way leaves the start's
+        neighbourhood and keeps wanted beyond it."""
+        from robot_ai.motion import JointPlanner
+        sweep, body = self.body.sweep(), self.body
+
+        def clear(qs: np.ndarray) -> np.ndarray:
+            ok = ~body.in_collision(qs, wanted)
+            rest = np.flatnonzero(~ok)
+            near = rest[(np.abs(qs[rest] - q) @ sweep) <= LEAVING]
+            if len(near):
+                ok[near] = ~body.in_collision(qs[near], margin)
+            return ok
+        # checked states 2 (wanted - margin) apart: between two of them the body keeps margin (a check with a padding
+        # covers half the spacing), where the layer refuses less
+        return JointPlanner(box.lower, box.upper, clear, sweep, spacing=min(2 * (wanted - margin), wanted),
+                            speed=box.velocity if isinstance(box, Limits) else 1.0)
 
     def plan_path(self, planner, goal: np.ndarray, q: np.ndarray, ends: np.ndarray, margin: float, box,
                   time_limit: float, budget: int | None = None):
