@@ -247,6 +247,29 @@ def test_through_the_layer_with_a_body_each_goal_is_planned_first_and_equal_to_s
         ReachSetup(model=KUKA, obstacles=WORLD, plan_first='yes')
 
 
+def test_a_way_a_collision_holds_is_planned_again_from_there_as_the_node_does(monkeypatch):
+    """A planned way on which a collision holds the arm is planned again from where it stands, at most MAX_REPLANS
+    times an episode (reach_controller's rule), the vector env equal to SyncVectorEnv bit for bit meanwhile. The
+    collision: a band of the first joint's range the arm may not enter, which the planner does not know of."""
+    motion_hits = ReachSetup._motion_hits
+
+    def banded(self, before_t, after_t, padding=0.0):
+        inside = lambda x: (x[0] > 0.3) & (x[0] < 0.6)      # noqa: E731
+        return motion_hits(self, before_t, after_t, padding) | (inside(after_t) & ~inside(before_t))
+    monkeypatch.setattr(ReachSetup, '_motion_hits', banded)
+    replans = []
+    kwargs = dict(model=KUKA, obstacles=WORLD, velocity_scale=0.25, start='random')
+    lockstep(6, 3, 200, lambda rec: 0, **kwargs)
+    vec = ReachVectorEnv(6, **kwargs)
+    obs = vec.reset(seed=3)[0]
+    p = learn.p_controller(vec.setup)
+    for _ in range(200):
+        obs = vec.step(p.act_batch(ars.flatten_batch(vec.single_observation_space, obs)).astype(np.float32))[0]
+        replans.append(vec._replans.copy())
+    assert (replans[-1] == env.MAX_REPLANS).any(), replans[-1]      # held each time on the band: 3, then the policy
+    assert (np.diff(np.array(replans), axis=0) >= 0).all() and replans[-1].max() <= env.MAX_REPLANS
+
+
 def test_the_setting_is_kept_by_policy_files_and_older_files_learned_without_it(tmp_path):
     """A new file keeps limit_recovery (true); a file from before the recovery has none and acts without it, as it
     learned; joints control has none; a setting that is not a bool is one line."""

@@ -136,7 +136,7 @@ from robot_ai.priority import NICE, raise_priority
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
 from robot_ai.reach.collision import CollisionModel
-from robot_ai.reach.env import RECOVERING, READY, PlannedWay, ReachSetup, Recovery
+from robot_ai.reach.env import MAX_REPLANS, RECOVERING, READY, PlannedWay, ReachSetup, Recovery
 from robot_ai.reach.planning import PLAN_BUDGET
 from robot_ai.reach.safety import (DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, SAMPLE_STEP, Limits, Plan, SafetyLayer,
                                    StampClock, measure_lead)
@@ -158,7 +158,6 @@ PREDICTION_GOALS = 200     # fresh goals of the in-process prediction through th
 PLANNING_SAID_AFTER = 1.0  # s a plan takes before the log says one is being made
 PREDICTION_PLANNED = 50    # as many where the arm has a body: each goal is planned first, as here (UR5 among a table
                            # and two objects: 200 took 15 s, 50 take 3)
-MAX_REPLANS = 3            # a goal's plans made again after a collision held the arm on its planned way
 
 
 def _quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:

@@ -115,6 +115,7 @@ PLAN_BUDGET = 1500           # motion checks a goal's plan at an episode's start
                              # plans so too: RRT-Connect's, twice where the first finds none: plan_path): 300 found 9 of
                              # 13 UR5 goals from random starts among a table and two objects, 3,000 at once 10, 1,500
                              # twice 14
+MAX_REPLANS = 3              # an episode's (a goal's) ways planned again after a collision held the arm on one
 FIRST_PLAN_TIME = 60.0       # s such a plan may take in the env: its budget bounds it (the same episodes on a loaded
                              # machine), the time only a stuck one
 RECOVERY_PLAN_PADDING = 0.01  # m kept beyond way_margin by a planned way through a safety layer (velocity_scale)
@@ -1195,6 +1196,7 @@ class ReachEnv(gymnasium.Env):
         self._q = self._tip = self._goal = self._jac = None
         self._v = self._sent = None             # with velocity_scale: the joints' velocities, the targets sent
         self._recovery = Recovery()             # limit recovery's state in the episode (ReachSetup.recover)
+        self._replans = 0                       # the episode's ways planned again (plan_first, MAX_REPLANS)
         self._renderer = None
 
     def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:
@@ -1218,7 +1220,7 @@ class ReachEnv(gymnasium.Env):
                                               or q != self._q):   # chained: the arm goes on as it was going
             self._v, self._sent = self.setup.motion_start(np.array(q)[:, None])
         self._goal, self._q = goal, q
-        self._recovery = self.setup.first_way(goal, q)
+        self._recovery, self._replans = self.setup.first_way(goal, q), 0
         if self._recovery.state == RECOVERING and self.setup.limits is not None:
             self._drop_sent()                       # the way starts from where the arm is (_reset_envs' rule)
         self._tip, self._jac = self.setup.place_one(self._q)
@@ -1245,7 +1247,12 @@ class ReachEnv(gymnasium.Env):
         else:
             self._q, hit = self.setup.guard_one(self._q, target)
         if hit:
+            held = self._recovery.state == RECOVERING
             self._recovery = self._recovery.give_up()
+            if held and self.setup.plans_first and self._replans < MAX_REPLANS:    # as reach_controller: the way
+                again = self.setup.first_way(self._goal, self._q)                  # planned again from here
+                if again.state == RECOVERING:
+                    self._recovery, self._replans = again, self._replans + 1
         info = {} if hit is None else {'collision': hit}
         self._tip, self._jac = self.setup.place_one(self._q)
         if self.setup.pose:
@@ -1324,6 +1331,7 @@ class ReachVectorEnv(VectorEnv):
         self._jac = np.zeros((6 if self.setup.pose else 3, self.arm.n, n)) if self.setup.control == 'ee' else None
         self._v, self._sent = self.setup.motion_start(self._q)
         self._recovery = Recoveries.fresh(self.arm.n, n)        # limit recovery's states (ReachSetup.recover)
+        self._replans = np.zeros(n, dtype=np.int64)              # each episode's ways planned again (MAX_REPLANS)
         self._elapsed = np.zeros(n, dtype=np.int64)
         self._autoreset = np.zeros(n, dtype=np.bool_)
         self._started = np.zeros(n, dtype=np.bool_)
@@ -1351,6 +1359,7 @@ class ReachVectorEnv(VectorEnv):
             self._jac[:, :, chosen] = jac
         self._elapsed[chosen] = 0
         self._recovery.restart(chosen)
+        self._replans[chosen] = 0
         if self.setup.plans_first:          # each goal planned first (as reach_controller plans it): the way
             for k, i in enumerate(chosen):  # starts from where the arm is, the targets queued dropped
                 first = self.setup.first_way(goal[:, k], q[:, k])
@@ -1456,8 +1465,18 @@ class ReachVectorEnv(VectorEnv):
                 v[:, hit] = 0.0                  # way round starts from where it holds, not after them)
                 self._sent[:, :, arms[hit]] = q[None, :, hit]
             self._v[:, rows] = v
+        held = (rec.state == RECOVERING) & hit if hit is not None else None
         rec.give_up(hit)
         self._recovery[rows] = rec
+        if held is not None and held.any() and self.setup.plans_first:    # as reach_controller (ReachEnv.step)
+            arms = np.arange(self.num_envs)[rows]
+            for i in np.flatnonzero(held):
+                j = arms[i]
+                if self._replans[j] < MAX_REPLANS:
+                    again = self.setup.first_way(self._goal[:, j], q[:, i])
+                    if again.state == RECOVERING:
+                        self._recovery.take(j, again)
+                        self._replans[j] += 1
         return q, hit
 
     def render(self):
