@@ -416,25 +416,17 @@ class Arm:
         joint of weight w moves as if its column of the Jacobian were w times as long, then w times what it is
         solved for): joints that move slowly (through a safety layer, each within its own velocity limit) are asked
         for less; None: all alike (weights of 1 are the same numbers to the bit)."""
-        if weights is None:
-            return self._move_t(q_t, jac_t, dx_t, damping, passes, limit_gain)
-        w = np.asarray(weights, dtype=float)[:, None]
-        scaled = jac_t * w[None]
-        dq = self.damped_least_squares(scaled, dx_t, damping) * w
+        w = None if weights is None else np.asarray(weights, dtype=float)[:, None]
+        scaled = jac_t if w is None else jac_t * w[None]
+        dq = self.damped_least_squares(scaled, dx_t, damping)
+        if w is not None:
+            dq = dq * w
         if limit_gain > 0:
-            dq = dq + self.null_space_t(scaled, self.limit_gradient_t(q_t, limit_gain) / w, damping * NULL_DAMPING) * w
-        return self._clamped(q_t, jac_t, dx_t, damping, passes, dq, scaled, w)
-
-    def _move_t(self, q_t: np.ndarray, jac_t: np.ndarray, dx_t: np.ndarray, damping: float, passes: int,
-                limit_gain: float) -> np.ndarray:
-        dq = self.damped_least_squares(jac_t, dx_t, damping)
-        if limit_gain > 0:
-            dq = dq + self.null_space_t(jac_t, self.limit_gradient_t(q_t, limit_gain), damping * NULL_DAMPING)
-        return self._clamped(q_t, jac_t, dx_t, damping, passes, dq)
-
-    def _clamped(self, q_t: np.ndarray, jac_t: np.ndarray, dx_t: np.ndarray, damping: float, passes: int,
-                 dq: np.ndarray, scaled: np.ndarray | None = None, w: np.ndarray | None = None) -> np.ndarray:
-        """move_t's clamping passes from the step dq (n, N); with weights, scaled is the weighted Jacobian."""
+            g_t = self.limit_gradient_t(q_t, limit_gain)
+            if w is None:
+                dq = dq + self.null_space_t(jac_t, g_t, damping * NULL_DAMPING)
+            else:
+                dq = dq + self.null_space_t(scaled, g_t / w, damping * NULL_DAMPING) * w
         lower, upper = self.lower[:, None], self.upper[:, None]
         locked = np.zeros(q_t.shape, dtype=bool)
         fixed = np.zeros(q_t.shape)               # the locked joints' motion, to their limit
@@ -445,7 +437,7 @@ class Arm:
                 break
             locked |= newly
             fixed = np.where(newly, np.minimum(np.maximum(target, lower), upper) - q_t, fixed)
-            free = (jac_t if scaled is None else scaled) * ~locked[None]
+            free = scaled * ~locked[None]
             done = jac_t[:, 0] * fixed[0]
             for k in range(1, self.n):
                 done = done + jac_t[:, k] * fixed[k]
