@@ -890,12 +890,15 @@ class ReachSetup:
             near[inside, k] = shifted[inside]
         return np.vstack((near, found[np.any(near != found, axis=1)]))
 
-    def joint_planner(self, margin: float, box, spacing: float):
+    def joint_planner(self, margin: float, box, spacing: float, clear=None):
         """A motion.JointPlanner within box's lower and upper (Limits, or the Arm) whose configurations are clear of
-        every contact of the body by margin, its motions checked spacing metres apart along the body."""
+        every contact of the body by margin (or those `clear` accepts), its motions checked spacing metres apart
+        along the body; through a layer (box a Limits) its paths measured in time."""
         from robot_ai.motion import JointPlanner
-        return JointPlanner(box.lower, box.upper, lambda q: ~self.body.in_collision(q, margin), self.body.sweep(),
-                            spacing=spacing, speed=box.velocity if isinstance(box, Limits) else 1.0)
+        if clear is None:
+            clear = lambda q: ~self.body.in_collision(q, margin)      # noqa: E731
+        return JointPlanner(box.lower, box.upper, clear, self.body.sweep(), spacing=spacing,
+                            speed=box.velocity if isinstance(box, Limits) else 1.0)
 
     def _planned_way(self, goal: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """planned_way's points, or None without a way."""
@@ -929,9 +932,7 @@ class ReachSetup:
         if margin < wanted and margin >= self.way_margin > 0:     # within the centimetre more: it is kept beyond
             leaving = self._leaving_planner(q, margin, wanted, box)  # the start's neighbourhood (a way planned
             path = self.plan_path(leaving, goal, q, ends, margin, box, time_limit, budget)   # with the margin alone
-            if not path.found:                                    # hugged a ball, and the layer refused it there)
-                path = None
-        if path is None:
+        if path is None or not path.found:                        # hugged a ball, and the layer refused it there)
             if self._planner is None or self._planner[0] != margin:
                 self._planner = (margin, self.joint_planner(margin, box, max(margin, RECOVERY_PLAN_SPACING)))
             path = self.plan_path(self._planner[1], goal, q, ends, margin, box, time_limit, budget)
@@ -946,7 +947,6 @@ class ReachSetup:
         """A motion.JointPlanner for a start clear by margin but not by wanted: configurations clear by wanted, or
         by margin within LEAVING metres of body motion from q (sweep), so that the way leaves the start's
         neighbourhood and keeps wanted beyond it."""
-        from robot_ai.motion import JointPlanner
         sweep, body = self.body.sweep(), self.body
 
         def clear(qs: np.ndarray) -> np.ndarray:
@@ -958,8 +958,7 @@ class ReachSetup:
             return ok
         # checked states 2 (wanted - margin) apart: between two of them the body keeps margin (a check with a padding
         # covers half the spacing), where the layer refuses less
-        return JointPlanner(box.lower, box.upper, clear, sweep, spacing=min(2 * (wanted - margin), wanted),
-                            speed=box.velocity if isinstance(box, Limits) else 1.0)
+        return self.joint_planner(margin, box, min(2 * (wanted - margin), wanted), clear)
 
     def plan_path(self, planner, goal: np.ndarray, q: np.ndarray, ends: np.ndarray, margin: float, box,
                   time_limit: float, budget: int | None = None):
