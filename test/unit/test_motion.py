@@ -162,6 +162,24 @@ def test_plans_among_a_table_and_objects_touch_nothing_by_the_exact_meshes(arm_w
         assert not setup.body.in_collision(positions).any()
 
 
+def test_a_way_ends_well_within_the_goal_not_at_the_edge_of_its_threshold(arm_world):
+    """The configurations a way is planned to reach each goal within half the threshold, and so does a planned way's
+    end: a search stops all its answers once one is well within, and the others, taken as they were, reached the
+    PR2's goals by 4 cm of 5; from there its P-controller's step took the tip into a collision."""
+    robot, setup = arm_world
+    goals, starts = setup.first_states([np.random.default_rng(300 + i) for i in range(8)])
+    well = 0.5 * setup.task.distance_threshold
+    for i in range(goals.shape[1]):
+        goal = setup.goals_of(goals[:, i:i + 1])[:, 0]
+        ends, _ = setup.clear_reaching_configurations(goal, starts[:, i], setup.way_margin, least=8)
+        assert len(ends), f'{robot} goal {i}: its own drawn configuration reaches it clear'
+        reached = np.linalg.norm(setup.goals_of(ends.T)[:3] - goal[:3, None], axis=0)
+        assert (reached < well).all(), f'{robot} goal {i}: {np.round(reached, 3)}'
+        way = setup.planned_way(goal, starts[:, i], budget=1500)
+        if way.found:
+            assert np.linalg.norm(setup.goals_of(way.points[-1][:, None])[:3, 0] - goal[:3]) < well
+
+
 def test_a_goal_with_no_way_says_why(arm_world):
     robot, setup = arm_world
     planner = ReachPlanner(setup, time_limit=2.0)

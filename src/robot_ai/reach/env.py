@@ -832,7 +832,8 @@ class ReachSetup:
         of contacts by margin, the nearest to q (n,) first; the least error found): the search's steps from where the
         arm stands, home and recovery_seeds, then from GOAL_ROUND of GOAL_DRAWS fixed postures at a time until one
         answer is clear, or `least` are (after GOAL_REACHING_ROUNDS rounds, only while some answer reaches the goal at
-        all). A joint whose range is more than a turn (a UR's +-2 pi) is taken at the turn nearest to q: the same
+        all, and well within the thresholds). Each answer is taken on until it is well within them (_polished); only
+        where none of those is clear, the answers as they came (a goal beside a ball). A joint whose range is more than a turn (a UR's +-2 pi) is taken at the turn nearest to q: the same
         pose, but a shoulder at 6.03 rad from -1.57 must pass through the table to get there, where -0.25 need
         not."""
         box = box if box is not None else self.arm
@@ -843,23 +844,28 @@ class ReachSetup:
         seeds = np.hstack((q[:, None], self.recovery_seeds))
         parts = [seeds] + [self._goal_draws[:, k:k + GOAL_ROUND] for k in range(0, GOAL_DRAWS, GOAL_ROUND)]
         found, best = np.zeros((0, self.arm.n)), np.inf
-        kept = []                # each round's clear answers, until there are `least` of them
+        # clear answers well within the thresholds (the search's steps taken on from its answers, _polished), and
+        # those it came to within them (a way's end where none well within is clear: a goal beside a ball)
+        kept = {True: [], False: []}
+        some_well = False                 # whether any answer came well within (clear or not)
         for k, part in enumerate(parts):
-            if k > GOAL_REACHING_ROUNDS and best > self.task.distance_threshold:
-                break            # none reaches at all (beyond reach): more draws find none clear, only time goes
+            if k > GOAL_REACHING_ROUNDS and (best > self.task.distance_threshold or not some_well):
+                break            # none reaches at all (beyond reach), or none well (its edge): more draws find none
             answers, reached, error, _ = self._reaching_search(goal[:, None], q[:, None], part, clear=False)
             best = min(best, float(error.min()))
-            candidates = answers[:, reached[:, 0], 0].T
-            candidates = candidates[np.all((candidates >= box.lower) & (candidates <= box.upper), axis=1)]
-            if len(candidates):
-                candidates = self._nearest_turns(candidates, q, box)
-                candidates = candidates[~self.body.in_collision(candidates, margin)]
-            if len(candidates):
-                kept.append(candidates)
-                if sum(map(len, kept)) >= least:
-                    break
-        if kept:
-            found = np.concatenate(kept)
+            near = answers[:, reached[:, 0], 0].T
+            polished, well = self._polished(near, goal)
+            some_well |= bool(well.any())
+            for within, candidates in ((True, polished[well]), (False, near)):
+                candidates = candidates[np.all((candidates >= box.lower) & (candidates <= box.upper), axis=1)]
+                if len(candidates):
+                    candidates = self._nearest_turns(candidates, q, box)
+                    candidates = candidates[~self.body.in_collision(candidates, margin)]
+                kept[within].append(candidates)
+            counts = {within: sum(map(len, answers)) for within, answers in kept.items()}
+            if counts[True] >= least or (k >= GOAL_REACHING_ROUNDS and not counts[True] and counts[False] >= least):
+                break        # enough well within; or, after as many rounds as the goal's reach is given, none is
+        found = np.concatenate(kept[True]) if sum(map(len, kept[True])) else np.concatenate(kept[False] or [found])
         order = np.argsort(np.linalg.norm((found - q) / self._speed(box), axis=1), kind='stable')
         return found[order], best
 
@@ -889,6 +895,26 @@ class ReachSetup:
             inside = (shifted >= box.lower[k]) & (shifted <= box.upper[k])
             near[inside, k] = shifted[inside]
         return np.vstack((near, found[np.any(near != found, axis=1)]))
+
+    def _polished(self, found: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(configurations (m, n), well (m,)): found (m, n), each reaching goal (size,), taken on by the search's steps
+        until it is well within the thresholds (RECOVERY_ITERATIONS at most), and whether it is. A search stops every
+        answer of a goal once one of them is well within, so the others may reach it by 4 cm of 5: the end of a way
+        so far off left the PR2's P-controller a step whose weighted joints took its tip into a collision."""
+        steps = self._tip_steps()
+        q = np.ascontiguousarray(found.T)
+        g = np.repeat(goal[:, None], q.shape[1], axis=1)
+        going = np.arange(q.shape[1])
+        for i in range(RECOVERY_ITERATIONS + 1):
+            tip, jac = steps.place(q[:, going])
+            off = ~self._well_within(tip, g[:, going])
+            going, tip, jac = going[off], tip[:, off], jac[..., off]
+            if not len(going) or i == RECOVERY_ITERATIONS:
+                break
+            q[:, going] = steps.move(q[:, going], jac, steps._p_action(tip, g[:, going], RECOVERY_STRIDE))
+        well = np.ones(q.shape[1], dtype=np.bool_)
+        well[going] = False
+        return q.T, well
 
     def joint_planner(self, margin: float, box, spacing: float, clear=None):
         """A motion.JointPlanner within box's lower and upper (Limits, or the Arm) whose configurations are clear of
