@@ -199,14 +199,14 @@ def test_a_small_step_a_limit_blocks_counts_and_an_arm_at_its_goal_is_left_alone
     assert not started(1.0, inside).any()                         # at its goal: nothing to go round
 
 
-def lockstep(n: int, seed: int, steps: int, count, **kwargs) -> int:
-    """gymnasium's SyncVectorEnv over n Reach-v0 envs of kwargs and ReachVectorEnv, reset with seed and driven by the
-    P-controller for steps steps, equal bit for bit at every step: the sum over the steps of count(the vector env's
-    Recoveries)."""
+def lockstep(n: int, seed: int, steps: int, count, policy=None, **kwargs) -> int:
+    """gymnasium's SyncVectorEnv over n Reach-v0 envs of kwargs and ReachVectorEnv, reset with seed and driven by
+    policy (the P-controller by default) for steps steps, equal bit for bit at every step: the sum over the steps of
+    count(the vector env's Recoveries)."""
     sync, vec = make_sync(n, **kwargs), gymnasium.make_vec('robot_ai/Reach-v0', num_envs=n, **kwargs)
     o1, _ = sync.reset(seed=seed)
     assert_same(o1, vec.reset(seed=seed)[0])
-    p = learn.p_controller(vec.unwrapped.setup)
+    p = policy or learn.p_controller(vec.unwrapped.setup)
     total = 0
     for _ in range(steps):
         a = p.act_batch(ars.flatten_batch(vec.single_observation_space, o1)).astype(np.float32)
@@ -268,6 +268,38 @@ def test_a_way_a_collision_holds_is_planned_again_from_there_as_the_node_does(mo
         replans.append(vec._replans.copy())
     assert (replans[-1] == env.MAX_REPLANS).any(), replans[-1]      # held each time on the band: 3, then the policy
     assert (np.diff(np.array(replans), axis=0) >= 0).all() and replans[-1].max() <= env.MAX_REPLANS
+
+
+class Down:
+    """A policy that drives the tip straight down, into the table, whatever the goal."""
+
+    def act_batch(self, x: np.ndarray) -> np.ndarray:
+        return np.tile([0.0, 0.0, -1.0], (len(x), 1))
+
+
+def test_a_policy_a_collision_holds_short_of_the_goal_gets_a_way_planned_again():
+    """The policy's arm (after its way, or with none) that a collision holds short of the goal gets a way planned
+    again from where it stands, as one held on its way does: MAX_REPLANS tries a goal, counted whether a way is found
+    or not (reach_controller's rule: ReachSetup.replanning). Not where the tip is at the goal, nor where the setup
+    does not plan first. The vector env equals SyncVectorEnv bit for bit meanwhile."""
+    kwargs = dict(model=KUKA, obstacles=WORLD, velocity_scale=0.25, start='random')
+    lockstep(4, 7, 200, lambda rec: 0, policy=Down(), **kwargs)
+    setup = ReachSetup(**kwargs)
+    goal = setup.goals_of(setup.arm.home[:, None])
+    tips = np.hstack((goal, goal, goal + [[0.2], [0.0], [0.0]]))
+    assert setup.replanning([True, False, False], tips, np.repeat(goal, 3, axis=1)).tolist() == [True, False, True]
+    assert not ReachSetup(plan_first=False, **kwargs).replanning([True], goal, goal).any()
+    for plan_first, most in ((True, env.MAX_REPLANS), (False, 0)):
+        vec = ReachVectorEnv(6, plan_first=plan_first, **kwargs)
+        vec.reset(seed=11)
+        counts, held = [], np.zeros(6, dtype=bool)
+        for _ in range(300):
+            info = vec.step(np.tile([0.0, 0.0, -1.0], (6, 1)))[-1]
+            held |= info.get('collision', np.zeros(6, dtype=bool))
+            counts.append(vec._replans.copy())
+        assert held.any()
+        assert (np.diff(np.array(counts), axis=0) >= 0).all() and counts[-1].max() == most, counts[-1]
+        assert (counts[-1][~held] == 0).all()
 
 
 def test_the_setting_is_kept_by_policy_files_and_older_files_learned_without_it(tmp_path):

@@ -24,8 +24,8 @@ With the arm's body, each goal is planned first (ReachSetup.planned_way: OMPL's 
 the world, the layer's margin and a centimetre more kept; `planned in <ms> (straight in joint space | round the
 contacts, RRTConnect, <k> steps)`, and `planning a way ...` while a plan takes over a second): the arm follows the
 way, a step each period through the safety layer (checked as every command is), and the policy has it for the rest;
-a way a collision still holds the arm on is planned again from where it stands (MAX_REPLANS times); with no way
-(`no plan (<why>)`) the policy drives.
+an arm a collision holds (on the way, or the policy's short of the goal) gets a way planned again from where it
+stands (MAX_REPLANS tries a goal); with no way (`no plan (<why>)`) the policy drives.
 It says `reached <goal> in <s> s (<d> m)` once the tip is within the policy's thresholds. When the distance stops
 shrinking within the arm's reach (joints at their limits, a collision, a
 configuration the policy cannot leave: a goal the arm must come at another way), it takes the arm home and tries
@@ -883,15 +883,18 @@ class ReachController:
             blocked = ', '.join(plan.contacts) or plan.held
             rospy.logwarn_throttle(2.0, f'holding: {plan.held}, so the motion was not sent')
             replan = False
+            # held on its way, or the policy's arm short of the goal: planned again (the env's rule: replanning)
+            stuck = goal is not None and not homing and not holding and self.moving.replanning(
+                [recovery.state == RECOVERING], np.array(self.setup.place_one(q)[0])[:, None],
+                np.array(goal)[:, None])[0]
             with self.lock:           # a step a collision refuses, as in the env: a way round it was on is given up,
                 if version == self.version:   # and it is a step without progress (the recovery goes round);
-                    replan = (plan.contacts and self.recovery.state == RECOVERING and not homing
-                              and self.replans < MAX_REPLANS)
+                    replan = bool(plan.contacts and stuck and self.replans < MAX_REPLANS)
                     self.replans += replan
                     self.recovery = (self.recovery.give_up() if plan.contacts    # a step held for any other
                                      else dataclasses.replace(self.recovery, since=0))   # reason is no step
-            if replan:                # held on its way: a plan from where the arm stands, MAX_REPLANS times at most
-                rospy.loginfo(f'held on the way round by a collision ({blocked}): planning again from here')
+            if replan:                # held: a plan from where the arm stands, MAX_REPLANS times a goal at most
+                rospy.loginfo(f'held by a collision ({blocked}) short of the goal: planning again from here')
                 self._start_planning(goal, version)
         elif self.layer.body is not None and goal is not None and not homing and not holding and (
                 not self.trail or max(abs(a - b) for a, b in zip(q, self.trail[-1])) > TRAIL_STEP):

@@ -115,7 +115,8 @@ PLAN_BUDGET = 1500           # motion checks a goal's plan at an episode's start
                              # plans so too: RRT-Connect's, twice where the first finds none: plan_path): 300 found 9 of
                              # 13 UR5 goals from random starts among a table and two objects, 3,000 at once 10, 1,500
                              # twice 14
-MAX_REPLANS = 3              # an episode's (a goal's) ways planned again after a collision held the arm on one
+MAX_REPLANS = 3              # an episode's (a goal's) tries to plan a way again after a collision held the arm (on
+                             # a way, or the policy's arm short of the goal: ReachSetup.replanning)
 FIRST_PLAN_TIME = 60.0       # s such a plan may take in the env: its budget bounds it (the same episodes on a loaded
                              # machine), the time only a stuck one
 RECOVERY_PLAN_PADDING = 0.01  # m kept beyond way_margin by a planned way through a safety layer (velocity_scale)
@@ -471,6 +472,16 @@ class ReachSetup:
         way = self.planned_way(np.asarray(goal, dtype=float), np.asarray(q, dtype=float), PLAN_BUDGET,
                                FIRST_PLAN_TIME)
         return Recovery.along(way.points) if way.found else Recovery()
+
+    def replanning(self, on_way, tip_t: np.ndarray, goal_t: np.ndarray) -> np.ndarray:
+        """(N,): whether arms a collision holds get a way planned again from where they stand (MAX_REPLANS times a
+        goal at most; reach_controller's rule too), where the setup plans first: held on a way (on_way (N,)), or
+        with the policy driving and the tip (size, N) not at the goal: a policy that had the arm after its way, or
+        whose start had none, pressed on into a box for the rest of the episode (3 of the UR5's 200 random starts
+        and 3 of the PR2's missed so)."""
+        if not self.plans_first:
+            return np.zeros(tip_t.shape[1], dtype=np.bool_)
+        return np.asarray(on_way) | ~self.task.is_success(tip_t.T, goal_t.T)
 
     def motion_start(self, q_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(velocities (n, N), the targets already sent (LEAD_PERIODS, n, N)) of arms at rest at q_t."""
@@ -1272,12 +1283,14 @@ class ReachEnv(gymnasium.Env):
         else:
             self._q, hit = self.setup.guard_one(self._q, target)
         if hit:
-            held = self._recovery.state == RECOVERING
+            held = self.setup.replanning(self._recovery.state == RECOVERING, np.array(self._tip)[:, None],
+                                         np.array(self._goal)[:, None])[0]
             self._recovery = self._recovery.give_up()
-            if held and self.setup.plans_first and self._replans < MAX_REPLANS:    # as reach_controller: the way
-                again = self.setup.first_way(self._goal, self._q)                  # planned again from here
+            if held and self._replans < MAX_REPLANS:   # as reach_controller: the way planned again from here (each
+                self._replans += 1                      # try counts: one that finds none is not made every step)
+                again = self.setup.first_way(self._goal, self._q)
                 if again.state == RECOVERING:
-                    self._recovery, self._replans = again, self._replans + 1
+                    self._recovery = again
         info = {} if hit is None else {'collision': hit}
         self._tip, self._jac = self.setup.place_one(self._q)
         if self.setup.pose:
@@ -1490,18 +1503,20 @@ class ReachVectorEnv(VectorEnv):
                 v[:, hit] = 0.0                  # way round starts from where it holds, not after them)
                 self._sent[:, :, arms[hit]] = q[None, :, hit]
             self._v[:, rows] = v
-        held = (rec.state == RECOVERING) & hit if hit is not None else None
+        held = None
+        if hit is not None:
+            held = hit & self.setup.replanning(rec.state == RECOVERING, self._tip[:, rows], self._goal[:, rows])
         rec.give_up(hit)
         self._recovery[rows] = rec
-        if held is not None and held.any() and self.setup.plans_first:    # as reach_controller (ReachEnv.step)
+        if held is not None and held.any():     # as reach_controller (ReachEnv.step)
             arms = np.arange(self.num_envs)[rows]
             for i in np.flatnonzero(held):
                 j = arms[i]
                 if self._replans[j] < MAX_REPLANS:
+                    self._replans[j] += 1
                     again = self.setup.first_way(self._goal[:, j], q[:, i])
                     if again.state == RECOVERING:
                         self._recovery.take(j, again)
-                        self._replans[j] += 1
         return q, hit
 
     def render(self):
