@@ -844,9 +844,9 @@ class ReachSetup:
         arm stands, home and recovery_seeds, then from GOAL_ROUND of GOAL_DRAWS fixed postures at a time until one
         answer is clear, or `least` are (after GOAL_REACHING_ROUNDS rounds, only while some answer reaches the goal at
         all, and well within the thresholds). Each answer is taken on until it is well within them (_polished); only
-        where none of those is clear, the answers as they came (a goal beside a ball). A joint whose range is more than a turn (a UR's +-2 pi) is taken at the turn nearest to q: the same
-        pose, but a shoulder at 6.03 rad from -1.57 must pass through the table to get there, where -0.25 need
-        not."""
+        where none of those is clear, the answers as they came (a goal beside a ball). A joint whose range is more
+        than a turn (a UR's +-2 pi) is taken at the turn nearest to q: the same pose, but a shoulder at 6.03 rad from
+        -1.57 must pass through the table to get there, where -0.25 need not."""
         box = box if box is not None else self.arm
         if self._goal_draws is None:
             self._goal_draws = np.random.default_rng(2).uniform(self.arm.lower, self.arm.upper,
