@@ -7,7 +7,7 @@ import os
 import trimesh
 from trimesh.collision import CollisionManager
 
-from robot_ai.reach.collision import CollisionModel
+from robot_ai.motion.body import CollisionModel
 
 ROBOTS = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', '..', 'shared', 'robots')
 MESHES = os.path.join(ROBOTS, 'meshes')     # the UR5's and the Panda's real collision meshes (SOURCES.md)

@@ -1,4 +1,4 @@
-"""robot_ai.reach.collision: the arm's body as spheres fitted to its URDF <collision> geometry, the link pairs
+"""robot_ai.motion.body: the arm's body as spheres fitted to its URDF <collision> geometry, the link pairs
 checked, obstacles; every sphere check against an exact mesh check (python-fcl through trimesh) on 10,000 random
 configurations of the reference arms that carry their geometry. No rospy."""
 from __future__ import annotations
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
+from robot_ai.motion import body as body_module
+from robot_ai.motion.body import BodyError, CollisionModel, fit_spheres, parse_obstacles
 from robot_ai.reach.arm import Arm, ReachError
-from robot_ai.reach import collision
-from robot_ai.reach.collision import CollisionModel, fit_spheres, parse_obstacles
 from robot_ai.reach.model import load_model
 
 from exact_meshes import MESHES, Exact
@@ -42,9 +42,14 @@ def test_obstacles_from_a_list_yaml_text_or_a_file(tmp_path):
     ([{'sphere': 0.1, 'colour': 'red'}], 'unknown keys'), ({'sphere': 0.1}, 'must be a list'),
     ([{'box': [1, 1, float('nan')]}], 'finite'), ('/no/such/world.yaml', 'cannot read'), ('- [unclosed', 'not YAML')])
 def test_a_bad_world_is_one_line(bad, says):
-    with pytest.raises(ReachError, match=says) as e:
+    """A BodyError of one line; a reach task given it says the same line as its own ReachError."""
+    from robot_ai.reach.env import ReachSetup
+    with pytest.raises(BodyError, match=says) as e:
         parse_obstacles(bad)
     assert '\n' not in str(e.value)
+    with pytest.raises(ReachError, match=says) as r:
+        ReachSetup(os.path.join(ROBOTS, 'kuka_lwr_arm.urdf'), obstacles=bad)
+    assert str(r.value) == str(e.value)
 
 
 @pytest.mark.parametrize('shape', [trimesh.creation.box(extents=[0.1, 0.1, 0.4]),
@@ -105,7 +110,7 @@ def test_the_broad_phase_gives_the_dense_check_s_answers_to_the_bit(robot, tip, 
     model = load_model(os.path.join(ROBOTS, robot))
     arm = Arm(model.tree, tip)
     body = CollisionModel(model.tree, model.urdf, arm, obstacles=WORLD)
-    monkeypatch.setattr(collision, 'BROAD_PHASE', 0)
+    monkeypatch.setattr(body_module, 'BROAD_PHASE', 0)
     rng = np.random.default_rng(11)
     q = rng.uniform(arm.lower, arm.upper, (600, arm.n))
     motions = np.concatenate([np.linspace(a, b, 60) for a, b in zip(q[:10], q[10:20])])
@@ -136,10 +141,10 @@ def test_a_link_whose_mesh_is_missing_gets_a_stated_stand_in_never_nothing(monke
     along its joint-to-joint segments, radius from its mass), said in one warning per process, and the stand-in
     covers the real mesh's place well enough that a configuration folding the arm into the table is in contact."""
     monkeypatch.setenv('ROS_PACKAGE_PATH', '')
-    monkeypatch.setattr(collision, '_WARNED', set())        # said once per process: this test sees it said
+    monkeypatch.setattr(body_module, '_WARNED', set())        # said once per process: this test sees it said
     ur5 = load_model(os.path.join(ROBOTS, 'ur5.urdf'))
     arm = Arm(ur5.tree)
-    with caplog.at_level('WARNING', logger='robot_ai.reach.collision'):
+    with caplog.at_level('WARNING', logger='robot_ai.motion.body'):
         body = CollisionModel(ur5.tree, ur5.urdf, arm, obstacles=WORLD)
         again = CollisionModel(ur5.tree, ur5.urdf, arm, obstacles=WORLD)
     assert any('package://ur_description/meshes/ur5/collision/' in m for m in body.missing)

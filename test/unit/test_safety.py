@@ -538,7 +538,7 @@ def test_files_that_are_no_regular_file_too_large_or_an_alias_bomb_are_one_line_
     at 1 MiB without a word (the obstacles after the cut vanished); 450 bytes of nested anchors took 100 s and
     3.6 GB."""
     import time
-    from robot_ai.reach.collision import parse_obstacles
+    from robot_ai.motion.body import BodyError, parse_obstacles
     fifo = tmp_path / 'world.yaml'
     os.mkfifo(fifo)
     big = tmp_path / 'big.yaml'
@@ -551,7 +551,7 @@ def test_files_that_are_no_regular_file_too_large_or_an_alias_bomb_are_one_line_
     for source, words in ((str(fifo), 'not a regular file'), (str(big), 'more than 1 MiB: refused'),
                           (bomb, 'aliases expanded: refused')):
         t = time.monotonic()
-        with pytest.raises(ReachError, match=words) as e:
+        with pytest.raises(BodyError, match=words) as e:
             parse_obstacles(source)
         assert '\n' not in str(e.value) and time.monotonic() - t < 5.0
     with pytest.raises(ReachError, match='not a regular file'):

@@ -25,11 +25,11 @@ import math
 import os
 import stat
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
 from robot_ai.kinematics import KinematicTree
-from robot_ai.reach.arm import Arm, ReachError
 
 SURFACE_POINTS = 600        # points of a shape's surface the spheres are fitted to
 MAX_SPHERES = 8             # spheres per shape at most
@@ -58,6 +58,22 @@ class Obstacle:
         return bool(np.linalg.norm(local) <= self.size[0])
 
 
+
+
+class BodyError(ValueError):
+    """A body, a world or a file of one that cannot be used; the message is one line that says what is wrong."""
+
+
+class Chain(Protocol):
+    """The moving chain a body is built for (reach.arm.Arm is one): its joints in order, the link its
+    configurations are given from, where it stands at home, and its limits."""
+    joints: list[str]
+    base: str
+    n: int
+    home: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+
 def obstacle_distance(o: Obstacle) -> float:
     """The distance from the arm's base frame's origin to the obstacle (0 inside it)."""
     local = -o.pose[:3, 3] @ o.pose[:3, :3]
@@ -80,7 +96,7 @@ def _numbers(value, count: int, what: str) -> tuple[float, ...]:
     except (TypeError, ValueError):
         values = ()
     if len(values) != count or not all(math.isfinite(v) for v in values):
-        raise ReachError(f'{what} must be {count} finite number{"s" if count > 1 else ""}, got {value!r}')
+        raise BodyError(f'{what} must be {count} finite number{"s" if count > 1 else ""}, got {value!r}')
     return values
 
 
@@ -91,7 +107,7 @@ YAML_NODES = 1_000_000      # and the nodes it holds with every alias expanded (
 
 
 def read_yaml(value: str, what: str):
-    """A YAML file's contents (a path: one line that names a file, or ends in .yaml or .yml) or YAML text's; ReachError
+    """A YAML file's contents (a path: one line that names a file, or ends in .yaml or .yml) or YAML text's; BodyError
     of one line naming `what`, at once, for anything else: a file that cannot be read, is not a regular file (a FIFO
     would block), or holds more than YAML_BYTES; text that is not YAML or uses more than YAML_ALIASES aliases.
     `!degrees x` is x degrees in radians (ur_description's joint_limits.yaml), `!radians x` is x."""
@@ -102,19 +118,19 @@ def read_yaml(value: str, what: str):
     try:
         return _bounded_yaml(text)
     except RecursionError:
-        raise ReachError(f'{what}: not YAML we read: nested too deep') from None
+        raise BodyError(f'{what}: not YAML we read: nested too deep') from None
     except yaml.YAMLError as e:
-        raise ReachError(f'{what}: not YAML: {str(e).splitlines()[0]}') from None
+        raise BodyError(f'{what}: not YAML: {str(e).splitlines()[0]}') from None
 
 
 def _read_regular(path: str, what: str) -> str:
     try:
         if not stat.S_ISREG(os.stat(path).st_mode):
-            raise ReachError(f'{what}: {path} is not a regular file (a FIFO, a device or a folder is not read)')
+            raise BodyError(f'{what}: {path} is not a regular file (a FIFO, a device or a folder is not read)')
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)     # swapped for a FIFO since: no wait for a writer
         try:
             if not stat.S_ISREG(os.fstat(fd).st_mode):
-                raise ReachError(f'{what}: {path} is not a regular file (a FIFO, a device or a folder is not read)')
+                raise BodyError(f'{what}: {path} is not a regular file (a FIFO, a device or a folder is not read)')
             data = b''
             while len(data) <= YAML_BYTES:
                 chunk = os.read(fd, YAML_BYTES + 1 - len(data))
@@ -124,13 +140,13 @@ def _read_regular(path: str, what: str) -> str:
         finally:
             os.close(fd)
     except OSError as e:
-        raise ReachError(f'{what}: cannot read {path}: {e.strerror}') from None
+        raise BodyError(f'{what}: cannot read {path}: {e.strerror}') from None
     if len(data) > YAML_BYTES:
-        raise ReachError(f'{what}: {path} holds more than {YAML_BYTES >> 20} MiB: refused, not read in part')
+        raise BodyError(f'{what}: {path} holds more than {YAML_BYTES >> 20} MiB: refused, not read in part')
     try:
         return data.decode('utf-8')
     except UnicodeDecodeError:
-        raise ReachError(f'{what}: {path} is not UTF-8 text') from None
+        raise BodyError(f'{what}: {path} is not UTF-8 text') from None
 
 
 def _bounded_yaml(text: str):
@@ -178,7 +194,7 @@ def _bounded_yaml(text: str):
 
 def parse_obstacles(value) -> tuple[Obstacle, ...]:
     """Obstacles from a list of dicts, a YAML file's path, or YAML text of such a list (None or empty: none);
-    ReachError of one line for anything else."""
+    BodyError of one line for anything else."""
     if value is None or (isinstance(value, (str, list, tuple)) and len(value) == 0):
         return ()
     if isinstance(value, str):
@@ -186,7 +202,7 @@ def parse_obstacles(value) -> tuple[Obstacle, ...]:
         if isinstance(value, dict) and 'obstacles' in value:
             value = value['obstacles']
     if not isinstance(value, (list, tuple)):
-        raise ReachError(f'obstacles must be a list of {{box: [sx, sy, sz], position: [x, y, z]}} or {{sphere: r, '
+        raise BodyError(f'obstacles must be a list of {{box: [sx, sy, sz], position: [x, y, z]}} or {{sphere: r, '
                          f'position: [x, y, z]}}, got {type(value).__name__}')
     out = []
     for i, spec in enumerate(value):
@@ -197,10 +213,10 @@ def parse_obstacles(value) -> tuple[Obstacle, ...]:
             except yaml.YAMLError:
                 pass
         if not isinstance(spec, dict) or ('box' in spec) == ('sphere' in spec):
-            raise ReachError(f'obstacle {i}: give one of box: [sx, sy, sz] and sphere: r, with position: [x, y, z]')
+            raise BodyError(f'obstacle {i}: give one of box: [sx, sy, sz] and sphere: r, with position: [x, y, z]')
         unknown = sorted(set(spec) - {'box', 'sphere', 'position', 'rpy', 'name'})
         if unknown:
-            raise ReachError(f'obstacle {i}: unknown keys {unknown} (box, sphere, position, rpy, name)')
+            raise BodyError(f'obstacle {i}: unknown keys {unknown} (box, sphere, position, rpy, name)')
         pose = np.identity(4)
         position = _numbers(spec.get('position', [0, 0, 0]), 3, f'obstacle {i}: position')
         pose[:3, 3] = position
@@ -213,12 +229,12 @@ def parse_obstacles(value) -> tuple[Obstacle, ...]:
             given.update(box=list(size), rpy=list(rpy))
         else:
             if 'rpy' in spec:
-                raise ReachError(f'obstacle {i}: a sphere has no rpy')
+                raise BodyError(f'obstacle {i}: a sphere has no rpy')
             size = _numbers(spec['sphere'], 1, f'obstacle {i}: sphere')
             kind = 'sphere'
             given.update(sphere=size[0])
         if min(size) <= 0:
-            raise ReachError(f'obstacle {i}: its size must be positive, got {list(size)}')
+            raise BodyError(f'obstacle {i}: its size must be positive, got {list(size)}')
         name = str(spec.get('name', f'obstacle {i} ({kind})'))
         out.append(Obstacle(kind, size, pose, name, dict(given, name=name)))
     return tuple(out)
@@ -487,7 +503,7 @@ def _warn_once(robot: str, stand_in: dict, missing: list[str]) -> None:
     import logging
     links = '; '.join(f'{link}: {how}' for link, how in list(stand_in.items())[:6])
     more = f' and {len(stand_in) - 6} more' if len(stand_in) > 6 else ''
-    logging.getLogger('robot_ai.reach.collision').warning(
+    logging.getLogger('robot_ai.motion.body').warning(
         f'{robot}: collision geometry not on this machine or unreadable '
         f'({missing[0]}{" ..." if len(missing) > 1 else ""}), stood in for: {links}{more}. Put the meshes\' '
         f'package on ROS_PACKAGE_PATH for the real body.')
@@ -496,7 +512,7 @@ def _warn_once(robot: str, stand_in: dict, missing: list[str]) -> None:
 class CollisionModel:
     """The arm's body as spheres per link, the pairs checked, and the world's obstacles (see the module)."""
 
-    def __init__(self, tree: KinematicTree, urdf: str, arm: Arm, obstacles=(), urdf_dir: str = '',
+    def __init__(self, tree: KinematicTree, urdf: str, arm: Chain, obstacles=(), urdf_dir: str = '',
                  samples: int = PAIR_SAMPLES, seed: int = 0):
         self.tree, self.arm = tree, arm
         self.obstacles = parse_obstacles(obstacles) if not (isinstance(obstacles, tuple) and all(

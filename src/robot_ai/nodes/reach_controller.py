@@ -135,7 +135,7 @@ from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.priority import NICE, raise_priority
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
-from robot_ai.reach.collision import CollisionModel
+from robot_ai.motion.body import BodyError, CollisionModel
 from robot_ai.reach.env import MAX_REPLANS, RECOVERING, READY, PlannedWay, ReachSetup, Recovery
 from robot_ai.reach.planning import PLAN_BUDGET
 from robot_ai.reach.safety import (DEFAULT_MARGIN, DEFAULT_VELOCITY_SCALE, SAMPLE_STEP, Limits, Plan, SafetyLayer,
@@ -360,7 +360,7 @@ class ReachController:
         if body is None and bool_param('~collision', True):
             try:
                 body = CollisionModel(tree, xml, self.setup.arm, self.setup.obstacles)
-            except ReachError as e:
+            except BodyError as e:
                 rospy.logwarn(f'reach_controller: no collision check of the arm\'s body: {e}')
         if body is not None and body.beyond:
             rospy.loginfo(f'reach_controller: {body.beyond} of the obstacles lie beyond the arm\'s reach '

@@ -55,8 +55,8 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from robot_ai.motion.body import BodyError, CollisionModel, parse_obstacles
 from robot_ai.reach.arm import LIMIT_TOLERANCE, Arm, ReachError
-from robot_ai.reach.collision import CollisionModel, parse_obstacles
 from robot_ai.reach.model import Model, load_model
 from robot_ai.reach.safety import LEAD_PERIODS, Limits, read_joint_limits, step_end
 from robot_ai.reach.task import (ANGLE_THRESHOLD, DISTANCE_THRESHOLD, ReachTask, goal_angle, goal_distance,
@@ -293,7 +293,10 @@ class ReachSetup:
                              '(1.0: the limits unscaled)')
         self.episode_steps = episode_steps(self.limits)
         self.stall_steps = stall_steps(self.episode_steps)
-        self.obstacles = parse_obstacles(obstacles)
+        try:
+            self.obstacles = parse_obstacles(obstacles)
+        except BodyError as e:
+            raise ReachError(str(e)) from None
         self.way_margin = 0.0       # metres the recovery's ways keep clear of contacts (through a layer: its margin)
         self._planner = None        # (way_margin, motion.JointPlanner): the recovery's planned ways, made when needed
         self._goal_draws = None     # (n, GOAL_DRAWS): postures a goal's clear configurations are sought from
@@ -303,8 +306,11 @@ class ReachSetup:
             raise ReachError(f'collision must be true or false, got {collision!r}')
         self.body: CollisionModel | None = None
         if collision:
-            self.body = CollisionModel(self.model.tree, self.model.urdf, self.arm, self.obstacles,
-                                       urdf_dir=os.path.dirname(self.model.path) if self.model.path else '')
+            try:
+                self.body = CollisionModel(self.model.tree, self.model.urdf, self.arm, self.obstacles,
+                                           urdf_dir=os.path.dirname(self.model.path) if self.model.path else '')
+            except BodyError as e:
+                raise ReachError(str(e)) from None
             touching = self.body.contacts(self.home)
             if touching:
                 raise ReachError(f'home is in collision: {", ".join(touching[:4])} (move the obstacles, or give a '
@@ -1198,7 +1204,7 @@ class ReachEnv(gymnasium.Env):
     dict; default mid-range), urdf (a URDF text instead of a model file), render_mode ('rgb_array'), limit_avoidance
     (0 to 10, default 4), obstacles (boxes and spheres in the arm's base frame: a list of {box: [sx, sy, sz],
     position: [x, y, z], rpy: [r, p, y]} or {sphere: r, position: [x, y, z]}, or a YAML file or text of one;
-    robot_ai.reach.collision), collision (the arm's body from its URDF <collision> geometry checked against itself
+    robot_ai.motion.body), collision (the arm's body from its URDF <collision> geometry checked against itself
     and the obstacles; default: on when obstacles are given). With a body, goals and random starts are drawn clear
     of collisions, and a step whose motion would touch is not made: the arm holds, info['collision'] is True, the
     episode goes on. goal ('position' or 'pose'), angle_threshold (0.1 rad) and angle_step (0.2 rad): pose goals,

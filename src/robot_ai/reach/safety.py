@@ -36,8 +36,8 @@ from typing import Callable
 
 import numpy as np
 
+from robot_ai.motion.body import BodyError, read_yaml
 from robot_ai.reach.arm import Arm, ReachError
-from robot_ai.reach.collision import read_yaml
 
 DEFAULT_VELOCITY_SCALE = 0.25
 DEFAULT_ACCELERATION_TIME = 0.25   # s to full speed where no acceleration limit is given: max_acceleration = v / this
@@ -163,7 +163,10 @@ def read_joint_limits(source) -> dict[str, dict]:
     if source is None or source == '' or source == {}:
         return {}
     if isinstance(source, str):
-        source = read_yaml(source, 'joint_limits')
+        try:
+            source = read_yaml(source, 'joint_limits')
+        except BodyError as e:
+            raise ReachError(str(e)) from None
     if not isinstance(source, dict) or not isinstance(source.get('joint_limits'), dict):
         raise ReachError('joint_limits: expected MoveIt\'s format, a mapping with joint_limits: {joint: {...}}')
     out = {}
@@ -435,7 +438,7 @@ def step_end(p0: np.ndarray, v0: np.ndarray, target: np.ndarray, limits: Limits,
 
 
 class SafetyLayer:
-    """Plans every command (see the module); body: a CollisionModel (reach.collision) or None (limits only)."""
+    """Plans every command (see the module); body: a CollisionModel (motion.body) or None (limits only)."""
 
     def __init__(self, limits: Limits, period: float, body=None, margin: float = DEFAULT_MARGIN,
                  lead: float | None = None, follows_plans: bool = True):
