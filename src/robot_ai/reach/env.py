@@ -877,7 +877,7 @@ class ReachSetup:
                     candidates = self._nearest_turns(candidates, q, box)
                     candidates = candidates[~self.body.in_collision(candidates, margin)]
                 kept[within].append(candidates)
-            counts = {within: sum(map(len, answers)) for within, answers in kept.items()}
+            counts = {within: sum(map(len, got)) for within, got in kept.items()}
             if counts[True] >= least or (k >= GOAL_REACHING_ROUNDS and not counts[True] and counts[False] >= least):
                 break        # enough well within; or, after as many rounds as the goal's reach is given, none is
         found = np.concatenate(kept[True]) if sum(map(len, kept[True])) else np.concatenate(kept[False] or [found])
