@@ -68,7 +68,8 @@ def test_every_body_stands_where_the_package_kinematics_puts_its_link(name):
 
 def test_inertias_are_the_urdfs_else_estimated_from_the_geometry_and_said():
     """The UR5's URDF gives its links' masses: the model has them. The Panda's gives none: estimated from its real
-    collision meshes (a link of a few kilograms), said in one note. A moving link with neither gets 10 g, said."""
+    collision meshes (a link of a few kilograms), said in one note. Moving links with neither (the package's own
+    UR5 file) get the body model's stand-in capsules and their mass from them: an arm of kilograms, said."""
     ur5 = build_physics(robot('ur5.urdf'))
     mass = {mujoco.mj_id2name(ur5.model, mujoco.mjtObj.mjOBJ_BODY, b): ur5.model.body_mass[b]
             for b in range(ur5.model.nbody)}
@@ -79,8 +80,12 @@ def test_inertias_are_the_urdfs_else_estimated_from_the_geometry_and_said():
     assert 0.5 < panda.model.body_mass[link4] < 10
     assert [n for n in panda.notes if n.startswith('inertias estimated from the collision geometry')]
     gripper = build_physics(robot('mimic_gripper.urdf'))
-    assert any(n.startswith('finger1: no inertial and no geometry, a 10 g ball') for n in gripper.notes)
+    assert any(n.startswith('no inertial and no collision geometry for 3 moving links, stood in for by capsules')
+               for n in gripper.notes)
     assert all(gripper.model.body_mass[gripper.model.jnt_bodyid] > 0)
+    bare = build_physics(load_model(os.path.join(HERE, '..', '..', 'urdf', 'ur5_arm.urdf')))
+    assert any(n.startswith('no inertial and no collision geometry for 6 moving links') for n in bare.notes)
+    assert 5 < bare.model.body_mass.sum() < 100
 
 
 def test_effort_limits_bound_the_servos_and_transmissions_do_not_hide_them():
@@ -158,6 +163,10 @@ def test_the_world_stops_the_arm_and_bad_input_is_one_line():
         deepest.append(data.contact.dist.min() if data.ncon else 0.0)
     assert min(deepest) < 0 and min(deepest) > -0.02 and min(deepest[-500:]) > -0.001, min(deepest)
     assert physics.joint_positions(data, ['shoulder_lift_joint'])[0] < 0.3 - 0.1      # held up by the table
+    assert not any(n.startswith('at home the robot touches') for n in physics.notes)
+    low = build_physics(robot('ur5.urdf'), obstacles=[{'box': [2, 2, 0.05], 'position': [0, 0, 0.0], 'name': 'slab'}],
+                        home=home)                          # the table's top through the base: said
+    assert any(n.startswith('at home the robot touches shoulder_link - slab') for n in low.notes), low.notes
     with pytest.raises(PhysicsError, match='obstacle 0: give one of') as e:
         build_physics(robot('ur5.urdf'), obstacles=[{'cone': 1}])
     assert '\n' not in str(e.value)

@@ -8,7 +8,8 @@ have none) and cannot read ``package://`` meshes. No rospy.
   ``<dynamics damping friction>``; a mimic joint follows its source by an equality constraint (MuJoCo's joint
   equality: position = offset + multiplier x the source's), as a gripper's second finger does.
 - Inertias: the URDF's ``<inertial>``; a link without one gets MuJoCo's estimate from its collision geometry at the
-  density of water (said in notes). A moving link with neither gets a 10 g ball (said).
+  density of water (said in notes). A moving link with neither gets the body model's stand-in capsules along its
+  joint-to-joint segments, and its mass from them (said).
 - Geometry: each link's collision geometry, meshes read by trimesh where their file resolves (``package://``
   through ROS_PACKAGE_PATH) and the body model's stand-in capsules where it does not (motion.body: never nothing,
   said). MuJoCo collides meshes by their convex hulls. The arm does not collide with itself here (the body model
@@ -48,8 +49,6 @@ from robot_ai.reach.model import Model
 TIMESTEP = 0.002            # s: MuJoCo's step (its default), the implicit-fast integrator
 POSITION_HZ = 5.0           # a position servo's natural frequency at home, critically damped
 DENSITY = 1000.0            # kg/m^3: a link's mass where the URDF gives none, from its collision geometry's volume
-LEAST_MASS = 0.01           # kg: a moving link with neither an inertial nor geometry, as a ball of LEAST_RADIUS
-LEAST_RADIUS = 0.01         # m
 CONTACT_TIME = 2 * TIMESTEP  # s: contacts' time constant (solref), the stiffest MuJoCo keeps stable at TIMESTEP: an
                             # arm driven down onto a table went 5.6 cm into it at the impact with the default 0.02 s,
                             # 1.4 cm with 0.005 s
@@ -354,6 +353,13 @@ def _build(robot: Model, urdf_dir: str, world: tuple[Obstacle, ...], loose: tupl
             elif joint.type == 'planar':
                 notes.append(f'{joint.name}: a planar joint, welded here')
         bodies[link] = body
+    bare = [link for link in bodies if link != tree.root and link not in inertials and not shapes.get(link)
+            and moved_by.get(link)]       # a body with a joint needs mass (a welded one does not)
+    if bare:
+        more, how = stand_ins(urdf, tree, bare, urdf_dir)
+        shapes = shapes | more
+        notes.append(f'no inertial and no collision geometry for {len(bare)} moving links, stood in for by capsules: '
+                     + '; '.join(f'{k}: {v}' for k, v in list(how.items())[:6]) + (' ...' if len(how) > 6 else ''))
     for link, body in bodies.items():
         if link in inertials and body is not spec.worldbody:
             mass, centre, orientation, full = inertials[link]
@@ -370,13 +376,8 @@ def _build(robot: Model, urdf_dir: str, world: tuple[Obstacle, ...], loose: tupl
             body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, density=DENSITY,
                           contype=ARM_CONTYPE, conaffinity=ARM_CONAFFINITY, solref=[CONTACT_TIME, 1.0],
                           rgba=[0.7, 0.7, 0.75, 1.0])
-        if link not in inertials and link != tree.root:
-            if shapes.get(link):
-                estimated.append(link)
-            elif moved_by.get(link):      # a body with a joint needs mass (a welded one does not)
-                body.explicitinertial = True
-                body.mass, body.fullinertia = LEAST_MASS, [0.4 * LEAST_MASS * LEAST_RADIUS ** 2] * 3 + [0, 0, 0]
-                notes.append(f'{link}: no inertial and no geometry, a {LEAST_MASS * 1000:g} g ball')
+        if link not in inertials and link != tree.root and shapes.get(link):
+            estimated.append(link)
     if estimated:
         notes.append(f'inertias estimated from the collision geometry at {DENSITY:g} kg/m^3 (the URDF gives none) '
                      f'for {len(estimated)} links: {", ".join(estimated[:6])}' + (' ...' if len(estimated) > 6 else ''))
@@ -426,7 +427,26 @@ def _build(robot: Model, urdf_dir: str, world: tuple[Obstacle, ...], loose: tupl
     physics = Physics(model, tuple(actuated), start, tuple(notes), tuple(n for n in actuated if n in fingers),
                       tuple(o.name for o in loose))
     _set_gains(physics, hz)
+    touching = _touching(physics)
+    if touching:
+        physics = dataclasses.replace(physics, notes=physics.notes + (
+            f'at home the robot touches {", ".join(touching[:4])}: the world pushes it from the start',))
     return physics
+
+
+def _touching(physics: Physics) -> list[str]:
+    """'link - geom' of the robot's contacts with the world and the objects at home."""
+    import mujoco
+    model, data = physics.model, physics.data()
+    names = []
+    for c in data.contact[:data.ncon] if data.ncon else ():
+        a, b = (int(g) for g in c.geom)
+        for mine, other in ((a, b), (b, a)):
+            if model.geom_contype[mine] == ARM_CONTYPE and model.geom_contype[other] != ARM_CONTYPE:
+                link = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, model.geom_bodyid[mine])
+                other_name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, other) or f'geom {other}'
+                names.append(f'{link} - {other_name}')
+    return sorted(set(names))
 
 
 def _floating_origin(urdf: str, name: str) -> np.ndarray:
