@@ -83,20 +83,22 @@ class JointStateDecoder(object):
 
 
 class JointStateEncoder:
-    """Writes serialised sensor_msgs/JointState for a fixed list of joint names: positions and velocities (no
-    efforts), stamped; the names' bytes are written once."""
+    """Writes serialised sensor_msgs/JointState for a fixed list of joint names: positions and velocities (and
+    efforts, where given), stamped; the names' bytes are written once."""
 
     def __init__(self, names):
         self.count = len(names)
         self._names = _U32.pack(len(names)) + b''.join(_string(n) for n in names)
         self._array = _U32.pack(len(names))
 
-    def encode(self, seq: int, secs: int, nsecs: int, positions: np.ndarray, velocities: np.ndarray) -> bytes:
-        """Bytes of a JointState with an empty frame_id. seq: the publisher's count of its messages (rospy writes
-        it into the messages it serialises itself, not into these bytes)."""
+    def encode(self, seq: int, secs: int, nsecs: int, positions: np.ndarray, velocities: np.ndarray,
+               efforts: np.ndarray | None = None) -> bytes:
+        """Bytes of a JointState with an empty frame_id (and no efforts unless given). seq: the publisher's count of
+        its messages (rospy writes it into the messages it serialises itself, not into these bytes)."""
+        effort = _U32.pack(0) if efforts is None else self._array + np.ascontiguousarray(efforts, '<f8').tobytes()
         return b''.join((_HEADER.pack(seq, secs, nsecs), _U32.pack(0), self._names,
                          self._array, np.ascontiguousarray(positions, '<f8').tobytes(),
-                         self._array, np.ascontiguousarray(velocities, '<f8').tobytes(), _U32.pack(0)))
+                         self._array, np.ascontiguousarray(velocities, '<f8').tobytes(), effort))
 
 
 def decode_float64_array(buf) -> np.ndarray:

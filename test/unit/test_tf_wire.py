@@ -85,3 +85,15 @@ def test_raw_message_class_keeps_type_and_bytes():
     buff = io.BytesIO()
     msg.serialize(buff)
     assert buff.getvalue() == data
+
+
+def test_joint_state_encoder_matches_genpy_with_and_without_efforts():
+    """arm_sim writes joint_states itself: genpy reads them back, efforts empty unless given (the physics sim's)."""
+    from robot_ai.tf_wire import JointStateEncoder
+    encoder = JointStateEncoder(['a', 'joint_b'])
+    for efforts in (None, np.array([1.5, -2.25])):
+        msg = JointState().deserialize(encoder.encode(7, 12, 345, np.array([0.1, -0.2]), np.array([1.0, 2.0]),
+                                                      efforts))
+        assert (msg.header.stamp.secs, msg.header.stamp.nsecs, msg.name) == (12, 345, ['a', 'joint_b'])
+        assert list(msg.position) == [0.1, -0.2] and list(msg.velocity) == [1.0, 2.0]
+        assert list(msg.effort) == ([] if efforts is None else [1.5, -2.25])
