@@ -257,6 +257,41 @@ class TestReachRos(unittest.TestCase):
             sub.unregister()
             pub.unregister()
 
+    def test_arm_sim_with_physics_tracks_a_command_reports_efforts_and_holds_a_bad_one_off(self):
+        """~physics mujoco: joint_states carry efforts (the shoulder holds the arm's weight, the pan nothing), a
+        command is tracked to within a milliradian, no joint faster than its velocity limit and a little, and a bad
+        command is ignored."""
+        states = []
+        sub = rospy.Subscriber('/physics/joint_states', JointState,
+                               lambda m: states.append((m.header.stamp.to_sec(), np.array(m.position),
+                                                        np.array(m.effort))))
+        pub = rospy.Publisher('/physics/joint_group_position_controller/command', Float64MultiArray, queue_size=10)
+        try:
+            deadline = time.monotonic() + 60
+            while (pub.get_num_connections() == 0 or len(states) < 20) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            _, start, effort = states[-1]
+            self.assertEqual(len(effort), 6)
+            self.assertLess(abs(effort[0]), 1.0)              # the pan turns no weight
+            self.assertGreater(abs(effort[1]), 1.0)           # the shoulder holds the upper arm and all beyond
+            target = start + np.array([0.5, 0.3, -0.3, 0.0, 0.0, 0.0])
+            states.clear()
+            pub.publish(Float64MultiArray(data=target.tolist()))
+            deadline = time.monotonic() + 60
+            while not (states and np.abs(states[-1][1] - target).max() < 1e-3) and time.monotonic() < deadline:
+                time.sleep(0.1)
+            self.assertLess(np.abs(states[-1][1] - target).max(), 1e-3)
+            limit = ReachSetup().arm.velocity                 # the UR5's URDF velocity limits
+            moving = list(states)
+            speeds = [np.abs(b - a) / (tb - ta) for (ta, a, _), (tb, b, _) in zip(moving, moving[1:]) if tb > ta]
+            self.assertTrue((np.max(speeds, axis=0) <= limit * 1.1).all(), np.max(speeds, axis=0))
+            pub.publish(Float64MultiArray(data=[float('nan')] * 6))
+            time.sleep(0.5)
+            self.assertLess(np.abs(states[-1][1] - target).max(), 1e-3)       # ignored: the arm holds
+        finally:
+            sub.unregister()
+            pub.unregister()
+
     # ------------------------------------------------------------------------------------------------ the controller
     def wait_for_log(self, words, since, timeout=30.0, node='/controlled/reach_controller'):
         deadline = time.monotonic() + timeout

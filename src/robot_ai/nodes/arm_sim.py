@@ -16,6 +16,12 @@ trajectory itself uses, not at once with a jolt (robot_ai.reach.trajectory.ArmBo
 stamped with the time it describes. NaN, infinite values or a wrong length: the command is ignored with a throttled
 warning, the arm holds.
 
+With ~physics mujoco the arm has mass, gravity and effort limits (robot_ai.physics: a MuJoCo model built from
+robot_description, its inertias from the URDF or estimated, its real meshes where ROS_PACKAGE_PATH has them): the
+command, or the trajectory's position, is each joint's servo target, moving at most at the joint's velocity limit
+as the kinematic sim moves the joint; the servos track it within the URDF's effort limits, joint_states carries
+their efforts, and the arm meets ~obstacles and pushes ~objects. In ~lockstep each command is one tick of physics.
+
 An env takes the sim's ~lease: while it holds it, commands and ~set_state from any other node are ignored or refused
 (robot_ai.nodes.lease).
 
@@ -28,6 +34,11 @@ ROS Parameters
     ~lockstep (bool, false): true = one step per command, reached at once (no clock, no velocity limit).
     ~joint_limits (str, ""): a MoveIt joint_limits.yaml (reach_controller's): its acceleration limits are the arm's
         (a joint without one: full speed in 0.25 s), within which a late trajectory is joined.
+    ~physics (str, ""): "" (kinematic: each joint goes where it is commanded) or mujoco (physics: see above).
+    ~obstacles (str, ""): with ~physics mujoco, a world of boxes and spheres (a YAML file or text, as
+        reach_controller's ~obstacles), static, in the robot's root frame.
+    ~objects (str, ""): with ~physics mujoco, loose objects (the same file's objects key: boxes, spheres and
+        cylinders with a mass and a friction) the arm can push.
     ~nice (int, -10): the scheduling priority the sim asks for, as a real arm's controller runs real-time (root or
         CAP_SYS_NICE; otherwise it runs as started, and says so); 0 leaves it (robot_ai.priority).
 
@@ -36,7 +47,8 @@ ROS Subscribers
     joint_trajectory_controller/command (trajectory_msgs/JointTrajectory): a trajectory of named joints.
 
 ROS Publishers
-    joint_states (sensor_msgs/JointState): names ~joints, positions, velocities, stamped with the time they describe.
+    joint_states (sensor_msgs/JointState): names ~joints, positions, velocities (and efforts with ~physics),
+        stamped with the time they describe.
 
 ROS Services
     ~set_state (robot_ai/SetJointPositions): the arm at these positions at once (the command too), published then;
@@ -75,7 +87,7 @@ RawCommand = raw_message_class(Float64MultiArray)
 
 class ArmSim:
 
-    def __init__(self, tree):
+    def __init__(self, tree, xml: str = ''):
         self.joints = self._joints_param(tree)
         limits = [joint_limits(tree.joints[n]) for n in self.joints]
         self.lower = np.array([lo for lo, _, _ in limits])
@@ -89,6 +101,9 @@ class ArmSim:
         self.positions = self._home_param(tree)
         self.command = self.positions.copy()
         self.speeds = np.zeros(len(self.joints))
+        self.arm = self._physics(xml)             # an ArmPhysics with ~physics mujoco, else None
+        self.efforts = self.arm.efforts if self.arm is not None else None
+        self.target = self.positions.copy()       # with physics: the servos' target, moving within the velocities
         self.follower: Follower | None = None     # a trajectory being followed
         self.ticked = None                        # ROS time of the last tick
         self.epoch = rospy.Time.now()             # trajectories' times count from here (a float of seconds since
@@ -111,6 +126,9 @@ class ArmSim:
         priority = raise_priority(self.nice) if self.nice < 0 else f'at its own priority (~nice {self.nice})'
         mode = ('lockstep: one step per command, reached at once' if self.lockstep else
                 f'{self.rate * self.real_time_factor:g} ticks per second of ROS time, at the URDF velocity limits')
+        if self.arm is not None:
+            mode += (f'; physics: MuJoCo, {len(self.arm.physics.objects)} objects' +
+                     (' (lockstep: a tick of physics per command)' if self.lockstep else ''))
         for note in self.notes:
             rospy.loginfo(f'arm_sim: {note}')
         rospy.loginfo(f'arm_sim ready: {len(self.joints)} joints ({", ".join(self.joints)}), {mode}; commands on '
@@ -132,6 +150,27 @@ class ArmSim:
         if len(set(value)) != len(value):
             raise ValueError(f'~joints names a joint twice: {value}')
         return value
+
+    def _physics(self, xml: str):
+        """~physics' ArmPhysics at home (None without physics); ValueError of one line for what cannot be built."""
+        kind = rospy.get_param('~physics', '') or ''
+        if kind not in ('', 'mujoco'):
+            raise ValueError(f'~physics must be "" (kinematic) or mujoco, got {kind!r}')
+        if not kind:
+            return None
+        from robot_ai.physics import PhysicsError, build_physics
+        from robot_ai.physics.sim import ArmPhysics
+        from robot_ai.reach.model import load_model
+        try:
+            physics = build_physics(load_model(urdf=xml), obstacles=rospy.get_param('~obstacles', '') or (),
+                                    objects=rospy.get_param('~objects', '') or (),
+                                    home=dict(zip(self.joints, self.positions.tolist())))
+            arm = ArmPhysics(physics, self.joints)
+        except (PhysicsError, ReachError) as e:
+            raise ValueError(f'~physics mujoco: {e}') from None
+        for note in physics.notes:
+            rospy.loginfo(f'arm_sim: physics: {note}')
+        return arm
 
     def _bounds(self, tree) -> tuple[ArmBounds, tuple[str, ...]]:
         """What the arm can do: the URDF's positions and velocities, ~joint_limits' accelerations."""
@@ -171,7 +210,7 @@ class ArmSim:
         stamp = rospy.Time.now() if stamp is None else stamp
         self.published += 1
         publish(self.state_pub, RawJointState(self.encoder.encode(self.published, stamp.secs, stamp.nsecs,
-                                                                  self.positions, self.speeds)))
+                                                                  self.positions, self.speeds, self.efforts)))
 
     def _tick(self, dt: float) -> None:
         """One tick of dt simulated seconds: each joint toward its command at most its velocity limit; along the
@@ -179,6 +218,10 @@ class ArmSim:
         now = rospy.Time.now()
         t, last = (now - self.epoch).to_sec(), self.ticked
         self.ticked = t
+        if self.arm is not None:
+            self._tick_physics(t, dt)
+            self._publish(now)
+            return
         if self.follower is not None:
             p, v = self.follower.state_at(t)
             p = np.minimum(np.maximum(p, self.lower), self.upper)
@@ -195,6 +238,18 @@ class ArmSim:
         self.positions = self.positions + step
         self.speeds = step / dt
         self._publish(now)
+
+    def _tick_physics(self, t: float, dt: float) -> None:
+        """One tick with physics: the servos' target toward the command (or the trajectory's position at t) at most
+        at the velocity limits, dt seconds of MuJoCo toward it; the state is the physics'."""
+        wanted = self.command
+        if self.follower is not None:
+            wanted = np.minimum(np.maximum(self.follower.state_at(t)[0], self.lower), self.upper)
+            if t >= self.follower.end:
+                self.command, self.follower = self.follower.final, None
+        self.target = self.target + np.clip(wanted - self.target, -self.velocity * dt, self.velocity * dt)
+        self.arm.step(self.target, dt)
+        self.positions, self.speeds, self.efforts = self.arm.positions, self.arm.velocities, self.arm.efforts
 
     def run(self) -> None:
         with self.lock:
@@ -242,7 +297,12 @@ class ArmSim:
         command = np.minimum(np.maximum(command, self.lower), self.upper)
         with self.lock:
             self.command, self.follower = command, None
-            if self.lockstep:
+            if self.lockstep and self.arm is not None:     # one tick of physics toward it
+                self.target = command
+                self.arm.step(command, 1.0 / self.rate)
+                self.positions, self.speeds, self.efforts = self.arm.positions, self.arm.velocities, self.arm.efforts
+                self._publish()
+            elif self.lockstep:
                 self.speeds = np.zeros(len(self.joints))
                 self.positions = command
                 self._publish()
@@ -268,6 +328,9 @@ class ArmSim:
                 if self.lockstep:
                     self.positions, self.command = full[-1].copy(), full[-1].copy()
                     self.speeds = np.zeros(len(self.joints))
+                    if self.arm is not None:
+                        self.arm.set_state(self.positions)
+                        self.target, self.efforts = self.positions.copy(), self.arm.efforts
                     self._publish()
                     return
                 follower.take(now, start, times, full, full_v)
@@ -314,6 +377,9 @@ class ArmSim:
         with self.lock:
             self.positions, self.command, self.follower = positions.copy(), positions.copy(), None
             self.speeds = np.zeros(len(self.joints))
+            if self.arm is not None:                  # at rest there, the servos holding it
+                self.arm.set_state(positions)
+                self.target, self.efforts = positions.copy(), self.arm.efforts
             self._publish()
         return SetJointPositionsResponse(success=True, message=f'the arm at {positions.tolist()}')
 
@@ -321,14 +387,14 @@ class ArmSim:
 @quiet_on_shutdown
 def main():
     init_node('arm_sim')
-    tree, _ = wait_for_tree()
+    tree, key = wait_for_tree()
     if tree is None:
         return
     if not tree.active_joints:
         rospy.logfatal(f'arm_sim: {tree.name} has no moving joint: nothing to simulate')
         raise SystemExit(1)
     try:
-        sim = ArmSim(tree)
+        sim = ArmSim(tree, rospy.get_param(key))
     except ValueError as e:
         rospy.logfatal(f'arm_sim: bad parameter: {e}')
         raise SystemExit(1)

@@ -1,0 +1,85 @@
+"""robot_ai.physics.sim: an arm in MuJoCo driven by position targets as ros_control drives one: it tracks a
+trajectory with a tracking error a kinematic sim never has, within the effort limits, reports efforts that hold the
+arm's weight, a payload sags it, and set_state places it at once. No rospy."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from robot_ai.physics import PhysicsError, build_physics
+from robot_ai.physics.sim import ArmPhysics
+from robot_ai.reach.model import load_model
+
+from exact_meshes import MESHES, ROBOTS
+
+HOME = {'shoulder_lift_joint': -1.57, 'elbow_joint': 1.57, 'wrist_1_joint': -1.57, 'wrist_2_joint': 1.57}
+
+
+@pytest.fixture(autouse=True)
+def meshes(monkeypatch):
+    monkeypatch.setenv('ROS_PACKAGE_PATH', os.pathsep.join((MESHES, os.environ.get('ROS_PACKAGE_PATH', ''))))
+
+
+def ur5(**kwargs):
+    return build_physics(load_model(os.path.join(ROBOTS, 'ur5.urdf')), home=HOME, **kwargs)
+
+
+def test_a_trajectory_is_tracked_with_an_error_that_ends_within_the_effort_limits():
+    """A quintic move of the shoulder and the elbow by 0.5 rad in 1 s, a target every 10 ms: during it the arm lags
+    (a real servo's tracking error, some milliradians), at its end it settles on the target; each step's effort
+    within the URDF's."""
+    physics = ur5()
+    joints = list(physics.actuated)
+    arm = ArmPhysics(physics, joints)
+    start = arm.positions
+    end = start + np.array([0, 0.5, -0.5, 0, 0, 0])
+    lags, limit = [], physics.model.jnt_actfrcrange[physics.model.actuator_trnid[:, 0], 1]
+    for k in range(1, 151):
+        s = min(k / 100, 1.0)
+        target = start + (end - start) * (10 * s ** 3 - 15 * s ** 4 + 6 * s ** 5)
+        assert arm.step(target, 0.01) == 5
+        lags.append(np.abs(arm.positions - target).max())
+        assert (np.abs(arm.efforts) <= limit + 1e-9).all()
+    assert 1e-3 < max(lags[:100]) < 0.1 and lags[-1] < 1e-3
+    np.testing.assert_allclose(arm.positions, end, atol=1e-3)
+    assert arm.time == pytest.approx(1.5)
+
+
+def test_efforts_hold_the_weight_and_a_payload_sags_the_arm():
+    """Stretched out, the shoulder's effort is the arm's weight times its reach (tens of N m; none for the pan); a
+    2 kg block laid on the wrist sags it by the payload over the servo's stiffness."""
+    home = {'shoulder_lift_joint': 0.0, 'elbow_joint': 0.0, 'wrist_1_joint': 0.0}
+    bare = ArmPhysics(build_physics(load_model(os.path.join(ROBOTS, 'ur5.urdf')), home=home),
+                      ['shoulder_pan_joint', 'shoulder_lift_joint'])
+    bare.step(bare.targets, 0.5)
+    pan, lift = bare.efforts
+    assert abs(pan) < 0.1 and 20 < abs(lift) < 150
+    tip = load_model(os.path.join(ROBOTS, 'ur5.urdf')).tree.link_poses(home)['wrist_1_link'][:3, 3]
+    loaded = ArmPhysics(build_physics(load_model(os.path.join(ROBOTS, 'ur5.urdf')), home=home, objects=[
+        {'box': [0.05, 0.05, 0.05], 'position': (tip + [0, 0, 0.1]).tolist(), 'mass': 2.0, 'name': 'payload'}]),
+        ['shoulder_pan_joint', 'shoulder_lift_joint'])
+    loaded.step(loaded.targets, 1.0)
+    assert loaded.object_poses()['payload'][2, 3] > tip[2]              # it lies on the arm, not through it
+    assert abs(loaded.efforts[1]) > abs(lift) + 5.0                     # the payload's weight at its reach
+    assert abs(loaded.positions[1] - bare.positions[1]) > 1e-4          # and the shoulder gives under it
+
+
+def test_set_state_places_the_arm_at_rest_and_bad_input_is_one_line():
+    physics = build_physics(load_model(os.path.join(ROBOTS, 'panda.urdf')))
+    joints = [n for n in physics.actuated if n != 'panda_finger_joint1'] + ['panda_finger_joint1']
+    arm = ArmPhysics(physics, joints)
+    state = arm.positions + np.array([0.1] * 7 + [0.01])                # the fingers from 0.02 to 0.03 m
+    arm.set_state(state)
+    np.testing.assert_allclose(arm.positions, state)
+    assert not arm.velocities.any()
+    arm.step(state, 0.5)
+    np.testing.assert_allclose(arm.positions, state, atol=1e-3)          # held there, the second finger too
+    assert physics.joint_positions(arm.data, ['panda_finger_joint2'])[0] == pytest.approx(state[-1], abs=1e-3)
+    with pytest.raises(PhysicsError, match='a target is 8 finite positions'):
+        arm.step([0.0] * 7, 0.01)
+    with pytest.raises(PhysicsError, match='a state is 8 finite positions'):
+        arm.set_state([float('nan')] * 8)
+    with pytest.raises(PhysicsError, match="panda_finger_joint2: not joints the model's servos drive"):
+        ArmPhysics(physics, ['panda_finger_joint2'])
