@@ -16,6 +16,7 @@ from robot_ai.reach.model import load_model
 
 from exact_meshes import MESHES, Exact
 
+HERE = os.path.dirname(os.path.realpath(__file__))
 ROBOTS = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', '..', 'shared', 'robots')
 WORLD = [{'box': [2.0, 2.0, 0.05], 'position': [0, 0, -0.03], 'name': 'table'},
          {'box': [0.2, 0.3, 0.4], 'position': [0.45, 0.1, 0.3], 'rpy': [0, 0, 0.5], 'name': 'box 1'},
@@ -134,6 +135,26 @@ def test_the_pairs_excluded_as_moveit_does():
     assert body.excluded['never'], 'links far apart are never checked'
     for i, j in body.link_pairs:
         assert body.moving[i] or body.moving[j]
+
+
+def test_a_urdf_with_no_collision_geometry_is_said_to_have_an_empty_body(monkeypatch, caplog):
+    """The package's own KUKA file has no <collision> element: its body is empty, said once per process in-process
+    as reach_controller says it, never silently."""
+    monkeypatch.setattr(body_module, '_WARNED', set())
+    kuka = load_model(os.path.join(HERE, '..', '..', 'urdf', 'kuka_lwr_arm.urdf'))
+    with caplog.at_level('WARNING', logger='robot_ai.motion.body'):
+        body = CollisionModel(kuka.tree, kuka.urdf, Arm(kuka.tree), obstacles=WORLD)
+        CollisionModel(kuka.tree, kuka.urdf, Arm(kuka.tree), obstacles=WORLD)
+    assert not len(body.radii)
+    said = [r.getMessage() for r in caplog.records if 'no collision geometry on its moving links' in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith(f'{kuka.tree.name} has no collision geometry'), said
+    caplog.clear()
+    with caplog.at_level('WARNING', logger='robot_ai.motion.body'):
+        CollisionModel(kuka.tree, kuka.urdf, Arm(kuka.tree))
+        ur5 = load_model(os.path.join(ROBOTS, 'ur5.urdf'))
+        monkeypatch.setenv('ROS_PACKAGE_PATH', MESHES)
+        CollisionModel(ur5.tree, ur5.urdf, Arm(ur5.tree))
+    assert 'no collision geometry on its moving links' not in caplog.text        # said once; a real body: never
 
 
 def test_a_link_whose_mesh_is_missing_gets_a_stated_stand_in_never_nothing(monkeypatch, caplog):

@@ -561,6 +561,12 @@ class CollisionModel:
         self._prepare_bounds()
         self.margins = {link: self._margin(i, shapes[link], rng) for i, link in enumerate(self.links)}
         self.beyond = self._cull()
+        if not len(self.moving_spheres) and (tree.name, 'empty') not in _WARNED:    # never silently empty: said
+            _WARNED.add((tree.name, 'empty'))                                         # once per process, as the
+            import logging                                                            # node says it
+            logging.getLogger('robot_ai.motion.body').warning(
+                f'{tree.name} has no collision geometry on its moving links: its body is empty, and nothing but '
+                f'the limits keeps the arm from itself and the obstacles (give its links <collision> elements)')
 
     def reach(self) -> float:
         """A bound on how far from the arm's base frame any of its moving spheres can be, in any configuration: the
