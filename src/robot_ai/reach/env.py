@@ -731,10 +731,10 @@ class ReachSetup:
         return np.ascontiguousarray(q[:, best, np.arange(goal_t.shape[1])])
 
     def _reaching_search(self, goal_t: np.ndarray, q_t: np.ndarray, seeds: np.ndarray,
-                         clear: bool) -> tuple[np.ndarray, ...]:
+                         clear: bool, each: bool = False) -> tuple[np.ndarray, ...]:
         """reaching_configuration's search from seeds (n, k), a goal's stopping once one answer is well within the
-        thresholds (and, clear, clear of collisions): (configurations (n, k, M), reached (k, M), error (k, M),
-        squared distance from q_t in half ranges (k, M))."""
+        thresholds (and, clear, clear of collisions; each: every answer going on until it is itself well within):
+        (configurations (n, k, M), reached (k, M), error (k, M), squared distance from q_t in half ranges (k, M))."""
         n, k, m = self.arm.n, seeds.shape[1], goal_t.shape[1]
         steps = self._tip_steps()
         q = np.repeat(seeds, m, axis=1)                 # column i * m + j: seed i, goal j
@@ -749,8 +749,11 @@ class ReachSetup:
                 if clear:           # an answer that touches stops there too, and its goal's search goes on
                     on[there] = False
                     there[there] = ~self.body.in_collision(q[:, going[there]].T, self.way_margin)
-                found[going[there] % m] = True
-                on &= ~found[going % m]
+                if each:
+                    on &= ~there
+                else:
+                    found[going[there] % m] = True
+                    on &= ~found[going % m]
                 going, tip, jac = going[on], tip[:, on], jac[..., on]
                 if not len(going):
                     break
@@ -916,20 +919,10 @@ class ReachSetup:
         until it is well within the thresholds (RECOVERY_ITERATIONS at most), and whether it is. A search stops every
         answer of a goal once one of them is well within, so the others may reach it by 4 cm of 5: the end of a way
         so far off left the PR2's P-controller a step whose weighted joints took its tip into a collision."""
-        steps = self._tip_steps()
-        q = np.ascontiguousarray(found.T)
-        g = np.repeat(goal[:, None], q.shape[1], axis=1)
-        going = np.arange(q.shape[1])
-        for i in range(RECOVERY_ITERATIONS + 1):
-            tip, jac = steps.place(q[:, going])
-            off = ~self._well_within(tip, g[:, going])
-            going, tip, jac = going[off], tip[:, off], jac[..., off]
-            if not len(going) or i == RECOVERY_ITERATIONS:
-                break
-            q[:, going] = steps.move(q[:, going], jac, steps._p_action(tip, g[:, going], RECOVERY_STRIDE))
-        well = np.ones(q.shape[1], dtype=np.bool_)
-        well[going] = False
-        return q.T, well
+        seeds = np.ascontiguousarray(found.T)
+        q = self._reaching_search(goal[:, None], seeds[:, :1], seeds, clear=False, each=True)[0][:, :, 0]
+        tip, _ = self._tip_steps().place(q)
+        return q.T, self._well_within(tip, np.repeat(goal[:, None], q.shape[1], axis=1))
 
     def joint_planner(self, margin: float, box, spacing: float, clear=None):
         """A motion.JointPlanner within box's lower and upper (Limits, or the Arm) whose configurations are clear of
