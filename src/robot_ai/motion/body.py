@@ -82,7 +82,8 @@ def obstacle_distance(o: Obstacle) -> float:
     return max(0.0, float(np.linalg.norm(local)) - o.size[0])
 
 
-def _rpy_matrix(rpy) -> np.ndarray:
+def rpy_matrix(rpy) -> np.ndarray:
+    """The rotation of URDF's roll, pitch, yaw (fixed x, then y, then z)."""
     r, p, y = rpy
     cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
     return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
@@ -90,7 +91,8 @@ def _rpy_matrix(rpy) -> np.ndarray:
                      [-sp, cp * sr, cp * cr]])
 
 
-def _numbers(value, count: int, what: str) -> tuple[float, ...]:
+def numbers(value, count: int, what: str) -> tuple[float, ...]:
+    """count finite numbers of value (one number, or a list of them); BodyError of one line naming what."""
     try:
         values = tuple(float(v) for v in (value if isinstance(value, (list, tuple)) else [value]))
     except (TypeError, ValueError):
@@ -218,19 +220,19 @@ def parse_obstacles(value) -> tuple[Obstacle, ...]:
         if unknown:
             raise BodyError(f'obstacle {i}: unknown keys {unknown} (box, sphere, position, rpy, name)')
         pose = np.identity(4)
-        position = _numbers(spec.get('position', [0, 0, 0]), 3, f'obstacle {i}: position')
+        position = numbers(spec.get('position', [0, 0, 0]), 3, f'obstacle {i}: position')
         pose[:3, 3] = position
         given = {'position': list(position)}
         if 'box' in spec:
-            size = _numbers(spec['box'], 3, f'obstacle {i}: box')
-            rpy = _numbers(spec.get('rpy', [0, 0, 0]), 3, f'obstacle {i}: rpy')
-            pose[:3, :3] = _rpy_matrix(rpy)
+            size = numbers(spec['box'], 3, f'obstacle {i}: box')
+            rpy = numbers(spec.get('rpy', [0, 0, 0]), 3, f'obstacle {i}: rpy')
+            pose[:3, :3] = rpy_matrix(rpy)
             kind = 'box'
             given.update(box=list(size), rpy=list(rpy))
         else:
             if 'rpy' in spec:
                 raise BodyError(f'obstacle {i}: a sphere has no rpy')
-            size = _numbers(spec['sphere'], 1, f'obstacle {i}: sphere')
+            size = numbers(spec['sphere'], 1, f'obstacle {i}: sphere')
             kind = 'sphere'
             given.update(sphere=size[0])
         if min(size) <= 0:
@@ -258,12 +260,13 @@ def resolve_mesh(filename: str, urdf_dir: str = '') -> str:
     return path if os.path.isfile(path) else ''
 
 
-def _origin(element) -> np.ndarray:
+def origin_pose(element) -> np.ndarray:
+    """4x4: the pose of a URDF element's <origin> (identity without one)."""
     pose = np.identity(4)
     origin = element.find('origin')
     if origin is not None:
         pose[:3, 3] = [float(v) for v in (origin.get('xyz') or '0 0 0').split()]
-        pose[:3, :3] = _rpy_matrix([float(v) for v in (origin.get('rpy') or '0 0 0').split()])
+        pose[:3, :3] = rpy_matrix([float(v) for v in (origin.get('rpy') or '0 0 0').split()])
     return pose
 
 
@@ -291,7 +294,7 @@ def _geometry(element, urdf_dir: str):
         return None, ''
     g = geometry[0]
     try:
-        pose = _origin(element)
+        pose = origin_pose(element)
         if g.tag == 'box':
             mesh = trimesh.creation.box(extents=[float(v) for v in g.get('size').split()])
         elif g.tag == 'cylinder':

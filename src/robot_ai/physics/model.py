@@ -43,7 +43,8 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from robot_ai.motion.body import Obstacle, link_shapes, parse_obstacles, read_yaml, resolve_mesh, stand_ins
+from robot_ai.motion.body import (BodyError, Obstacle, link_shapes, numbers, origin_pose, parse_obstacles, read_yaml,
+                                  resolve_mesh, rpy_matrix, stand_ins)
 from robot_ai.reach.model import Model
 
 TIMESTEP = 0.002            # s: MuJoCo's step (its default), the implicit-fast integrator
@@ -98,6 +99,13 @@ def parse_objects(value) -> tuple[Object, ...]:
     if not isinstance(value, (list, tuple)):
         raise PhysicsError(f'objects must be a list of {{box: [sx, sy, sz], position: [x, y, z], mass: kg}} (or '
                            f'sphere: r, or cylinder: [r, length]), got {type(value).__name__}')
+    try:
+        return _objects(value)
+    except BodyError as e:            # a number that is not one (motion.body's check): this module's error
+        raise PhysicsError(str(e)) from None
+
+
+def _objects(value: list) -> tuple[Object, ...]:
     out, names = [], set()
     for i, spec in enumerate(value):
         kinds = [k for k in OBJECT_SIZES if isinstance(spec, dict) and k in spec]
@@ -109,10 +117,10 @@ def parse_objects(value) -> tuple[Object, ...]:
             raise PhysicsError(f'object {i}: unknown keys {unknown} (box, sphere, cylinder, position, rpy, mass, '
                                f'friction, name)')
         kind = kinds[0]
-        size = _numbers(spec[kind], OBJECT_SIZES[kind], f'object {i}: {kind}')
-        position = _numbers(spec.get('position', [0, 0, 0]), 3, f'object {i}: position')
-        rpy = _numbers(spec.get('rpy', [0, 0, 0]), 3, f'object {i}: rpy')
-        mass, friction = (_numbers(spec.get(k, d), 1, f'object {i}: {k}')[0]
+        size = numbers(spec[kind], OBJECT_SIZES[kind], f'object {i}: {kind}')
+        position = numbers(spec.get('position', [0, 0, 0]), 3, f'object {i}: position')
+        rpy = numbers(spec.get('rpy', [0, 0, 0]), 3, f'object {i}: rpy')
+        mass, friction = (numbers(spec.get(k, d), 1, f'object {i}: {k}')[0]
                           for k, d in (('mass', OBJECT_MASS), ('friction', OBJECT_FRICTION)))
         if min(size) <= 0 or mass <= 0 or friction < 0:
             raise PhysicsError(f'object {i}: its size and mass must be positive and its friction not negative')
@@ -121,28 +129,9 @@ def parse_objects(value) -> tuple[Object, ...]:
             raise PhysicsError(f'object {i}: the name {name!r} is taken')
         names.add(name)
         pose = np.identity(4)
-        pose[:3, :3], pose[:3, 3] = _rpy(rpy), position
+        pose[:3, :3], pose[:3, 3] = rpy_matrix(rpy), position
         out.append(Object(kind, tuple(size), pose, float(mass), float(friction), name))
     return tuple(out)
-
-
-def _numbers(value, count: int, what: str) -> tuple[float, ...]:
-    values = [value] if count == 1 and not isinstance(value, (list, tuple)) else value
-    try:
-        out = tuple(float(v) for v in values)
-    except (TypeError, ValueError):
-        out = ()
-    if len(out) != count or not all(math.isfinite(v) for v in out):
-        raise PhysicsError(f'{what} must be {count} finite number{"s" if count > 1 else ""}, got {value!r}')
-    return out
-
-
-def _rpy(rpy) -> np.ndarray:
-    """The rotation of URDF's roll, pitch, yaw (fixed x, then y, then z)."""
-    (cr, cp, cy), (sr, sp, sy) = np.cos(rpy), np.sin(rpy)
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -213,11 +202,12 @@ def build_physics(robot: Model, obstacles=(), objects=(), base: str | None = Non
         raise PhysicsError(f'position_hz must be a positive number, got {position_hz!r}')
     urdf_dir = os.path.dirname(robot.path) if robot.path else ''
     start = _home(tree, home or {})
-    key = _key(robot.urdf, urdf_dir, world, loose, base, start, float(position_hz))
+    root = ET.fromstring(robot.urdf)      # read once: the key's meshes, the dynamics, the inertials
+    key = _key(robot.urdf, root, urdf_dir, world, loose, base, start, float(position_hz))
     if key not in _CACHE:
         if len(_CACHE) >= _CACHE_SIZE:
             _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[key] = _build(robot, urdf_dir, world, loose, base, start, float(position_hz))
+        _CACHE[key] = _build(robot, root, urdf_dir, world, loose, base, start, float(position_hz))
     built = _CACHE[key]
     return dataclasses.replace(built, model=copy.deepcopy(built.model))
 
@@ -232,17 +222,32 @@ def _home(tree, given: dict) -> dict:
         j = tree.joints[name]
         if name in given:
             out[name] = float(given[name])
-        elif j.type != 'continuous' and j.lower is not None and j.upper is not None and j.lower < j.upper:
+        elif _range(j):
             out[name] = 0.5 * (j.lower + j.upper)
         else:
             out[name] = 0.0
     return tree.resolve_positions({n: v for n, v in out.items() if n not in tree.mimic_joints})
 
 
-def _key(urdf: str, urdf_dir: str, world, loose, base: str, start: dict, hz: float) -> str:
-    """A digest of everything the model is built from, the meshes' files by size and time."""
+def _range(joint) -> list[float] | None:
+    """[lower, upper] of a joint MuJoCo limits (a revolute or prismatic one with a range); None: unlimited."""
+    if joint.type != 'continuous' and joint.lower is not None and joint.upper is not None \
+            and joint.lower < joint.upper:
+        return [joint.lower, joint.upper]
+    return None
+
+
+def _listed(items, joiner: str = '; ', most: int = 6) -> str:
+    """The first `most` of items, joined, and ' ...' when there are more: a note's list."""
+    items = list(items)
+    return joiner.join(items[:most]) + (' ...' if len(items) > most else '')
+
+
+def _key(urdf: str, root, urdf_dir: str, world, loose, base: str, start: dict, hz: float) -> str:
+    """A digest of everything the model is built from (root: the URDF's parsed XML), the meshes' files by size and
+    time."""
     h = hashlib.sha256(urdf.encode())
-    for element in ET.fromstring(urdf).iter('mesh'):
+    for element in root.iter('mesh'):
         path = resolve_mesh(element.get('filename', ''), urdf_dir)
         st = os.stat(path) if path else None
         h.update(repr((path, st and st.st_size, st and st.st_mtime_ns)).encode())
@@ -251,10 +256,11 @@ def _key(urdf: str, urdf_dir: str, world, loose, base: str, start: dict, hz: flo
     return h.hexdigest()
 
 
-def _dynamics(urdf: str) -> dict[str, tuple[float, float, float]]:
-    """{joint: (damping, friction, effort limit or 0)} from the URDF's <dynamics> and <limit effort>."""
+def _dynamics(root) -> dict[str, tuple[float, float, float]]:
+    """{joint: (damping, friction, effort limit or 0)} from the URDF's (root: its parsed XML) <dynamics> and
+    <limit effort>."""
     out = {}
-    for j in ET.fromstring(urdf).findall('joint'):
+    for j in root.findall('joint'):
         d, lim = j.find('dynamics'), j.find('limit')
         values = []
         for element, attribute in ((d, 'damping'), (d, 'friction'), (lim, 'effort')):
@@ -267,12 +273,11 @@ def _dynamics(urdf: str) -> dict[str, tuple[float, float, float]]:
     return out
 
 
-def _inertials(urdf: str) -> dict[str, tuple[float, np.ndarray, np.ndarray, np.ndarray]]:
+def _inertials(root) -> dict[str, tuple[float, np.ndarray, np.ndarray, np.ndarray]]:
     """{link: (mass, centre (3,), orientation (w, x, y, z), full inertia (6,): ixx iyy izz ixy ixz iyz)} of links
-    whose URDF <inertial> gives a positive mass."""
-    from robot_ai.motion.body import _origin
+    whose URDF (root: its parsed XML) <inertial> gives a positive mass."""
     out = {}
-    for link in ET.fromstring(urdf).findall('link'):
+    for link in root.findall('link'):
         inertial = link.find('inertial')
         if inertial is None or inertial.find('mass') is None:
             continue
@@ -285,7 +290,7 @@ def _inertials(urdf: str) -> dict[str, tuple[float, np.ndarray, np.ndarray, np.n
             continue
         if not (math.isfinite(mass) and mass > 0 and np.isfinite(full).all()):
             continue
-        pose = _origin(inertial)
+        pose = origin_pose(inertial)
         out[link.get('name')] = (mass, pose[:3, 3], _quaternion(pose[:3, :3]), full)
     return out
 
@@ -298,7 +303,7 @@ def _quaternion(r: np.ndarray) -> np.ndarray:
     return q
 
 
-def _build(robot: Model, urdf_dir: str, world: tuple[Obstacle, ...], loose: tuple[Object, ...], base: str,
+def _build(robot: Model, root, urdf_dir: str, world: tuple[Obstacle, ...], loose: tuple[Object, ...], base: str,
            start: dict, hz: float) -> Physics:
     import mujoco
     tree, urdf = robot.tree, robot.urdf
@@ -316,19 +321,21 @@ def _build(robot: Model, urdf_dir: str, world: tuple[Obstacle, ...], loose: tupl
     shapes = shapes | stood
     if stood:
         notes.append(f'collision geometry not read for {len(stood)} links, stood in for by capsules: '
-                     + '; '.join(f'{k}: {v}' for k, v in list(how.items())[:6]) + (' ...' if len(how) > 6 else ''))
-    inertials, dynamics = _inertials(urdf), _dynamics(urdf)
+                     + _listed(f'{k}: {v}' for k, v in how.items()))
+    inertials, dynamics = _inertials(root), _dynamics(root)
+    joints = {j.get('name'): j for j in root.findall('joint')}
+    parent_joint = {j.child: j for j in tree.joints.values()}
     estimated = []
     # the root, welded to the world (a root named world, as many URDFs have, is MuJoCo's world body itself)
     bodies = {tree.root: spec.worldbody if tree.root == 'world' else spec.worldbody.add_body(name=tree.root)}
     moved_by = {}                         # link -> the joint that moves it (None: fixed to its parent)
     floating_child = {tree.floating_links(n)[1]: n for n in tree.floating_joints}
     for link in tree.links[1:]:
-        joint = next((j for j in tree.joints.values() if j.child == link), None)
+        joint = parent_joint.get(link)
         if joint is None:                 # the child of a floating joint: free, placed by the joint's origin
             name = floating_child[link]
             parent, _ = tree.floating_links(name)
-            origin = _floating_origin(urdf, name)
+            origin = origin_pose(joints[name])
             body = bodies[parent].add_body(name=link, pos=origin[:3, 3], quat=_quaternion(origin[:3, :3]))
             body.add_freejoint(name=name)
             moved_by[link] = name
@@ -337,16 +344,14 @@ def _build(robot: Model, urdf_dir: str, world: tuple[Obstacle, ...], loose: tupl
             body = bodies[joint.parent].add_body(name=link, pos=joint.xyz, quat=[w, x, y, z])
             if joint.moving:
                 kind = mujoco.mjtJoint.mjJNT_SLIDE if joint.type == 'prismatic' else mujoco.mjtJoint.mjJNT_HINGE
-                damping, friction, _ = dynamics.get(joint.name, (0.0, 0.0, 0.0))
+                damping, friction, effort = dynamics.get(joint.name, (0.0, 0.0, 0.0))
                 j = body.add_joint(name=joint.name, type=kind, axis=joint.axis, damping=damping,
                                    frictionloss=friction, armature=ARMATURE, ref=0.0)
-                if joint.type != 'continuous' and joint.lower is not None and joint.upper is not None \
-                        and joint.lower < joint.upper:
-                    j.limited, j.range = mujoco.mjtLimited.mjLIMITED_TRUE, [joint.lower, joint.upper]
+                if _range(joint):
+                    j.limited, j.range = mujoco.mjtLimited.mjLIMITED_TRUE, _range(joint)
                 else:
                     j.limited = mujoco.mjtLimited.mjLIMITED_FALSE
                 j.actgravcomp = True      # the arm's weight held through the actuator: within the effort
-                effort = dynamics.get(joint.name, (0.0, 0.0, 0.0))[2]
                 if effort > 0:            # the joint's whole actuation (servo and weight) within its effort
                     j.actfrclimited, j.actfrcrange = mujoco.mjtLimited.mjLIMITED_TRUE, [-effort, effort]
                 moved_by[link] = joint.name
@@ -359,7 +364,7 @@ def _build(robot: Model, urdf_dir: str, world: tuple[Obstacle, ...], loose: tupl
         more, how = stand_ins(urdf, tree, bare, urdf_dir)
         shapes = shapes | more
         notes.append(f'no inertial and no collision geometry for {len(bare)} moving links, stood in for by capsules: '
-                     + '; '.join(f'{k}: {v}' for k, v in list(how.items())[:6]) + (' ...' if len(how) > 6 else ''))
+                     + _listed(f'{k}: {v}' for k, v in how.items()))
     for link, body in bodies.items():
         if link in inertials and body is not spec.worldbody:
             mass, centre, orientation, full = inertials[link]
@@ -380,7 +385,7 @@ def _build(robot: Model, urdf_dir: str, world: tuple[Obstacle, ...], loose: tupl
             estimated.append(link)
     if estimated:
         notes.append(f'inertias estimated from the collision geometry at {DENSITY:g} kg/m^3 (the URDF gives none) '
-                     f'for {len(estimated)} links: {", ".join(estimated[:6])}' + (' ...' if len(estimated) > 6 else ''))
+                     f'for {len(estimated)} links: ' + _listed(estimated, ', '))
     for name in tree.mimic_joints:        # position = offset + multiplier x the source's
         source, multiplier, offset = tree.joints[name].mimic
         spec.add_equality(type=mujoco.mjtEq.mjEQ_JOINT, name1=name, name2=source,
@@ -409,16 +414,15 @@ def _build(robot: Model, urdf_dir: str, world: tuple[Obstacle, ...], loose: tupl
         _, _, effort = dynamics.get(name, (0.0, 0.0, 0.0))
         a = spec.add_actuator(name=name, target=name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         a.set_to_position(kp=1.0, kv=0.0)
-        j = tree.joints[name]
-        if j.type != 'continuous' and j.lower is not None and j.upper is not None and j.lower < j.upper:
-            a.ctrllimited, a.ctrlrange = mujoco.mjtLimited.mjLIMITED_TRUE, [j.lower, j.upper]
+        if _range(tree.joints[name]):
+            a.ctrllimited, a.ctrlrange = mujoco.mjtLimited.mjLIMITED_TRUE, _range(tree.joints[name])
         if effort > 0:
             a.forcelimited, a.forcerange = mujoco.mjtLimited.mjLIMITED_TRUE, [-effort, effort]
         else:
             unlimited.append(name)
     if unlimited:
         notes.append(f'no effort limit in the URDF for {len(unlimited)} joints, their servos unlimited: '
-                     f'{", ".join(unlimited[:6])}' + (' ...' if len(unlimited) > 6 else ''))
+                     + _listed(unlimited, ', '))
     try:
         model = spec.compile()
     except ValueError as e:
@@ -447,12 +451,6 @@ def _touching(physics: Physics) -> list[str]:
                 other_name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, other) or f'geom {other}'
                 names.append(f'{link} - {other_name}')
     return sorted(set(names))
-
-
-def _floating_origin(urdf: str, name: str) -> np.ndarray:
-    from robot_ai.motion.body import _origin
-    joint = next(j for j in ET.fromstring(urdf).findall('joint') if j.get('name') == name)
-    return _origin(joint)
 
 
 def _set_gains(physics: Physics, hz: float) -> None:
