@@ -223,15 +223,12 @@ class ArmSim:
             self._publish(now)
             return
         if self.follower is not None:
-            p, v = self.follower.state_at(t)
-            p = np.minimum(np.maximum(p, self.lower), self.upper)
+            p, v = self._followed(t)
             elapsed = t - last if last is not None and t > last else dt
             step = np.clip(p - self.positions, -self.velocity * elapsed, self.velocity * elapsed)
             exact = np.array_equal(step, p - self.positions)
             self.positions = self.positions + step
             self.speeds = v if exact else step / elapsed
-            if t >= self.follower.end:
-                self.command, self.follower = self.follower.final, None
             self._publish(now)
             return
         step = np.clip(self.command - self.positions, -self.velocity * dt, self.velocity * dt)
@@ -239,17 +236,30 @@ class ArmSim:
         self.speeds = step / dt
         self._publish(now)
 
+    def _followed(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(positions within the limits, velocities) along the trajectory followed, at t; at its end the command is
+        its last point and it is followed no more."""
+        p, v = self.follower.state_at(t)
+        if t >= self.follower.end:
+            self.command, self.follower = self.follower.final, None
+        return np.minimum(np.maximum(p, self.lower), self.upper), v
+
     def _tick_physics(self, t: float, dt: float) -> None:
         """One tick with physics: the servos' target toward the command (or the trajectory's position at t) at most
         at the velocity limits, dt seconds of MuJoCo toward it; the state is the physics'."""
-        wanted = self.command
-        if self.follower is not None:
-            wanted = np.minimum(np.maximum(self.follower.state_at(t)[0], self.lower), self.upper)
-            if t >= self.follower.end:
-                self.command, self.follower = self.follower.final, None
+        wanted = self._followed(t)[0] if self.follower is not None else self.command
         self.target = self.target + np.clip(wanted - self.target, -self.velocity * dt, self.velocity * dt)
-        self.arm.step(self.target, dt)
+        self._physics_step(self.target, dt)
+
+    def _physics_step(self, target: np.ndarray, dt: float) -> None:
+        """dt seconds of physics toward target; the sim's state (positions, velocities, efforts) is the physics'."""
+        self.arm.step(target, dt)
         self.positions, self.speeds, self.efforts = self.arm.positions, self.arm.velocities, self.arm.efforts
+
+    def _physics_at(self, positions: np.ndarray) -> None:
+        """The physics' arm at positions at once, at rest, its servos holding there."""
+        self.arm.set_state(positions)
+        self.target, self.efforts = positions.copy(), self.arm.efforts
 
     def run(self) -> None:
         with self.lock:
@@ -299,8 +309,7 @@ class ArmSim:
             self.command, self.follower = command, None
             if self.lockstep and self.arm is not None:     # one tick of physics toward it
                 self.target = command
-                self.arm.step(command, 1.0 / self.rate)
-                self.positions, self.speeds, self.efforts = self.arm.positions, self.arm.velocities, self.arm.efforts
+                self._physics_step(command, 1.0 / self.rate)
                 self._publish()
             elif self.lockstep:
                 self.speeds = np.zeros(len(self.joints))
@@ -329,8 +338,7 @@ class ArmSim:
                     self.positions, self.command = full[-1].copy(), full[-1].copy()
                     self.speeds = np.zeros(len(self.joints))
                     if self.arm is not None:
-                        self.arm.set_state(self.positions)
-                        self.target, self.efforts = self.positions.copy(), self.arm.efforts
+                        self._physics_at(self.positions)
                     self._publish()
                     return
                 follower.take(now, start, times, full, full_v)
@@ -378,8 +386,7 @@ class ArmSim:
             self.positions, self.command, self.follower = positions.copy(), positions.copy(), None
             self.speeds = np.zeros(len(self.joints))
             if self.arm is not None:                  # at rest there, the servos holding it
-                self.arm.set_state(positions)
-                self.target, self.efforts = positions.copy(), self.arm.efforts
+                self._physics_at(positions)
             self._publish()
         return SetJointPositionsResponse(success=True, message=f'the arm at {positions.tolist()}')
 

@@ -884,12 +884,12 @@ class ReachController:
             rospy.logwarn_throttle(2.0, f'holding: {plan.held}, so the motion was not sent')
             replan = False
             # held on its way, or the policy's arm short of the goal: planned again (the env's rule: replanning)
-            stuck = goal is not None and not homing and not holding and self.moving.replanning(
+            stuck = bool(plan.contacts) and goal is not None and not homing and not holding and self.moving.replanning(
                 [recovery.state == RECOVERING], np.array(self.setup.place_one(q)[0])[:, None],
                 np.array(goal)[:, None])[0]
             with self.lock:           # a step a collision refuses, as in the env: a way round it was on is given up,
                 if version == self.version:   # and it is a step without progress (the recovery goes round);
-                    replan = bool(plan.contacts and stuck and self.replans < MAX_REPLANS)
+                    replan = bool(stuck and self.replans < MAX_REPLANS)
                     self.replans += replan
                     self.recovery = (self.recovery.give_up() if plan.contacts    # a step held for any other
                                      else dataclasses.replace(self.recovery, since=0))   # reason is no step
