@@ -497,19 +497,23 @@ def _live_entries(axis) -> set[tuple[int, int]]:
 _WARNED: set = set()
 
 
-def _warn_once(robot: str, stand_in: dict, missing: list[str]) -> None:
-    """One warning per robot and set of links in this process: a vector env of 64 arms says it once."""
-    key = (robot, tuple(sorted(stand_in)))
+def _say_once(key, text: str) -> None:
+    """A warning said once per key in this process: a vector env of 64 arms says it once."""
     if key in _WARNED:
         return
     _WARNED.add(key)
     import logging
+    logging.getLogger('robot_ai.motion.body').warning(text)
+
+
+def _warn_once(robot: str, stand_in: dict, missing: list[str]) -> None:
+    """The stand-ins, said once per robot and set of links in this process."""
     links = '; '.join(f'{link}: {how}' for link, how in list(stand_in.items())[:6])
     more = f' and {len(stand_in) - 6} more' if len(stand_in) > 6 else ''
-    logging.getLogger('robot_ai.motion.body').warning(
-        f'{robot}: collision geometry not on this machine or unreadable '
-        f'({missing[0]}{" ..." if len(missing) > 1 else ""}), stood in for: {links}{more}. Put the meshes\' '
-        f'package on ROS_PACKAGE_PATH for the real body.')
+    _say_once((robot, tuple(sorted(stand_in))),
+              f'{robot}: collision geometry not on this machine or unreadable '
+              f'({missing[0]}{" ..." if len(missing) > 1 else ""}), stood in for: {links}{more}. Put the meshes\' '
+              f'package on ROS_PACKAGE_PATH for the real body.')
 
 
 class CollisionModel:
@@ -564,12 +568,11 @@ class CollisionModel:
         self._prepare_bounds()
         self.margins = {link: self._margin(i, shapes[link], rng) for i, link in enumerate(self.links)}
         self.beyond = self._cull()
-        if not len(self.moving_spheres) and (tree.name, 'empty') not in _WARNED:    # never silently empty: said
-            _WARNED.add((tree.name, 'empty'))                                         # once per process, as the
-            import logging                                                            # node says it
-            logging.getLogger('robot_ai.motion.body').warning(
-                f'{tree.name} has no collision geometry on its moving links: its body is empty, and nothing but '
-                f'the limits keeps the arm from itself and the obstacles (give its links <collision> elements)')
+        if not len(self.moving_spheres):      # never silently empty: said once per process, as the node says it
+            _say_once((tree.name, 'empty'),
+                      f'{tree.name} has no collision geometry on its moving links: its body is empty, and nothing '
+                      f'but the limits keeps the arm from itself and the obstacles (give its links <collision> '
+                      f'elements)')
 
     def reach(self) -> float:
         """A bound on how far from the arm's base frame any of its moving spheres can be, in any configuration: the
