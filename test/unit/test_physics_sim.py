@@ -83,3 +83,68 @@ def test_set_state_places_the_arm_at_rest_and_bad_input_is_one_line():
         arm.set_state([float('nan')] * 8)
     with pytest.raises(PhysicsError, match="panda_finger_joint2: not joints the model's servos drive"):
         ArmPhysics(physics, ['panda_finger_joint2'])
+
+
+PANDA_HOME = {'panda_joint4': -2.3, 'panda_joint6': 2.3, 'panda_joint7': 0.785, 'panda_finger_joint1': 0.04}
+TABLE = [{'box': [0.4, 0.4, 0.02], 'position': [0.512, 0, 0.215], 'name': 'table'}]     # its top at 0.225
+
+
+def cube_in_the_hand(edge: float):
+    """The Panda's hand open over a table, a cube of edge on the table between its fingers (its real meshes)."""
+    physics = build_physics(load_model(os.path.join(ROBOTS, 'panda.urdf')), home=PANDA_HOME, obstacles=TABLE,
+                            objects=[{'box': [edge] * 3, 'position': [0.512, 0, 0.226 + edge / 2], 'name': 'cube'}])
+    arm = ArmPhysics(physics, [n for n in physics.actuated if n not in physics.gripper])
+    arm.step(arm.targets, 0.2)
+    return arm
+
+
+@pytest.mark.parametrize('edge', [0.02, 0.04])
+def test_the_gripper_closes_on_a_cube_squeezes_it_with_the_effort_asked_and_the_arm_lifts_it(edge):
+    """grip(0, 10 N): the fingers close at their velocity limit and stall on the cube (the wider cube further open),
+    the finger's effort the 10 N asked for; the forearm raised, the cube rises with the hand; grip(open) lets it go:
+    reached, and it falls back to the table."""
+    arm = cube_in_the_hand(edge)
+    rest = arm.object_poses()['cube'][:3, 3]
+    assert arm.gripper == ('panda_finger_joint1',) and arm.gripper_outcome() is None
+    assert arm.grip(0.0, 10.0) == 0.0
+    positions = []
+    for _ in range(100):
+        arm.step(arm.targets, 0.01)
+        positions.append(arm.gripper_state()[0])
+        if arm.gripper_outcome() is not None:
+            break
+    assert arm.gripper_outcome() == (False, True)                # stalled: held short of closed
+    position, _, effort = arm.gripper_state()
+    assert edge / 2 - 0.01 < position < edge / 2 + 0.005 and effort == pytest.approx(-10.0, abs=0.1)
+    speeds = np.abs(np.diff(positions)) / 0.01
+    assert speeds.max() <= 0.2 * 1.2                             # the finger's URDF velocity limit, and a little
+    up = arm.targets
+    up[arm.joints.index('panda_joint4')] += 0.3
+    for k in range(1, 101):
+        arm.step(arm.targets + (up - arm.targets) * k / 100, 0.01)
+    arm.step(up, 0.5)
+    assert arm.object_poses()['cube'][2, 3] > rest[2] + 0.1       # lifted with the hand
+    assert arm.grip(1.0) == pytest.approx(0.04)                   # clipped to the finger's range
+    for _ in range(100):
+        arm.step(up, 0.01)
+        if arm.gripper_outcome() is not None:
+            break
+    assert arm.gripper_outcome() == (True, False)
+    arm.step(up, 1.0)
+    assert arm.object_poses()['cube'][2, 3] < rest[2] + 0.005     # let go: on the table again
+
+
+def test_a_gripper_command_overrides_the_arm_targets_until_set_state_and_bad_ones_are_one_line():
+    physics = build_physics(load_model(os.path.join(ROBOTS, 'panda.urdf')), home=PANDA_HOME)
+    arm = ArmPhysics(physics, list(physics.actuated))              # the finger among the joints commanded
+    arm.grip(0.01)
+    arm.step(arm.targets, 0.5)                                     # the targets say 0.04 for the finger: not taken
+    assert arm.gripper_state()[0] == pytest.approx(0.01, abs=1e-3)
+    arm.set_state(arm.positions[:-1].tolist() + [0.03])           # placed: the gripper command ends
+    arm.step(arm.targets, 0.5)
+    assert arm.gripper_state()[0] == pytest.approx(0.03, abs=1e-3) and arm.gripper_outcome() is None
+    with pytest.raises(PhysicsError, match='a gripper command is a finite position and effort'):
+        arm.grip(float('nan'))
+    ur5 = ArmPhysics(build_physics(load_model(os.path.join(ROBOTS, 'ur5.urdf')), home=HOME), ['shoulder_pan_joint'])
+    with pytest.raises(PhysicsError, match='the arm has no gripper'):
+        ur5.grip(0.0)

@@ -21,6 +21,12 @@ robot_description, its inertias from the URDF or estimated, its real meshes wher
 command, or the trajectory's position, is each joint's servo target, moving at most at the joint's velocity limit
 as the kinematic sim moves the joint; the servos track it within the URDF's effort limits, joint_states carries
 their efforts, and the arm meets ~obstacles and pushes ~objects. In ~lockstep each command is one tick of physics.
+The objects' poses go on /tf after every tick (each object's frame, its name with _ for what a frame cannot hold,
+a child of the robot's root), drawn by ~object_markers in those frames. The gripper (the hand's actuated finger
+joints) takes ros_control's gripper_action_controller goal (robot_ai/GripperCommand: control_msgs' fields and
+md5sums): its servos toward the position at the joints' velocity limits with at most the effort asked for, the goal
+succeeded when the gripper is there or stalled on what it grips (reached_goal, stalled), over the sim's ticks (in
+~lockstep, over the following commands); from the first goal on, the arm's commands no longer move those joints.
 
 An env takes the sim's ~lease: while it holds it, commands and ~set_state from any other node are ignored or refused
 (robot_ai.nodes.lease).
@@ -49,6 +55,11 @@ ROS Subscribers
 ROS Publishers
     joint_states (sensor_msgs/JointState): names ~joints, positions, velocities (and efforts with ~physics),
         stamped with the time they describe.
+    tf (tf2_msgs/TFMessage): with ~physics, the objects' poses in the robot's root frame, after every tick.
+    ~object_markers (visualization_msgs/MarkerArray, latched): with ~physics, the objects, each in its frame.
+
+ROS Actions
+    gripper_controller/gripper_cmd (robot_ai/GripperCommand): with ~physics and a gripper, the gripper's command.
 
 ROS Services
     ~set_state (robot_ai/SetJointPositions): the arm at these positions at once (the command too), published then;
@@ -101,14 +112,14 @@ class ArmSim:
         self.positions = self._home_param(tree)
         self.command = self.positions.copy()
         self.speeds = np.zeros(len(self.joints))
-        self.arm = self._physics(xml)             # an ArmPhysics with ~physics mujoco, else None
+        self.lock = threading.Lock()
+        self.arm, self.world = self._physics(xml, tree)   # an ArmPhysics and its PhysicsWorld with ~physics mujoco
         self.efforts = self.arm.efforts if self.arm is not None else None
         self.target = self.positions.copy()       # with physics: the servos' target, moving within the velocities
         self.follower: Follower | None = None     # a trajectory being followed
         self.ticked = None                        # ROS time of the last tick
         self.epoch = rospy.Time.now()             # trajectories' times count from here (a float of seconds since
                                                   # 1970 keeps only 0.2 us, which shows in a velocity's difference)
-        self.lock = threading.Lock()
         self.lease = Lease(rospy.get_name())
         rospy.set_param('~joints', list(self.joints))
         self.encoder = JointStateEncoder(self.joints)
@@ -127,7 +138,7 @@ class ArmSim:
         mode = ('lockstep: one step per command, reached at once' if self.lockstep else
                 f'{self.rate * self.real_time_factor:g} ticks per second of ROS time, at the URDF velocity limits')
         if self.arm is not None:
-            mode += (f'; physics: MuJoCo, {len(self.arm.physics.objects)} objects' +
+            mode += (f'; physics: MuJoCo, {self.world.describe()}' +
                      (' (lockstep: a tick of physics per command)' if self.lockstep else ''))
         for note in self.notes:
             rospy.loginfo(f'arm_sim: {note}')
@@ -151,26 +162,29 @@ class ArmSim:
             raise ValueError(f'~joints names a joint twice: {value}')
         return value
 
-    def _physics(self, xml: str):
-        """~physics' ArmPhysics at home (None without physics); ValueError of one line for what cannot be built."""
+    def _physics(self, xml: str, tree):
+        """~physics' ArmPhysics at home and its PhysicsWorld ((None, None) without physics); ValueError of one line
+        for what cannot be built."""
         kind = rospy.get_param('~physics', '') or ''
         if kind not in ('', 'mujoco'):
             raise ValueError(f'~physics must be "" (kinematic) or mujoco, got {kind!r}')
         if not kind:
-            return None
-        from robot_ai.physics import PhysicsError, build_physics
+            return None, None
+        from robot_ai.nodes.arm_physics import PhysicsWorld
+        from robot_ai.physics import PhysicsError, build_physics, parse_objects
         from robot_ai.physics.sim import ArmPhysics
         from robot_ai.reach.model import load_model
         try:
+            objects = parse_objects(rospy.get_param('~objects', '') or ())
             physics = build_physics(load_model(urdf=xml), obstacles=rospy.get_param('~obstacles', '') or (),
-                                    objects=rospy.get_param('~objects', '') or (),
-                                    home=dict(zip(self.joints, self.positions.tolist())))
+                                    objects=objects, home=dict(zip(self.joints, self.positions.tolist())))
             arm = ArmPhysics(physics, self.joints)
-        except (PhysicsError, ReachError) as e:
+            world = PhysicsWorld(arm, objects, tree.root, tree.links, self.lock)
+        except (PhysicsError, ReachError, ValueError) as e:
             raise ValueError(f'~physics mujoco: {e}') from None
         for note in physics.notes:
             rospy.loginfo(f'arm_sim: physics: {note}')
-        return arm
+        return arm, world
 
     def _bounds(self, tree) -> tuple[ArmBounds, tuple[str, ...]]:
         """What the arm can do: the URDF's positions and velocities, ~joint_limits' accelerations."""
@@ -211,6 +225,8 @@ class ArmSim:
         self.published += 1
         publish(self.state_pub, RawJointState(self.encoder.encode(self.published, stamp.secs, stamp.nsecs,
                                                                   self.positions, self.speeds, self.efforts)))
+        if self.world is not None:
+            self.world.ticked(stamp)
 
     def _tick(self, dt: float) -> None:
         """One tick of dt simulated seconds: each joint toward its command at most its velocity limit; along the

@@ -45,10 +45,13 @@ import numpy as np
 
 from robot_ai.motion.body import (BodyError, Obstacle, link_shapes, numbers, origin_pose, parse_obstacles, read_yaml,
                                   resolve_mesh, rpy_matrix, stand_ins)
+from robot_ai.reach.arm import joint_velocity
 from robot_ai.reach.model import Model
 
 TIMESTEP = 0.002            # s: MuJoCo's step (its default), the implicit-fast integrator
 POSITION_HZ = 5.0           # a position servo's natural frequency at home, critically damped
+GRIP_SQUEEZE = 0.1          # a gripper servo exerts its effort limit this share of its range short of its target
+GRIPPER_HZ = 10.0           # a gripper servo's natural frequency, critically damped (its rotor's inertia made enough)
 DENSITY = 1000.0            # kg/m^3: a link's mass where the URDF gives none, from its collision geometry's volume
 CONTACT_TIME = 2 * TIMESTEP  # s: contacts' time constant (solref), the stiffest MuJoCo keeps stable at TIMESTEP: an
                             # arm driven down onto a table went 5.6 cm into it at the impact with the default 0.02 s,
@@ -86,9 +89,12 @@ OBJECT_FRICTION = 1.0       # an object's sliding friction where none is given (
 def parse_objects(value) -> tuple[Object, ...]:
     """Loose objects from a list of {box: [sx, sy, sz] | sphere: r | cylinder: [r, length], position: [x, y, z],
     rpy: [r, p, y], mass: kg, friction: mu, name: text}, a YAML file's path or YAML text of one (its `objects` key:
-    the obstacles' file may hold both); None or empty: none. PhysicsError of one line for anything else."""
+    the obstacles' file may hold both), or Objects parsed already; None or empty: none. PhysicsError of one line for
+    anything else."""
     if value is None or (isinstance(value, (str, list, tuple)) and len(value) == 0):
         return ()
+    if isinstance(value, (list, tuple)) and all(isinstance(o, Object) for o in value):
+        return tuple(value)         # parsed already
     if isinstance(value, str):
         try:
             value = read_yaml(value, 'objects')
@@ -139,13 +145,15 @@ class Physics:
     """A built model: model (mujoco.MjModel, a copy of its own), actuated (the joints the actuators drive, in
     actuator order), home ({joint: position} it starts at), notes (what was estimated or stood in, one line each),
     gripper (the actuated joints of hands and grippers, kinematics.finger_joints'), objects (the loose objects'
-    names: each a body with a free joint, and its geom, of that name)."""
+    names: each a body with a free joint, and its geom, of that name), gripper_speed (the gripper joints' URDF
+    velocity limits, at which a gripper command moves their targets)."""
     model: object
     actuated: tuple[str, ...]
     home: dict
     notes: tuple[str, ...]
     gripper: tuple[str, ...] = ()
     objects: tuple[str, ...] = ()
+    gripper_speed: tuple[float, ...] = ()
 
     def data(self):
         """A mujoco.MjData at home, at rest, the servos holding it there."""
@@ -428,8 +436,9 @@ def _build(robot: Model, root, urdf_dir: str, world: tuple[Obstacle, ...], loose
     except ValueError as e:
         raise PhysicsError(f'{tree.name}: MuJoCo refused the model: {str(e).splitlines()[0]}') from None
     fingers = tree.finger_joints()
-    physics = Physics(model, tuple(actuated), start, tuple(notes), tuple(n for n in actuated if n in fingers),
-                      tuple(o.name for o in loose))
+    gripper = tuple(n for n in actuated if n in fingers)
+    physics = Physics(model, tuple(actuated), start, tuple(notes), gripper, tuple(o.name for o in loose),
+                      tuple(joint_velocity(tree.joints[n]) for n in gripper))
     _set_gains(physics, hz)
     touching = _touching(physics)
     if touching:
@@ -455,7 +464,10 @@ def _touching(physics: Physics) -> list[str]:
 
 def _set_gains(physics: Physics, hz: float) -> None:
     """Each servo critically damped at hz for the inertia its joint moves at home (the joint-space inertia's
-    diagonal): kp = m w^2, kv = 2 m w."""
+    diagonal): kp = m w^2, kv = 2 m w. A gripper's servo grips: it exerts its effort limit GRIP_SQUEEZE of its range
+    short of its target (an object between the fingers is squeezed with the force asked for), critically damped at
+    GRIPPER_HZ, its rotor's inertia (armature) raised to what that takes (a finger's own is grams: MuJoCo's step
+    would not hold so stiff a servo on it)."""
     import mujoco
     model = physics.model
     data = physics.data()
@@ -466,5 +478,11 @@ def _set_gains(physics: Physics, hz: float) -> None:
         dof = model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)]
         m = float(full[dof, dof])
         kp, kv = m * w * w, 2.0 * m * w
+        lo, hi = model.actuator_ctrlrange[k]
+        effort = model.actuator_forcerange[k, 1]
+        if name in physics.gripper and model.actuator_ctrllimited[k] and model.actuator_forcelimited[k] and hi > lo:
+            kp, grip = effort / (GRIP_SQUEEZE * (hi - lo)), 2.0 * math.pi * GRIPPER_HZ
+            model.dof_armature[dof] += max(0.0, kp / grip ** 2 - m)
+            kv = 2.0 * max(m, kp / grip ** 2) * grip
         model.actuator_gainprm[k, 0] = kp
         model.actuator_biasprm[k, 1:3] = (-kp, -kv)

@@ -6,12 +6,18 @@ rospy.
     arm = ArmPhysics(build_physics(load_model('ur5.urdf'), obstacles='world.yaml'), joints)
     arm.step(target, 0.01)                 # 10 ms of physics toward target (one per joint of joints)
     arm.positions, arm.velocities, arm.efforts, arm.object_poses()
+    arm.grip(0.0, max_effort=20.0)         # the gripper's servos toward closed, with at most 20 N
+    arm.gripper_state()                    # its position, velocity and effort
 """
 from __future__ import annotations
 
 import numpy as np
 
 from robot_ai.physics.model import Physics, PhysicsError
+
+GRIP_TOLERANCE = 0.02       # a gripper command is reached within this share of the joint's range from its target
+STALL_SPEED = 0.01          # a gripper is still below this share of its joint's range per second ...
+STALL_TIME = 0.2            # ... for this long (s of physics): stalled, held short of its target
 
 
 class ArmPhysics:
@@ -33,6 +39,13 @@ class ArmPhysics:
         self._dof = self.model.jnt_dofadr[ids]
         self._mj = mujoco
         self.time = 0.0
+        self._gripper = np.array([physics.actuated.index(n) for n in physics.gripper], dtype=int)
+        self._gripper_range = np.array([self.model.actuator_ctrlrange[k] if self.model.actuator_ctrllimited[k]
+                                        else (-np.inf, np.inf) for k in self._gripper]).reshape(-1, 2)
+        self._force = self.model.actuator_forcerange.copy()    # the URDF's effort limits, max_effort's default
+        self._grip: dict[int, tuple[float, float]] = {}    # actuator -> the gripper command's target and speed
+        self._ramp: dict[int, float] = {}     # actuator -> where its target stands on the way to the command
+        self._still = 0.0                     # s of physics the gripper has been still (for gripper_outcome)
 
     @property
     def positions(self) -> np.ndarray:
@@ -60,8 +73,15 @@ class ArmPhysics:
         self.data.ctrl[self._actuator] = target
         steps = max(1, int(round(duration / self.model.opt.timestep)))
         for _ in range(steps):
+            for k, (value, speed) in self._grip.items():   # the gripper's targets at most at its velocity limit
+                reach = speed * self.model.opt.timestep
+                self.data.ctrl[k] = self._ramp[k] = float(np.clip(value, self._ramp[k] - reach, self._ramp[k] + reach))
             self._mj.mj_step(self.model, self.data)
         self.time += steps * self.model.opt.timestep
+        if self._grip:
+            span = np.diff(self._gripper_range[0])[0]
+            still = abs(self.gripper_state()[1]) < STALL_SPEED * (span if np.isfinite(span) else 1.0)
+            self._still = self._still + steps * self.model.opt.timestep if still else 0.0
         return steps
 
     def set_state(self, positions) -> None:
@@ -72,6 +92,8 @@ class ArmPhysics:
             raise PhysicsError(f'a state is {len(self.joints)} finite positions, got {positions.tolist()}')
         self.data.qpos[self._qpos] = positions
         self.data.ctrl[self._actuator] = positions
+        for k in self._actuator:              # placed: a gripper joint placed here is the gripper command no more
+            self._grip.pop(int(k), None)
         for k in range(self.model.neq):       # a mimic joint: position = offset + multiplier x its source's
             if self.model.eq_type[k] == self._mj.mjtEq.mjEQ_JOINT:
                 follower, source = self.model.eq_obj1id[k], self.model.eq_obj2id[k]
@@ -81,6 +103,56 @@ class ArmPhysics:
         self.data.qvel[:] = 0.0
         self.data.qacc_warmstart[:] = 0.0
         self._mj.mj_forward(self.model, self.data)
+
+    @property
+    def gripper(self) -> tuple[str, ...]:
+        """The gripper's actuated joints (physics.gripper); () for an arm without one."""
+        return self.physics.gripper
+
+    def grip(self, position: float, max_effort: float = 0.0) -> float:
+        """The gripper command of ros_control's gripper_action_controller: every actuated gripper joint's servo
+        toward position (m or rad, clipped to each joint's range) with at most max_effort (N or N m; 0 or less: the
+        URDF's effort limit), the targets moving there at the joints' velocity limits over the following steps and
+        held, whatever those steps' targets give these joints, until set_state places them; the target taken (the
+        first joint's). PhysicsError for an arm without a gripper or a position or effort that is not a number."""
+        if not self.gripper:
+            raise PhysicsError('the arm has no gripper (no actuated finger joints)')
+        if not (np.isfinite(position) and np.isfinite(max_effort)):
+            raise PhysicsError(f'a gripper command is a finite position and effort, got {position!r}, {max_effort!r}')
+        targets = np.clip(float(position), self._gripper_range[:, 0], self._gripper_range[:, 1])
+        for k, value, speed in zip(self._gripper, targets, self.physics.gripper_speed):
+            if int(k) not in self._grip:
+                self._ramp[int(k)] = float(self.data.ctrl[k])
+            self._grip[int(k)] = (float(value), speed)
+            limit = self._force[k, 1] if self._force[k, 1] > 0 else np.inf
+            effort = min(float(max_effort), limit) if max_effort > 0 else limit
+            self.model.actuator_forcelimited[k] = np.isfinite(effort)
+            self.model.actuator_forcerange[k] = (-effort, effort) if np.isfinite(effort) else (0.0, 0.0)
+        self._still = 0.0
+        return float(targets[0])
+
+    def gripper_state(self) -> tuple[float, float, float]:
+        """(position, velocity, effort) of the gripper's first actuated joint, as gripper_action_controller reports
+        its joint."""
+        if not self.gripper:
+            raise PhysicsError('the arm has no gripper (no actuated finger joints)')
+        j = self.model.actuator_trnid[self._gripper[0], 0]
+        dof = self.model.jnt_dofadr[j]
+        return (float(self.data.qpos[self.model.jnt_qposadr[j]]), float(self.data.qvel[dof]),
+                float(self.data.qfrc_actuator[dof]))
+
+    def gripper_outcome(self) -> tuple[bool, bool] | None:
+        """How the last gripper command ended, as gripper_action_controller says it: (reached_goal, stalled), or
+        None while the gripper still moves toward it. Reached: its first joint within GRIP_TOLERANCE of the range
+        from the target; stalled: still for STALL_TIME short of it (an object held between the fingers)."""
+        k = int(self._gripper[0]) if self.gripper else -1
+        if k not in self._grip:
+            return None
+        span = np.diff(self._gripper_range[0])[0]
+        tolerance = GRIP_TOLERANCE * (span if np.isfinite(span) else 1.0)
+        if abs(self.gripper_state()[0] - self._grip[k][0]) <= tolerance and self._ramp[k] == self._grip[k][0]:
+            return True, False
+        return (False, True) if self._still >= STALL_TIME and self._ramp[k] == self._grip[k][0] else None
 
     def object_poses(self) -> dict[str, np.ndarray]:
         """{object: 4x4 pose in the world (the root's frame)}."""
