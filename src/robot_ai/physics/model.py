@@ -411,9 +411,12 @@ def _build(robot: Model, root, urdf_dir: str, world: tuple[Obstacle, ...], loose
         pose = base_pose @ o.pose
         body = spec.worldbody.add_body(name=o.name, pos=pose[:3, 3], quat=_quaternion(pose[:3, :3]))
         body.add_freejoint(name=o.name)
-        kind, size = {'box': (mujoco.mjtGeom.mjGEOM_BOX, np.array(o.size) / 2.0),
-                      'sphere': (mujoco.mjtGeom.mjGEOM_SPHERE, [o.size[0], 0, 0]),
-                      'cylinder': (mujoco.mjtGeom.mjGEOM_CYLINDER, [o.size[0], o.size[1] / 2.0, 0])}[o.kind]
+        if o.kind == 'box':
+            kind, size = mujoco.mjtGeom.mjGEOM_BOX, np.array(o.size) / 2.0                  # half edges
+        elif o.kind == 'sphere':
+            kind, size = mujoco.mjtGeom.mjGEOM_SPHERE, [o.size[0], 0, 0]
+        else:
+            kind, size = mujoco.mjtGeom.mjGEOM_CYLINDER, [o.size[0], o.size[1] / 2.0, 0]    # radius, half length
         body.add_geom(name=o.name, type=kind, size=size, mass=o.mass, friction=[o.friction, 0.005, 0.0001],
                       contype=OBJECT_CONTYPE, conaffinity=OBJECT_CONAFFINITY, solref=[CONTACT_TIME, 1.0],
                       rgba=[0.2, 0.5, 0.8, 1.0])
