@@ -45,8 +45,9 @@ class TestArmPhysics(unittest.TestCase):
 
     def test_a_cube_on_tf_gripped_lifted_and_let_go(self):
         markers = rospy.wait_for_message('/arm_sim/object_markers', MarkerArray, timeout=60)
-        self.assertEqual([(m.header.frame_id, m.type, round(m.scale.x, 6)) for m in markers.markers],
-                         [(CUBE, markers.markers[0].CUBE, EDGE)])
+        self.assertEqual([(m.header.frame_id, m.type, round(m.scale.x, 6), m.text) for m in markers.markers],
+                         [(CUBE, markers.markers[0].CUBE, EDGE, ''),
+                          (CUBE, markers.markers[0].TEXT_VIEW_FACING, 0.0, 'the cube')])
         rest = self.cube()      # on the table, whose top is at 0.225: its centre half an edge above, where it was put
         np.testing.assert_allclose(rest, [0.512, 0.0, 0.225 + EDGE / 2], atol=2e-3)
 

@@ -92,12 +92,20 @@ class PhysicsWorld:
             m = Marker(type={'box': Marker.CUBE, 'sphere': Marker.SPHERE, 'cylinder': Marker.CYLINDER}[o.kind],
                        ns='objects', id=k, action=Marker.ADD, frame_locked=True)
             m.header.frame_id = self.frames[o.name]
-            m.scale.x, m.scale.y, m.scale.z = {'box': o.size, 'sphere': (2 * o.size[0],) * 3,
-                                               'cylinder': (2 * o.size[0], 2 * o.size[0], o.size[1])}[o.kind]
+            if o.kind == 'box':
+                m.scale.x, m.scale.y, m.scale.z = o.size
+            else:                       # a sphere's diameter, or a cylinder's and its length
+                m.scale.x = m.scale.y = 2 * o.size[0]
+                m.scale.z = o.size[1] if o.kind == 'cylinder' else 2 * o.size[0]
             m.pose.orientation.w = 1.0
             m.color.r, m.color.g, m.color.b, m.color.a = OBJECT_COLOUR
-            m.text = o.name
-            markers.markers.append(m)
+            label = Marker(type=Marker.TEXT_VIEW_FACING, ns='object_names', id=k, action=Marker.ADD,
+                           frame_locked=True, text=o.name)
+            label.header.frame_id = m.header.frame_id
+            label.pose.position.z = max(m.scale.z, 0.02) / 2 + 0.03     # above the object
+            label.pose.orientation.w = label.color.r = label.color.g = label.color.b = label.color.a = 1.0
+            label.scale.z = 0.03
+            markers.markers += [m, label]
         return markers
 
     def _on_goal(self, goal) -> None:
