@@ -1,0 +1,63 @@
+"""A scripted expert for Push-v0 and PickAndPlace-v0: what the task asks, written as waypoints, read from the
+observation alone (so that it acts in any world, batched, and a learner can imitate it). No rospy.
+
+    actions = expert_actions(obs['observation'], obs['desired_goal'], task)     # (N, 4) for N observations
+
+Push: the closed fingertips go behind the cube (opposite the goal) above it, down to its middle's height, and push
+it along the line to the goal, stopping when it is there. Pick and place: the open gripper goes over the cube, down
+around it, closes, and carries it to the goal once the fingers hold it (the opening stopped short of closed).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+GAIN = 10.0                 # action per metre of error (saturates at 1 beyond 0.1 m: EE_STEP x 2)
+ABOVE = 0.06                # m: the approach height over the cube
+BEHIND = 0.05               # m: where the push starts, behind the cube's middle
+NEAR = 0.012                # m: near enough to a waypoint to go on
+HELD = 0.04                 # the gripper's opening (0 closed, 1 open) below which it holds the cube
+
+
+def _towards(grip: np.ndarray, target: np.ndarray) -> np.ndarray:
+    return np.clip(GAIN * (target - grip), -1.0, 1.0)
+
+
+def expert_actions(observation, desired_goal, task: str) -> np.ndarray:
+    """(N, 4) actions for observations (N, 23) (or one: (23,) -> (4,)) and their goals (N, 3)."""
+    obs = np.atleast_2d(np.asarray(observation, dtype=float))
+    goal = np.atleast_2d(np.asarray(desired_goal, dtype=float))
+    grip, cube, opening = obs[:, 0:3], obs[:, 3:6], obs[:, 9]
+    actions = np.zeros((len(obs), 4))
+    if task == 'push':
+        line = goal[:, :2] - cube[:, :2]
+        distance = np.linalg.norm(line, axis=1, keepdims=True)
+        direction = np.where(distance > 1e-6, line / np.maximum(distance, 1e-9), 0.0)
+        behind = cube.copy()
+        behind[:, :2] -= direction * BEHIND
+        over = behind.copy()
+        over[:, 2] += ABOVE
+        # behind the cube (in the plane) and low enough: push; otherwise come over the point behind it, then down
+        offset = grip[:, :2] - cube[:, :2]
+        along = np.sum(offset * direction, axis=1)
+        across = np.abs(offset[:, 0] * direction[:, 1] - offset[:, 1] * direction[:, 0])
+        placed = (along < -0.02) & (across < 0.015)
+        low = grip[:, 2] < cube[:, 2] + 0.01
+        push = goal.copy()
+        push[:, :2] -= direction * (BEHIND - 0.025)       # the fingertips' side, not their middle, at the goal
+        push[:, 2] = cube[:, 2]
+        target = np.where((placed & low)[:, None], push,
+                          np.where(placed[:, None] | (np.linalg.norm(grip - over, axis=1) < NEAR)[:, None],
+                                   behind, over))
+        actions[:, :3] = _towards(grip, target)
+        actions[:, 3] = -1.0
+    else:
+        over = cube.copy()
+        over[:, 2] += ABOVE
+        horizontal = np.linalg.norm(grip[:, :2] - cube[:, :2], axis=1)
+        held = (opening < HELD + 0.5) & (np.linalg.norm(grip - cube, axis=1) < 0.02) & (opening > 0.0)
+        around = (horizontal < 0.01) & (np.abs(grip[:, 2] - cube[:, 2]) < 0.01)
+        target = np.where(held[:, None], goal, np.where((horizontal < 0.01)[:, None], cube, over))
+        actions[:, :3] = _towards(grip, target)
+        actions[:, 3] = np.where(held | around, -1.0, 1.0)
+        actions[~held & around, :3] = 0.0                  # closing: the arm waits
+    return actions[0] if np.ndim(observation) == 1 else actions

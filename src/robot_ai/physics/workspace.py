@@ -1,0 +1,154 @@
+"""Where a manipulation task is laid out for any arm with a gripper: the grip point (between the fingertips), the
+ready configuration (the gripper pointing down over the table, in front of the arm) and the table, worked out from
+the robot itself, so that an arm the package has never seen gets a task without numbers written for it. No rospy.
+
+    space = workspace(arm, physics)          # arm: reach.arm.Arm; physics: physics.model.Physics (its gripper)
+    space.ready, space.rotation, space.grip_offset, space.centre, space.table_top
+
+- The grip point: the fingers' collision geometry (every link below a gripper joint), seen from the tip at home; it
+  lies along the approach axis (from the tip toward the fingers' middle), halfway between their middle and their far
+  end, where the pads of a parallel gripper are.
+- The ready configuration: the grip point READY_REACH of the arm's length in front of its shoulder (the first joint
+  of the chain whose axis is level), at the shoulder's height, the approach axis straight down; found by damped
+  least squares from the middle of every range (Arm.move_t on the grip point's 6-row Jacobian).
+- The table: its top READY_HEIGHT below the ready grip point, under the whole workspace, clear of the arm's base.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from robot_ai.physics.model import Physics, PhysicsError
+from robot_ai.reach.arm import Arm
+
+READY_REACH = 0.55          # the ready grip point's distance in front of the shoulder, a share of the arm's length
+READY_HEIGHT = 0.2          # m: the ready grip point above the table (panda-gym's and Fetch's gripper start so)
+READY_ITERATIONS = 400      # damped least squares steps to the ready configuration
+READY_TOLERANCE = (0.005, 0.02)     # m and rad: how near the ready pose must come
+DOWN = np.array([0.0, 0.0, -1.0])
+
+
+@dataclasses.dataclass(frozen=True)
+class Workspace:
+    """ready (the arm's joints, Arm.joints order, at each episode's start), rotation (3x3: the tip's orientation
+    there, held through the task), grip_offset (the grip point in the tip's frame), approach and closing (the
+    approach axis and the fingers' closing axis in the tip's frame), beyond (how far the fingertips reach past the
+    grip point, m), centre (the ready grip point in the base frame), table_top (z of the table's top)."""
+    ready: np.ndarray
+    rotation: np.ndarray
+    grip_offset: np.ndarray
+    approach: np.ndarray
+    closing: np.ndarray
+    beyond: float
+    centre: np.ndarray
+    table_top: float
+
+
+def finger_links(tree, joints) -> list[str]:
+    """Every link below the joints (a gripper's fingers and what they carry)."""
+    below: dict[str, list[str]] = {}
+    for j in tree.joints.values():
+        below.setdefault(j.parent, []).append(j.child)
+    out, todo = [], [tree.joints[n].child for n in joints]
+    while todo:
+        link = todo.pop()
+        if link not in out:
+            out.append(link)
+            todo.extend(below.get(link, []))
+    return out
+
+
+def grip_geometry(arm: Arm, physics: Physics) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """(the grip point, the approach axis, the closing axis) in the tip's frame, and how far the fingertips reach
+    beyond the grip point along the approach (m), from the fingers' geometry at home (see the module's text); the
+    closing axis runs from the middle toward the first gripper joint's finger, square to the approach. PhysicsError
+    for an arm without a gripper or fingers without geometry."""
+    import mujoco
+    tree = arm.tree
+    if not physics.gripper:
+        raise PhysicsError(f'{tree.name}: the arm has no gripper (no actuated finger joints): a manipulation task '
+                           f'needs one')
+    fingers = [n for n in tree.finger_joints() if n in tree.joints]
+    model, data = physics.model, physics.data()
+    corners, first = [], set(finger_links(tree, [physics.gripper[0]]))
+    for link in finger_links(tree, fingers):
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, link)
+        for g in range(model.ngeom) if body >= 0 else ():
+            if model.geom_bodyid[g] != body:
+                continue
+            centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
+            signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+            local = centre + signs * half
+            corners.append((link in first, data.geom_xpos[g] + local @ data.geom_xmat[g].reshape(3, 3).T))
+    if not corners:
+        raise PhysicsError(f'{tree.name}: the fingers ({", ".join(sorted(fingers))}) have no geometry to grip with')
+    tip = data.xpos[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, arm.tip)]
+    tip_rotation = data.xmat[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, arm.tip)].reshape(3, 3)
+    points = (np.concatenate([c for _, c in corners]) - tip) @ tip_rotation        # in the tip's frame
+    finger = (np.concatenate([c for mine, c in corners if mine]) - tip) @ tip_rotation
+    middle = points.mean(axis=0)
+    if np.linalg.norm(middle) < 1e-6:
+        raise PhysicsError(f'{tree.name}: the fingers lie around the tip {arm.tip!r}: give a tip above the hand')
+    approach = middle / np.linalg.norm(middle)
+    far = float((points @ approach).max())
+    closing = finger.mean(axis=0) - middle
+    closing -= approach * (closing @ approach)
+    if np.linalg.norm(closing) < 1e-6:          # one finger, or fingers around the axis: any axis square to it
+        closing = np.cross(approach, [1.0, 0.0, 0.0] if abs(approach[0]) < 0.9 else [0.0, 1.0, 0.0])
+    grip = (float(middle @ approach) + far) / 2.0
+    return approach * grip, approach, closing / np.linalg.norm(closing), far - grip
+
+
+def _shoulder(arm: Arm, q: np.ndarray) -> np.ndarray:
+    """The origin of the chain's first joint whose axis is level at q (the base's origin if none)."""
+    _, axes, origins = arm.forward(q[:, None])
+    for axis, origin in zip(axes, origins):
+        a = np.asarray(axis).reshape(3, -1)[:, 0]
+        if abs(a[2]) < 0.5:
+            return np.asarray(origin).reshape(3, -1)[:, 0]
+    return np.zeros(3)
+
+
+def ready_pose(arm: Arm, offset: np.ndarray, approach: np.ndarray, closing: np.ndarray, target: np.ndarray,
+               start: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
+    """(joint positions, position error m, angle error rad): the grip point at target, the approach axis down and
+    the closing axis along the base's y (the way nearer at start), by damped least squares from start (the middle
+    of every range)."""
+    q = (arm.home if start is None else np.asarray(start, dtype=float)).copy()[:, None]
+    side = np.array([0.0, 1.0 if (arm.pose_t(q)[1][:, :, 0] @ closing)[1] >= 0 else -1.0, 0.0])
+    for _ in range(READY_ITERATIONS):
+        tip, rotation, axes, origins = arm.pose_t(q)
+        r = rotation[:, :, 0]
+        grip = tip[:, 0] + r @ offset
+        pointing = r @ approach
+        error = target - grip
+        turn = np.cross(pointing, DOWN) + np.cross(r @ closing, side)   # the turn to the ready orientation
+        if np.linalg.norm(error) < READY_TOLERANCE[0] / 10 and np.linalg.norm(turn) < READY_TOLERANCE[1] / 10:
+            break
+        jac = arm.jacobian6_t(grip[:, None], axes, origins, angular_weight=0.2)
+        dx = np.concatenate([np.clip(error, -0.05, 0.05), 0.2 * np.clip(turn, -0.2, 0.2)])[:, None]
+        q = arm.move_t(q, jac, dx, damping=0.05)
+    tip, rotation, _, _ = arm.pose_t(q)
+    r = rotation[:, :, 0]
+    grip = tip[:, 0] + r @ offset
+    angle = max(float(np.arccos(np.clip((r @ approach) @ DOWN, -1.0, 1.0))),
+                float(np.arccos(np.clip((r @ closing) @ side, -1.0, 1.0))))
+    return q[:, 0].copy(), float(np.linalg.norm(target - grip)), angle
+
+
+def workspace(arm: Arm, physics: Physics, reach: float = READY_REACH, height: float = READY_HEIGHT) -> Workspace:
+    """The task's layout for arm (see the module's text); PhysicsError of one line where the arm cannot point its
+    gripper down in front of itself."""
+    offset, approach, closing, beyond = grip_geometry(arm, physics)
+    shoulder = _shoulder(arm, arm.home)
+    forward = np.array([1.0, 0.0, 0.0])
+    target = shoulder + forward * reach * arm.length
+    target[2] = shoulder[2]
+    q, miss, angle = ready_pose(arm, offset, approach, closing, target)
+    if miss > READY_TOLERANCE[0] or angle > READY_TOLERANCE[1]:
+        raise PhysicsError(f'{arm.tree.name}: no configuration points the gripper down {reach * arm.length:.2f} m '
+                           f'in front of the shoulder (closest: {miss:.3f} m and {angle:.2f} rad off)')
+    tip, rotation, _, _ = arm.pose_t(q[:, None])
+    return Workspace(ready=q, rotation=rotation[:, :, 0].copy(), grip_offset=offset, approach=approach,
+                     closing=closing, beyond=beyond, centre=target, table_top=float(target[2] - height))

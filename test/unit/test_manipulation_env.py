@@ -1,0 +1,122 @@
+"""robot_ai/Push-v0 and robot_ai/PickAndPlace-v0 (physics.env) on the Panda with its hand and its real meshes:
+gymnasium's env checker, the vector env against SyncVectorEnv bit for bit, HER's vectorised compute_reward, the
+layout worked out from the robot (physics.workspace), both tasks solved by the scripted expert, and bad input in one
+line. No roscore."""
+from __future__ import annotations
+
+import os
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.error import ResetNeeded
+from gymnasium.utils.env_checker import check_env
+
+import robot_ai.physics  # noqa: F401 (registers the envs)
+from robot_ai.physics import PhysicsError
+from robot_ai.physics.env import ManipulationSetup
+from robot_ai.physics.expert import expert_actions
+from robot_ai.reach.arm import ReachError
+
+from exact_meshes import MESHES, ROBOTS
+
+PANDA = os.path.join(ROBOTS, 'panda.urdf')
+IDS = {'push': 'robot_ai/Push-v0', 'pick_and_place': 'robot_ai/PickAndPlace-v0'}
+
+
+@pytest.fixture(autouse=True)
+def meshes(monkeypatch):
+    monkeypatch.setenv('ROS_PACKAGE_PATH', os.pathsep.join((MESHES, os.environ.get('ROS_PACKAGE_PATH', ''))))
+
+
+@pytest.mark.parametrize('task', sorted(IDS))
+def test_the_env_checker_passes_and_the_vector_env_equals_sync_vector_env(task):
+    env = gymnasium.make(IDS[task], model=PANDA)
+    check_env(env.unwrapped, skip_render_check=True)
+    vec = gymnasium.make_vec(IDS[task], num_envs=3, model=PANDA)
+    assert type(vec.unwrapped).__name__ == 'ManipulationVectorEnv'
+    sync = gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make(IDS[task], model=PANDA)] * 3)
+    o1, i1 = vec.reset(seed=7)
+    o2, i2 = sync.reset(seed=7)
+    rng = np.random.default_rng(0)
+    for t in range(105):                 # past two 50-step limits: the autoresets too
+        a = rng.uniform(-1.2, 1.2, (3, 4)).astype(np.float32)
+        if t % 3 == 0:                   # the expert now and then: the cube moves, is gripped, succeeds
+            a = expert_actions(o1['observation'], o1['desired_goal'], task).astype(np.float32)
+        (o1, r1, te1, tr1, i1), (o2, r2, _, tr2, i2) = vec.step(a), sync.step(a)
+        for key in o1:
+            np.testing.assert_array_equal(o1[key], o2[key], err_msg=f'{key} at step {t}')
+        np.testing.assert_array_equal(r1, r2)
+        np.testing.assert_array_equal(tr1, tr2)
+        np.testing.assert_array_equal(i1['is_success'], i2['is_success'])
+    assert tr1.dtype == bool and not te1.any()
+
+
+def test_compute_reward_is_vectorised_as_her_relabels_goals():
+    env = gymnasium.make('robot_ai/Push-v0', model=PANDA).unwrapped
+    obs, info = env.reset(seed=1)
+    achieved = np.array([[0.5, 0.0, 0.2], [0.5, 0.0, 0.2], [0.5, 0.0, 0.2]])
+    desired = np.array([[0.5, 0.0, 0.2], [0.5, 0.049, 0.2], [0.5, 0.06, 0.2]])
+    np.testing.assert_array_equal(env.compute_reward(achieved, desired, [{}] * 3), [0.0, 0.0, -1.0])
+    assert env.compute_reward(achieved[None], desired[None], None).shape == (1, 3)
+    obs, reward, _, _, info = env.step(env.action_space.sample())
+    assert reward == env.compute_reward(obs['achieved_goal'], obs['desired_goal'], info)
+    assert info['is_success'] == (reward == 0.0)
+    dense = gymnasium.make('robot_ai/Push-v0', model=PANDA, reward_type='dense').unwrapped
+    np.testing.assert_allclose(dense.compute_reward(achieved, desired, None), [0.0, -0.049, -0.06])
+
+
+def test_the_layout_is_worked_out_from_the_panda_as_panda_gym_writes_it():
+    """The grip point 0.100 m below the hand (panda-gym's grasp target: 0.1034), the ready configuration pointing the
+    hand down with the fingers closing along y (panda-gym's neutral pose turns the seventh joint by pi/4), the table
+    0.2 m under the grip point; at reset the cube rests on the table and the gripper is open."""
+    env = gymnasium.make('robot_ai/PickAndPlace-v0', model=PANDA).unwrapped
+    space = env.setup.space
+    assert space.grip_offset[2] == pytest.approx(0.1034, abs=0.005) and space.approach[2] == pytest.approx(1.0)
+    np.testing.assert_allclose(space.rotation @ space.approach, [0, 0, -1], atol=0.02)
+    assert abs((space.rotation @ space.closing)[1]) > 0.999
+    assert space.ready[-1] == pytest.approx(np.pi / 4, abs=0.02)
+    obs, _ = env.reset(seed=0)
+    o = obs['observation']
+    np.testing.assert_allclose(o[:3], space.centre, atol=1e-3)
+    assert o[5] == pytest.approx(space.table_top + 0.02, abs=1e-6) and o[9] == pytest.approx(1.0)
+    for _ in range(5):
+        obs, *_ = env.step(np.zeros(4))
+    assert obs['observation'][5] == pytest.approx(space.table_top + 0.02, abs=1e-3)   # at rest on the table
+
+
+@pytest.mark.parametrize('task, least', [('pick_and_place', 9), ('push', 7)])
+def test_the_scripted_expert_solves_the_task(task, least):
+    """The expert from the observation alone: over, down, grip, carry (10 of 10 measured); behind, down, push (17 of
+    20 measured): the tasks are solvable in 50 steps by this arm's physics and the gripper holds the cube."""
+    env = gymnasium.make(IDS[task], model=PANDA)
+    solved = 0
+    for seed in range(10):
+        obs, _ = env.reset(seed=seed)
+        for _ in range(50):
+            obs, reward, terminated, truncated, info = env.step(
+                expert_actions(obs['observation'], obs['desired_goal'], task))
+        assert truncated
+        solved += info['is_success']
+    assert solved >= least
+
+
+def test_push_holds_the_gripper_closed_and_bad_input_is_one_line():
+    env = gymnasium.make('robot_ai/Push-v0', model=PANDA)
+    with pytest.raises(ResetNeeded):
+        env.step(np.zeros(4))
+    obs, _ = env.reset(seed=0)
+    assert obs['observation'][9] == pytest.approx(0.0)
+    for _ in range(5):
+        obs, *_ = env.step(np.array([0, 0, 0, 1.0]))            # "open": Push-v0 keeps it closed
+    assert obs['observation'][9] < 0.01
+    for bad in ([0, 0, float('nan'), 0], [0, 0, 0]):
+        with pytest.raises(ValueError, match='an action is 4 finite numbers') as e:
+            env.step(np.array(bad))
+        assert '\n' not in str(e.value)
+    with pytest.raises(ReachError, match='give model= an arm with a gripper'):
+        ManipulationSetup('push')
+    with pytest.raises(PhysicsError, match='the arm has no gripper'):
+        ManipulationSetup('push', model=os.path.join(ROBOTS, 'ur5.urdf'))
+    with pytest.raises(ValueError, match="task must be one of"):
+        ManipulationSetup('lift', model=PANDA)
