@@ -111,7 +111,8 @@ class ManipulationSetup:
         self.arm_actuators = np.array([physics.actuated.index(n) for n in self.arm.joints])
         self.grip_actuators = np.array([physics.actuated.index(n) for n in physics.gripper])
         ranges = model.actuator_ctrlrange[self.grip_actuators]
-        self.grip_low, self.grip_high = ranges[:, 0].copy(), ranges[:, 1].copy()
+        low, high = ranges[:, 0].copy(), ranges[:, 1].copy()
+        self.grip_closed, self.grip_open = (low, high) if self.space.grip.open_high else (high, low)
         self.grip_speed = np.array(physics.gripper_speed)
         first = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, physics.gripper[0])
         self.finger_q, self.finger_v = int(model.jnt_qposadr[first]), int(model.jnt_dofadr[first])
@@ -124,7 +125,7 @@ class ManipulationSetup:
                        for k in range(model.neq) if model.eq_type[k] == mujoco.mjtEq.mjEQ_JOINT]
         centre, top = self.space.centre, self.space.table_top
         reach = max(self.obj_range, self.goal_range) / 2 + 0.1
-        self.low = np.array([centre[0] - reach, centre[1] - reach, top + TABLE_MARGIN + self.space.beyond])
+        self.low = np.array([centre[0] - reach, centre[1] - reach, top + TABLE_MARGIN + self.space.grip.beyond])
         self.high = np.array([centre[0] + reach, centre[1] + reach, top + self.goal_height + 0.2])
 
     # --------------------------------------------------------------------------------------------- the task
@@ -155,7 +156,7 @@ class ManipulationSetup:
         data.qvel[:] = 0.0
         data.qpos[self.q_address] = self.space.ready
         data.ctrl[self.arm_actuators] = self.space.ready
-        opening = self.grip_low if self.task == 'push' else self.grip_high
+        opening = self.grip_closed if self.task == 'push' else self.grip_open
         data.ctrl[self.grip_actuators] = opening
         data.qpos[self.finger_q] = opening[0]
         for follower, source, offset, multiplier in self.mimics:
@@ -168,7 +169,7 @@ class ManipulationSetup:
     def grip_points(self, q_t: np.ndarray) -> tuple[np.ndarray, np.ndarray, list, list]:
         """(grip points (3, N), rotations (3, 3, N), axes, origins) of joint positions q_t (n, N)."""
         tip, rotation, axes, origins = self.arm.pose_t(q_t)
-        offset = self.space.grip_offset
+        offset = self.space.grip.offset
         grip = tip + rotation[:, 0] * offset[0] + rotation[:, 1] * offset[1] + rotation[:, 2] * offset[2]
         return grip, rotation, axes, origins
 
@@ -199,9 +200,9 @@ class ManipulationSetup:
         q_t = np.stack([d.qpos[self.q_address] for d in datas], axis=1)
         joints = self.joint_targets(q_t, np.ascontiguousarray(targets.T))
         if self.task == 'push':
-            openings = np.broadcast_to(self.grip_low, (len(datas), len(self.grip_low)))
+            openings = np.broadcast_to(self.grip_closed, (len(datas), len(self.grip_closed)))
         else:
-            openings = self.grip_low + (actions[:, 3:4] + 1.0) / 2.0 * (self.grip_high - self.grip_low)
+            openings = self.grip_closed + (actions[:, 3:4] + 1.0) / 2.0 * (self.grip_open - self.grip_closed)
         reach = self.grip_speed * self.step_time
         for i, data in enumerate(datas):
             data.ctrl[self.arm_actuators] = joints[:, i]
@@ -212,14 +213,14 @@ class ManipulationSetup:
     def observe(self, data, last_grip: np.ndarray, last_finger: float) -> tuple[np.ndarray, np.ndarray]:
         """(observation (23,), grip point) of data; last_grip, last_finger: the step before's, for velocities."""
         r = data.xmat[self.tip_body].reshape(3, 3)
-        grip = data.xpos[self.tip_body] + r @ self.space.grip_offset
+        grip = data.xpos[self.tip_body] + r @ self.space.grip.offset
         cube = data.xpos[self.object_body].copy()
         m = data.xmat[self.object_body].reshape(3, 3)
         rpy = [math.atan2(m[2, 1], m[2, 2]), math.asin(-max(-1.0, min(1.0, m[2, 0]))), math.atan2(m[1, 0], m[0, 0])]
-        span = self.grip_high[0] - self.grip_low[0]
+        span = self.grip_open[0] - self.grip_closed[0]
         finger = data.qpos[self.finger_q]
         velocity = data.qvel[self.object_v:self.object_v + 6]
-        observation = np.concatenate([grip, cube, cube - grip, [(finger - self.grip_low[0]) / span], rpy,
+        observation = np.concatenate([grip, cube, cube - grip, [(finger - self.grip_closed[0]) / span], rpy,
                                       velocity[:3], velocity[3:], (grip - last_grip) / self.step_time,
                                       [(finger - last_finger) / span / self.step_time]])
         return observation, grip

@@ -15,7 +15,7 @@ GAIN = 10.0                 # action per metre of error (saturates at 1 beyond 0
 ABOVE = 0.06                # m: the approach height over the cube
 BEHIND = 0.05               # m: where the push starts, behind the cube's middle
 NEAR = 0.012                # m: near enough to a waypoint to go on
-HELD = 0.04                 # the gripper's opening (0 closed, 1 open) below which it holds the cube
+HELD = 0.04                 # the gripper's opening (0 closed, 1 open) above which its stopped fingers hold the cube
 
 
 def _towards(grip: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -28,6 +28,8 @@ def expert_actions(observation, desired_goal, task: str) -> np.ndarray:
     goal = np.atleast_2d(np.asarray(desired_goal, dtype=float))
     grip, cube, opening = obs[:, 0:3], obs[:, 3:6], obs[:, 9]
     actions = np.zeros((len(obs), 4))
+    stopped = obs[:, 21] > -0.02      # the grip point no longer going down (the fingertips on the table, or as low as
+                                      # the workspace lets them: a gripper whose pads are short of its tips)
     if task == 'push':
         line = goal[:, :2] - cube[:, :2]
         distance = np.linalg.norm(line, axis=1, keepdims=True)
@@ -41,10 +43,10 @@ def expert_actions(observation, desired_goal, task: str) -> np.ndarray:
         along = np.sum(offset * direction, axis=1)
         across = np.abs(offset[:, 0] * direction[:, 1] - offset[:, 1] * direction[:, 0])
         placed = (along < -0.02) & (across < 0.015)
-        low = grip[:, 2] < cube[:, 2] + 0.01
+        low = (grip[:, 2] < cube[:, 2] + 0.01) | ((grip[:, 2] < cube[:, 2] + 0.03) & stopped)
         push = goal.copy()
         push[:, :2] -= direction * (BEHIND - 0.025)       # the fingertips' side, not their middle, at the goal
-        push[:, 2] = cube[:, 2]
+        push[:, 2] = cube[:, 2]              # (or as low as the workspace lets it)
         target = np.where((placed & low)[:, None], push,
                           np.where(placed[:, None] | (np.linalg.norm(grip - over, axis=1) < NEAR)[:, None],
                                    behind, over))
@@ -54,8 +56,11 @@ def expert_actions(observation, desired_goal, task: str) -> np.ndarray:
         over = cube.copy()
         over[:, 2] += ABOVE
         horizontal = np.linalg.norm(grip[:, :2] - cube[:, :2], axis=1)
-        held = (opening < HELD + 0.5) & (np.linalg.norm(grip - cube, axis=1) < 0.02) & (opening > 0.0)
-        around = (horizontal < 0.01) & (np.abs(grip[:, 2] - cube[:, 2]) < 0.01)
+        still = np.abs(obs[:, 22]) < 0.5          # the fingers stopped: on the cube, or closed on nothing
+        held = (horizontal < 0.02) & (np.abs(grip[:, 2] - cube[:, 2]) < 0.06) & (opening > HELD) & \
+            (opening < 0.9) & still
+        above = grip[:, 2] - cube[:, 2]
+        around = (horizontal < 0.01) & ((np.abs(above) < 0.01) | ((above < 0.03) & stopped))
         target = np.where(held[:, None], goal, np.where((horizontal < 0.01)[:, None], cube, over))
         actions[:, :3] = _towards(grip, target)
         actions[:, 3] = np.where(held | around, -1.0, 1.0)

@@ -397,7 +397,8 @@ def _build(robot: Model, root, urdf_dir: str, world: tuple[Obstacle, ...], loose
     for name in tree.mimic_joints:        # position = offset + multiplier x the source's
         source, multiplier, offset = tree.joints[name].mimic
         spec.add_equality(type=mujoco.mjtEq.mjEQ_JOINT, name1=name, name2=source,
-                          data=[offset, multiplier, 0.0, 0.0, 0.0] + [0.0] * 7)
+                          data=[offset, multiplier, 0.0, 0.0, 0.0] + [0.0] * 7,
+                          solref=[CONTACT_TIME, 1.0])    # as stiff as the contacts: a squeezed linkage holds
     base_pose = tree.link_poses(start).get(base, np.identity(4))
     for o in world:
         pose = base_pose @ o.pose

@@ -32,15 +32,11 @@ DOWN = np.array([0.0, 0.0, -1.0])
 @dataclasses.dataclass(frozen=True)
 class Workspace:
     """ready (the arm's joints, Arm.joints order, at each episode's start), rotation (3x3: the tip's orientation
-    there, held through the task), grip_offset (the grip point in the tip's frame), approach and closing (the
-    approach axis and the fingers' closing axis in the tip's frame), beyond (how far the fingertips reach past the
-    grip point, m), centre (the ready grip point in the base frame), table_top (z of the table's top)."""
+    there, held through the task), grip (the gripper seen from the tip), centre (the ready grip point in the base
+    frame), table_top (z of the table's top)."""
     ready: np.ndarray
     rotation: np.ndarray
-    grip_offset: np.ndarray
-    approach: np.ndarray
-    closing: np.ndarray
-    beyond: float
+    grip: Grip
     centre: np.ndarray
     table_top: float
 
@@ -59,45 +55,76 @@ def finger_links(tree, joints) -> list[str]:
     return out
 
 
-def grip_geometry(arm: Arm, physics: Physics) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """(the grip point, the approach axis, the closing axis) in the tip's frame, and how far the fingertips reach
-    beyond the grip point along the approach (m), from the fingers' geometry at home (see the module's text); the
-    closing axis runs from the middle toward the first gripper joint's finger, square to the approach. PhysicsError
-    for an arm without a gripper or fingers without geometry."""
+@dataclasses.dataclass(frozen=True)
+class Grip:
+    """A gripper seen from the tip: offset (the grip point), approach and closing (axes), beyond (how far the
+    fingertips reach past the grip point along the approach, m), open_high (whether the first gripper joint opens
+    toward its upper limit: the Panda's slide does, a Robotiq's knuckle closes that way)."""
+    offset: np.ndarray
+    approach: np.ndarray
+    closing: np.ndarray
+    beyond: float
+    open_high: bool
+
+
+def _finger_points(arm: Arm, physics: Physics, data, links: list[str]) -> list[np.ndarray]:
+    """The corners of the links' collision geometry's boxes, in the tip's frame, one array per link with any."""
+    import mujoco
+    model = physics.model
+    tip = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, arm.tip)
+    signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+    out = []
+    for link in links:
+        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, link)
+        geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body] if body >= 0 else []
+        for g in geoms:
+            local = model.geom_aabb[g, :3] + signs * model.geom_aabb[g, 3:]
+            world = data.geom_xpos[g] + local @ data.geom_xmat[g].reshape(3, 3).T
+            out.append((world - data.xpos[tip]) @ data.xmat[tip].reshape(3, 3))
+    return out
+
+
+def grip_geometry(arm: Arm, physics: Physics) -> Grip:
+    """The gripper from its fingers' geometry (see the module's text): the grip point and the approach at home (the
+    middle of the gripper's range); the closing axis from the middle toward the first gripper joint's finger, square
+    to the approach; which way it opens, from that finger's distance to the approach axis at either end of its
+    range. PhysicsError for an arm without a gripper or fingers without geometry."""
     import mujoco
     tree = arm.tree
     if not physics.gripper:
         raise PhysicsError(f'{tree.name}: the arm has no gripper (no actuated finger joints): a manipulation task '
                            f'needs one')
-    fingers = [n for n in tree.finger_joints() if n in tree.joints]
+    fingers = finger_links(tree, [n for n in tree.finger_joints() if n in tree.joints])
+    first = finger_links(tree, [physics.gripper[0]])
     model, data = physics.model, physics.data()
-    corners, first = [], set(finger_links(tree, [physics.gripper[0]]))
-    for link in finger_links(tree, fingers):
-        body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, link)
-        for g in range(model.ngeom) if body >= 0 else ():
-            if model.geom_bodyid[g] != body:
-                continue
-            centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
-            signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
-            local = centre + signs * half
-            corners.append((link in first, data.geom_xpos[g] + local @ data.geom_xmat[g].reshape(3, 3).T))
+    corners = _finger_points(arm, physics, data, fingers)
     if not corners:
-        raise PhysicsError(f'{tree.name}: the fingers ({", ".join(sorted(fingers))}) have no geometry to grip with')
-    tip = data.xpos[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, arm.tip)]
-    tip_rotation = data.xmat[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, arm.tip)].reshape(3, 3)
-    points = (np.concatenate([c for _, c in corners]) - tip) @ tip_rotation        # in the tip's frame
-    finger = (np.concatenate([c for mine, c in corners if mine]) - tip) @ tip_rotation
+        raise PhysicsError(f'{tree.name}: the fingers ({", ".join(sorted(tree.finger_joints()))}) have no geometry '
+                           f'to grip with')
+    points = np.concatenate(corners)
     middle = points.mean(axis=0)
     if np.linalg.norm(middle) < 1e-6:
         raise PhysicsError(f'{tree.name}: the fingers lie around the tip {arm.tip!r}: give a tip above the hand')
     approach = middle / np.linalg.norm(middle)
     far = float((points @ approach).max())
-    closing = finger.mean(axis=0) - middle
+    closing = np.concatenate(_finger_points(arm, physics, data, first) or [middle[None]]).mean(axis=0) - middle
     closing -= approach * (closing @ approach)
     if np.linalg.norm(closing) < 1e-6:          # one finger, or fingers around the axis: any axis square to it
         closing = np.cross(approach, [1.0, 0.0, 0.0] if abs(approach[0]) < 0.9 else [0.0, 1.0, 0.0])
+    closing /= np.linalg.norm(closing)
+    gaps = []
+    k = physics.actuated.index(physics.gripper[0])
+    for end in model.actuator_ctrlrange[k] if model.actuator_ctrllimited[k] else (-0.01, 0.01):
+        data.qpos[physics.qpos_address(physics.gripper[0])] = end
+        for e in range(model.neq):            # the mimic joints with it
+            if model.eq_type[e] == mujoco.mjtEq.mjEQ_JOINT:
+                data.qpos[model.jnt_qposadr[model.eq_obj1id[e]]] = \
+                    model.eq_data[e, 0] + model.eq_data[e, 1] * data.qpos[model.jnt_qposadr[model.eq_obj2id[e]]]
+        mujoco.mj_kinematics(model, data)
+        finger = np.concatenate(_finger_points(arm, physics, data, first) or [middle[None]]).mean(axis=0)
+        gaps.append(float(np.linalg.norm(finger - approach * (finger @ approach))))
     grip = (float(middle @ approach) + far) / 2.0
-    return approach * grip, approach, closing / np.linalg.norm(closing), far - grip
+    return Grip(approach * grip, approach, closing, far - grip, gaps[1] >= gaps[0])
 
 
 def _shoulder(arm: Arm, q: np.ndarray) -> np.ndarray:
@@ -140,15 +167,15 @@ def ready_pose(arm: Arm, offset: np.ndarray, approach: np.ndarray, closing: np.n
 def workspace(arm: Arm, physics: Physics, reach: float = READY_REACH, height: float = READY_HEIGHT) -> Workspace:
     """The task's layout for arm (see the module's text); PhysicsError of one line where the arm cannot point its
     gripper down in front of itself."""
-    offset, approach, closing, beyond = grip_geometry(arm, physics)
+    grip = grip_geometry(arm, physics)
     shoulder = _shoulder(arm, arm.home)
     forward = np.array([1.0, 0.0, 0.0])
     target = shoulder + forward * reach * arm.length
     target[2] = shoulder[2]
-    q, miss, angle = ready_pose(arm, offset, approach, closing, target)
+    q, miss, angle = ready_pose(arm, grip.offset, grip.approach, grip.closing, target)
     if miss > READY_TOLERANCE[0] or angle > READY_TOLERANCE[1]:
         raise PhysicsError(f'{arm.tree.name}: no configuration points the gripper down {reach * arm.length:.2f} m '
                            f'in front of the shoulder (closest: {miss:.3f} m and {angle:.2f} rad off)')
     tip, rotation, _, _ = arm.pose_t(q[:, None])
-    return Workspace(ready=q, rotation=rotation[:, :, 0].copy(), grip_offset=offset, approach=approach,
-                     closing=closing, beyond=beyond, centre=target, table_top=float(target[2] - height))
+    return Workspace(ready=q, rotation=rotation[:, :, 0].copy(), grip=grip, centre=target,
+                     table_top=float(target[2] - height))
