@@ -127,6 +127,13 @@ class ManipulationSetup:
         reach = max(self.obj_range, self.goal_range) / 2 + 0.1
         self.low = np.array([centre[0] - reach, centre[1] - reach, top + TABLE_MARGIN + self.space.grip.beyond])
         self.high = np.array([centre[0] + reach, centre[1] + reach, top + self.goal_height + 0.2])
+        half = self.object_size / 2             # where a push starts behind the cube: the hand clear of it
+        self.behind = half + self.space.grip.radius(half + 0.01) + 0.015
+
+    def expert(self, observation, desired_goal) -> np.ndarray:
+        """The scripted expert's actions (physics.expert) for this arm: its push start and lowest grip point."""
+        from robot_ai.physics.expert import expert_actions
+        return expert_actions(observation, desired_goal, self.task, behind=self.behind, lowest=self.low[2])
 
     # --------------------------------------------------------------------------------------------- the task
     def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:

@@ -15,6 +15,7 @@ GAIN = 10.0                 # action per metre of error (saturates at 1 beyond 0
 ABOVE = 0.06                # m: the approach height over the cube
 BEHIND = 0.05               # m: where the push starts, behind the cube's middle
 NEAR = 0.012                # m: near enough to a waypoint to go on
+THERE = 0.015               # m: a pushed cube this near its goal is left alone
 HELD = 0.04                 # the gripper's opening (0 closed, 1 open) above which its stopped fingers hold the cube
 
 
@@ -22,46 +23,52 @@ def _towards(grip: np.ndarray, target: np.ndarray) -> np.ndarray:
     return np.clip(GAIN * (target - grip), -1.0, 1.0)
 
 
-def expert_actions(observation, desired_goal, task: str) -> np.ndarray:
-    """(N, 4) actions for observations (N, 23) (or one: (23,) -> (4,)) and their goals (N, 3)."""
+def expert_actions(observation, desired_goal, task: str, behind: float = BEHIND,
+                   lowest: float = -np.inf) -> np.ndarray:
+    """(N, 4) actions for observations (N, 23) (or one: (23,) -> (4,)) and their goals (N, 3). behind: where a push
+    starts, behind the cube's middle; lowest: the grip point's lowest target (ManipulationSetup.expert passes the
+    arm's own: its hand clear of the cube, its fingertips above the table)."""
     obs = np.atleast_2d(np.asarray(observation, dtype=float))
     goal = np.atleast_2d(np.asarray(desired_goal, dtype=float))
     grip, cube, opening = obs[:, 0:3], obs[:, 3:6], obs[:, 9]
     actions = np.zeros((len(obs), 4))
-    stopped = obs[:, 21] > -0.02      # the grip point no longer going down (the fingertips on the table, or as low as
-                                      # the workspace lets them: a gripper whose pads are short of its tips)
+    level = np.maximum(cube[:, 2], lowest)          # the height to push or grasp at: the cube's middle, if it can
+    low = grip[:, 2] < level + NEAR
     if task == 'push':
         line = goal[:, :2] - cube[:, :2]
         distance = np.linalg.norm(line, axis=1, keepdims=True)
         direction = np.where(distance > 1e-6, line / np.maximum(distance, 1e-9), 0.0)
-        behind = cube.copy()
-        behind[:, :2] -= direction * BEHIND
-        over = behind.copy()
+        start = cube.copy()
+        start[:, :2] -= direction * behind
+        start[:, 2] = level
+        over = start.copy()
         over[:, 2] += ABOVE
         # behind the cube (in the plane) and low enough: push; otherwise come over the point behind it, then down
         offset = grip[:, :2] - cube[:, :2]
         along = np.sum(offset * direction, axis=1)
         across = np.abs(offset[:, 0] * direction[:, 1] - offset[:, 1] * direction[:, 0])
         placed = (along < -0.02) & (across < 0.015)
-        low = (grip[:, 2] < cube[:, 2] + 0.01) | ((grip[:, 2] < cube[:, 2] + 0.03) & stopped)
         push = goal.copy()
-        push[:, :2] -= direction * (BEHIND - 0.025)       # the fingertips' side, not their middle, at the goal
-        push[:, 2] = cube[:, 2]              # (or as low as the workspace lets it)
+        push[:, :2] -= direction * (behind - 0.025)       # the fingertips' side, not their middle, at the goal
+        push[:, 2] = level
         target = np.where((placed & low)[:, None], push,
                           np.where(placed[:, None] | (np.linalg.norm(grip - over, axis=1) < NEAR)[:, None],
-                                   behind, over))
+                                   start, over))
         actions[:, :3] = _towards(grip, target)
         actions[:, 3] = -1.0
+        there = distance[:, 0] < THERE        # pushed home: the fingers leave it where it is
+        actions[there, :3] = 0.0
     else:
         over = cube.copy()
         over[:, 2] += ABOVE
+        down = cube.copy()
+        down[:, 2] = level
         horizontal = np.linalg.norm(grip[:, :2] - cube[:, :2], axis=1)
         still = np.abs(obs[:, 22]) < 0.5          # the fingers stopped: on the cube, or closed on nothing
         held = (horizontal < 0.02) & (np.abs(grip[:, 2] - cube[:, 2]) < 0.06) & (opening > HELD) & \
             (opening < 0.9) & still
-        above = grip[:, 2] - cube[:, 2]
-        around = (horizontal < 0.01) & ((np.abs(above) < 0.01) | ((above < 0.03) & stopped))
-        target = np.where(held[:, None], goal, np.where((horizontal < 0.01)[:, None], cube, over))
+        around = (horizontal < 0.01) & low
+        target = np.where(held[:, None], goal, np.where((horizontal < 0.01)[:, None], down, over))
         actions[:, :3] = _towards(grip, target)
         actions[:, 3] = np.where(held | around, -1.0, 1.0)
         actions[~held & around, :3] = 0.0                  # closing: the arm waits

@@ -41,6 +41,11 @@ class Workspace:
     table_top: float
 
 
+def links_below(tree, link: str) -> list[str]:
+    """link and every link below it."""
+    return [link] + finger_links(tree, [n for n, j in tree.joints.items() if j.parent == link])
+
+
 def finger_links(tree, joints) -> list[str]:
     """Every link below the joints (a gripper's fingers and what they carry)."""
     below: dict[str, list[str]] = {}
@@ -59,16 +64,28 @@ def finger_links(tree, joints) -> list[str]:
 class Grip:
     """A gripper seen from the tip: offset (the grip point), approach and closing (axes), beyond (how far the
     fingertips reach past the grip point along the approach, m), open_high (whether the first gripper joint opens
-    toward its upper limit: the Panda's slide does, a Robotiq's knuckle closes that way)."""
+    toward its upper limit: the Panda's slide does, a Robotiq's knuckle closes that way), hand (the points of the
+    hand's geometry closed, every link below the tip, in the tip's frame: what a push must keep clear of)."""
     offset: np.ndarray
     approach: np.ndarray
     closing: np.ndarray
     beyond: float
     open_high: bool
+    hand: np.ndarray = dataclasses.field(repr=False, default_factory=lambda: np.zeros((0, 3)))
+
+    def radius(self, height: float) -> float:
+        """How far the closed hand reaches from the approach axis (m), of its geometry less than height above the
+        grip point."""
+        along = self.hand @ self.approach
+        low = self.hand[self.offset @ self.approach - along < height]
+        if not len(low):
+            return 0.0
+        return float(np.linalg.norm(low - np.outer(low @ self.approach, self.approach), axis=1).max())
 
 
 def _finger_points(arm: Arm, physics: Physics, data, links: list[str]) -> list[np.ndarray]:
-    """The corners of the links' collision geometry's boxes, in the tip's frame, one array per link with any."""
+    """The links' collision geometry as points in the tip's frame (a mesh's vertices, a primitive's box's corners),
+    one array per geom."""
     import mujoco
     model = physics.model
     tip = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, arm.tip)
@@ -78,7 +95,12 @@ def _finger_points(arm: Arm, physics: Physics, data, links: list[str]) -> list[n
         body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, link)
         geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body] if body >= 0 else []
         for g in geoms:
-            local = model.geom_aabb[g, :3] + signs * model.geom_aabb[g, 3:]
+            mesh = model.geom_dataid[g] if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH else -1
+            if mesh >= 0:           # a mesh's own vertices (its box in its frame can reach far beyond it)
+                start = model.mesh_vertadr[mesh]
+                local = model.mesh_vert[start:start + model.mesh_vertnum[mesh]]
+            else:
+                local = model.geom_aabb[g, :3] + signs * model.geom_aabb[g, 3:]
             world = data.geom_xpos[g] + local @ data.geom_xmat[g].reshape(3, 3).T
             out.append((world - data.xpos[tip]) @ data.xmat[tip].reshape(3, 3))
     return out
@@ -86,9 +108,9 @@ def _finger_points(arm: Arm, physics: Physics, data, links: list[str]) -> list[n
 
 def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     """The gripper from its fingers' geometry (see the module's text): the grip point and the approach at home (the
-    middle of the gripper's range); the closing axis from the middle toward the first gripper joint's finger, square
-    to the approach; which way it opens, from that finger's distance to the approach axis at either end of its
-    range. PhysicsError for an arm without a gripper or fingers without geometry."""
+    middle of the gripper's range); the closing axis from the middle toward the first gripper joint's finger (along
+    the joint's axis for a slide), square to the approach; which way it opens, from that finger's distance to the
+    approach axis at either end of its range. PhysicsError for an arm without a gripper or fingers without geometry."""
     import mujoco
     tree = arm.tree
     if not physics.gripper:
@@ -108,11 +130,17 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     approach = middle / np.linalg.norm(middle)
     far = float((points @ approach).max())
     closing = np.concatenate(_finger_points(arm, physics, data, first) or [middle[None]]).mean(axis=0) - middle
+    joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, physics.gripper[0])
+    if model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_SLIDE:     # a slide closes along its axis (a mesh's middle
+        tip = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, arm.tip)            # is a little off it)
+        axis = data.xaxis[joint] @ data.xmat[tip].reshape(3, 3)
+        closing = axis if axis @ closing >= 0 else -axis
     closing -= approach * (closing @ approach)
     if np.linalg.norm(closing) < 1e-6:          # one finger, or fingers around the axis: any axis square to it
         closing = np.cross(approach, [1.0, 0.0, 0.0] if abs(approach[0]) < 0.9 else [0.0, 1.0, 0.0])
     closing /= np.linalg.norm(closing)
-    gaps = []
+    gaps, hands = [], []
+    hand = links_below(tree, arm.tip)
     k = physics.actuated.index(physics.gripper[0])
     for end in model.actuator_ctrlrange[k] if model.actuator_ctrllimited[k] else (-0.01, 0.01):
         data.qpos[physics.qpos_address(physics.gripper[0])] = end
@@ -123,8 +151,10 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
         mujoco.mj_kinematics(model, data)
         finger = np.concatenate(_finger_points(arm, physics, data, first) or [middle[None]]).mean(axis=0)
         gaps.append(float(np.linalg.norm(finger - approach * (finger @ approach))))
+        hands.append(np.concatenate(_finger_points(arm, physics, data, hand)))
     grip = (float(middle @ approach) + far) / 2.0
-    return Grip(approach * grip, approach, closing, far - grip, gaps[1] >= gaps[0])
+    open_high = gaps[1] >= gaps[0]
+    return Grip(approach * grip, approach, closing, far - grip, open_high, hands[0 if open_high else 1])
 
 
 def _shoulder(arm: Arm, q: np.ndarray) -> np.ndarray:
