@@ -22,3 +22,6 @@ for _task, _id in ENV_IDS.items():
                  vector_entry_point='robot_ai.physics.env:ManipulationVectorEnv', max_episode_steps=50,
                  kwargs={'task': _task, 'model': None, 'xacro_args': None, 'tip': None, 'reward_type': 'sparse',
                          'distance_threshold': 0.05})
+
+# registers the learner's policy kind (mlp) and Push-v0 and PickAndPlace-v0 as envs a policy acts in
+from robot_ai.physics import policy_files  # noqa: E402,F401

@@ -49,13 +49,14 @@ def _nothing(_) -> None:
 class Kind:
     """A kind of policy a file may hold, as the part of the package that acts with it registers it.
 
-    key: the array whose shape sizes the others (None when every shape is fixed); shapes(key shape or None, the
-    names present) -> {array name: (shape, the dtype the policy computes in)}, PolicyError when the key's shape is
-    not one of this kind's; build(arrays) -> the actor; arrays(actor) -> the arrays a file holds for it;
-    check_metadata(metadata): the kind's own fields (its env, ...), PolicyError; check_figures(metadata): figures
-    nobody could have measured, PolicyError; check_values(arrays): after conversion (positive scales, ...)."""
+    key: the array whose shape sizes the others (None when every shape is fixed; a tuple of names: their shapes,
+    each None where absent); shapes(key shape or None, the names present) -> {array name: (shape, the dtype the
+    policy computes in)}, PolicyError when the key's shape is not one of this kind's; build(arrays) -> the actor;
+    arrays(actor) -> the arrays a file holds for it; check_metadata(metadata): the kind's own fields (its env, ...),
+    PolicyError; check_figures(metadata): figures nobody could have measured, PolicyError; check_values(arrays):
+    after conversion (positive scales, ...)."""
     name: str
-    key: str | None
+    key: str | tuple[str, ...] | None
     shapes: Callable[[tuple | None, set], dict]
     build: Callable[[dict], object]
     arrays: Callable[[object], dict]
@@ -211,14 +212,24 @@ def _read_archive(data: bytes) -> tuple[np.ndarray, dict]:
     with archive:
         metadata = _read_member(archive, by_name['metadata'], 'metadata')
         kind = _kind(_metadata_json(metadata).get('kind'))
-        key_shape = None
-        if kind.key is not None and kind.key in by_name:
-            with archive.open(by_name[kind.key]) as f:
-                key_shape, _, _ = _check_header(f, by_name[kind.key], kind.key)
+        def header_shape(name: str) -> tuple:
+            with archive.open(by_name[name]) as f:
+                return _check_header(f, by_name[name], name)[0]
+        key_shape = _key_shape(kind, set(by_name), header_shape)
         want = {name: shape for name, (shape, _) in kind.shapes(key_shape, set(by_name)).items()}
         _same_names(kind.name, want, set(by_name) - {'metadata'}, shown)
         arrays = {name: _read_member(archive, by_name[name], name, shape) for name, shape in want.items()}
     return metadata, arrays
+
+
+def _key_shape(kind: Kind, names: set, shape_of: Callable[[str], tuple]):
+    """The shape of kind's key array (None where the file has none), or a tuple of them for a key of several
+    names."""
+    if kind.key is None:
+        return None
+    if isinstance(kind.key, tuple):
+        return tuple(shape_of(k) if k in names else None for k in kind.key)
+    return shape_of(kind.key) if kind.key in names else None
 
 
 def _same_names(kind: str, want, have: set, show=str) -> None:
@@ -332,7 +343,7 @@ def plain(value, depth: int = 0) -> bool:
 def _check_arrays(kind: Kind, arrays: dict) -> None:
     """PolicyError unless arrays are exactly what a policy of kind needs: names, shapes, real numbers that are finite
     and not subnormal in the type the policy computes in. Converts them to that type, in place."""
-    key_shape = np.shape(arrays[kind.key]) if kind.key is not None and kind.key in arrays else None
+    key_shape = _key_shape(kind, set(arrays), lambda name: np.shape(arrays[name]))
     want = kind.shapes(key_shape, set(arrays))
     _same_names(kind.name, want, set(arrays))
     for name, (shape, compute) in want.items():
