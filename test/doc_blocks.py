@@ -35,8 +35,10 @@ class Block:
     missing: list[str]        # modules it imports that are not installed here
 
     def source(self, arm: str) -> str:
-        """The block as a reader runs it: their arm file is `arm`, their world the tests' world."""
+        """The block as a reader runs it: their arm file is `arm`, their arm with a gripper the package's UR5 with a
+        Robotiq 2F-85, their world the tests' world."""
         code = self.code.replace('/path/arm.urdf', arm).replace('"arm.urdf"', f'"{arm}"')
+        code = code.replace('"gripper_arm.urdf"', f'"{ROOT / "urdf" / "ur5_robotiq_2f85.urdf.xacro"}"')
         code = code.replace('"world.yaml"', f'"{ROOT / "test" / "world.yaml"}"')
         return ('' if re.search(r'^import |^from ', code, re.M) else PRELUDE) + code
 

@@ -62,7 +62,7 @@ def test_the_readme_is_short_and_the_pages_exist():
     assert len((ROOT / 'README.md').read_text().splitlines()) <= 220
     for page in set(NODE_PAGES.values()):
         assert page.is_file(), page
-    for env in ('RosCartPole', 'Reach', 'RosReach'):
+    for env in ('RosCartPole', 'Reach', 'RosReach', 'Push', 'PickAndPlace'):
         assert (DOCS / 'envs' / f'{env}.md').is_file()
 
 
@@ -159,7 +159,7 @@ def test_check_fk_options_are_on_its_page():
 
 def test_every_cli_command_is_on_the_cli_page():
     text = (DOCS / 'cli.md').read_text()
-    for module in ('cartpole', 'reach'):
+    for module in ('cartpole', 'reach', 'physics'):
         source = (ROOT / 'src' / 'robot_ai' / module / '__main__.py').read_text()
         source += (ROOT / 'src' / 'robot_ai' / 'cli.py').read_text() if module == 'cartpole' else ''
         commands = set(re.findall(r"add_parser\(\s*'([a-z-]+)'", source))
@@ -189,7 +189,7 @@ def documented_commands(module: str) -> list[tuple[str, list[str], bool]]:
     return found
 
 
-@pytest.mark.parametrize('module', ['reach', 'cartpole'])
+@pytest.mark.parametrize('module', ['reach', 'cartpole', 'physics'])
 def test_every_cli_command_in_the_docs_parses_as_written(module, capsys):
     """Issue 57: docs/bringup.md's `reach train --out reach_ur5e.npz` made a folder of that name (argparse took
     `--out` for `--output-dir`). The CLIs take no abbreviation now; every command the docs show parses, and every

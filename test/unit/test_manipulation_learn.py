@@ -79,3 +79,25 @@ def test_the_policy_file_and_its_onnx_act_as_the_network_and_refuse_another_robo
     broken.write_bytes(open(path, 'rb').read()[:200])
     with pytest.raises(PolicyError, match='not a policy file'):
         policy_files.load(str(broken))
+
+
+def test_the_command_line_trains_writes_three_files_and_evaluates_them(tmp_path, capsys):
+    """`python -m robot_ai.physics train` on the package's UR5 with a Robotiq (a short budget: the files, not the
+    rate), then `evaluate` of its ONNX model and `show`; an arm without a gripper is one line, status 2."""
+    from robot_ai.physics.__main__ import main
+    robotiq = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', 'urdf',
+                           'ur5_robotiq_2f85.urdf.xacro')
+    assert main(['train', '--task', 'pick_and_place', '--model', robotiq, '--minutes', '0.1', '--worlds', '8',
+                 '--output-dir', str(tmp_path)]) == 0
+    written = sorted(p.suffix for p in tmp_path.iterdir())
+    assert written == ['.csv', '.npz', '.onnx'], written
+    out = capsys.readouterr().out
+    assert 'held-out' in out and 'expert' in out
+    onnx_path = next(tmp_path.glob('*.onnx'))
+    assert main(['evaluate', str(onnx_path), '--episodes', '8']) == 0
+    assert 'success' in capsys.readouterr().out
+    assert main(['show', str(next(tmp_path.glob('*.npz')))]) == 0
+    assert '"kind": "mlp"' in capsys.readouterr().out
+    with pytest.raises(SystemExit) as e:
+        main(['train', '--model', os.path.join(ROBOTS, 'ur5.urdf'), '--output-dir', str(tmp_path)])
+    assert e.value.code == 2 and 'the arm has no gripper' in capsys.readouterr().err

@@ -139,12 +139,17 @@ def show_parser(sub) -> None:
     p.set_defaults(run=lambda a, parser: show_policy(a.policy, parser))
 
 
-def main(argv=None) -> int:
+def build_parser():
     parser, sub = command_parser('python -m robot_ai.physics', 'Push and pick-and-place in MuJoCo on any arm with '
                                  'a gripper, learned in minutes (robot_ai/Push-v0, robot_ai/PickAndPlace-v0).')
     train_parser(sub)
     evaluate_parser(sub)
     show_parser(sub)
+    return parser, sub
+
+
+def main(argv=None) -> int:
+    parser, sub = build_parser()
     return run_command(parser, sub, argv)
 
 
