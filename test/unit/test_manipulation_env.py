@@ -134,7 +134,7 @@ def test_a_ur5_with_a_robotiq_2f85_pushes_picks_and_places_its_hinged_fingers_op
     env = gymnasium.make(IDS[task], model=UR5_ROBOTIQ)
     check_env(env.unwrapped, skip_render_check=True)
     setup = env.unwrapped.setup
-    assert setup.physics.gripper == ('finger_joint',) and not setup.space.grip.open_high
+    assert setup.gripper == ('finger_joint',) and not setup.space.grip.open_high
     assert abs((setup.space.rotation @ setup.space.grip.closing)[1]) > 0.999
     obs, _ = env.reset(seed=0)
     assert obs['observation'][9] == pytest.approx(1.0 if task == 'pick_and_place' else 0.0)   # the knuckle at 0: open
@@ -145,3 +145,14 @@ def test_a_ur5_with_a_robotiq_2f85_pushes_picks_and_places_its_hinged_fingers_op
             obs, _, _, _, info = env.step(setup.expert(obs['observation'], obs['desired_goal']))
         solved += info['is_success']
     assert solved >= 8
+
+
+def test_a_two_armed_robot_grips_with_the_hand_of_its_arm():
+    """The PR2 (two grippers; its default tip, r_gripper_tool_frame, hangs beside the fingers): the arm's tip moves
+    up to the palm that carries them, and the gripper is that hand's, not the other one's."""
+    setup = ManipulationSetup('push', model=os.path.join(ROBOTS, 'pr2.urdf'))
+    assert setup.arm.tip == 'r_gripper_palm_link' and all(n.startswith('r_gripper') for n in setup.gripper)
+    left = ManipulationSetup('push', model=os.path.join(ROBOTS, 'pr2.urdf'), tip='l_wrist_roll_link')
+    assert left.gripper and all(n.startswith('l_gripper') for n in left.gripper)
+    with pytest.raises(PhysicsError, match='no actuated finger joints below r_gripper_tool_frame'):
+        ManipulationSetup('push', model=os.path.join(ROBOTS, 'pr2.urdf'), tip='r_gripper_tool_frame')

@@ -64,7 +64,7 @@ def run_train(a, parser) -> int:
     settings = LearnSettings(minutes=a.minutes, worlds=a.worlds, target=a.target if a.target < 1 else None)
     space = setup.space
     print(f'robot             {setup.robot.tree.name}: {setup.arm.n} joints to {setup.arm.tip}, gripper '
-          f'{", ".join(setup.physics.gripper)}')
+          f'{", ".join(setup.gripper)}')
     print(f'task              {policy_files.ENV_IDS[setup.task]}: a {setup.object_size:g} m cube on a table at '
           f'z {space.table_top:.3f}, within {setup.distance_threshold:g} m of the goal in 50 steps')
     print(f'DAgger            {settings.worlds} worlds, a {" x ".join(map(str, settings.hidden))} network, '

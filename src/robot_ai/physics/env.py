@@ -41,7 +41,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from robot_ai.physics.model import PhysicsError, build_physics
-from robot_ai.physics.workspace import Workspace, workspace
+from robot_ai.physics.workspace import Workspace, hand_gripper, links_below, workspace
 from robot_ai.reach.arm import Arm, ReachError
 from robot_ai.reach.model import load_model
 
@@ -52,6 +52,20 @@ ANGULAR_WEIGHT = 0.2        # m per rad: the orientation's rows in the least squ
 DAMPING = 0.05
 IK_ITERATIONS = 2
 TABLE_MARGIN = 0.005        # m: the fingertips' lowest target above the table
+
+
+def _gripping_arm(tree, tip: str | None) -> Arm:
+    """The arm to tip; with no tip given, the arm's end, or where it has no gripper below it (a tool frame beside
+    the fingers: the PR2's r_gripper_tool_frame), the nearest link up its chain that has."""
+    arm = Arm(tree, tip)
+    if tip is not None:
+        return arm
+    fingers = {tree.joints[n].child for n in tree.finger_joints() if n in tree.joints}
+    parents = {j.child: j.parent for j in tree.joints.values()}
+    link = arm.tip
+    while link in parents and not fingers & set(links_below(tree, link)):
+        link = parents[link]
+    return Arm(tree, link) if link != arm.tip and fingers & set(links_below(tree, link)) else arm
 
 
 class ManipulationSetup:
@@ -80,7 +94,7 @@ class ManipulationSetup:
         self.distance_threshold, self.object_size = float(distance_threshold), float(object_size)
         self.obj_range, self.goal_range, self.goal_height = float(obj_range), float(goal_range), float(goal_height)
         self.robot = load_model(model, xacro_args)
-        self.arm = Arm(self.robot.tree, tip)
+        self.arm = _gripping_arm(self.robot.tree, tip)
         bare = build_physics(self.robot)
         self.space: Workspace = workspace(self.arm, bare)
         half = max(self.obj_range, self.goal_range) / 2 + 0.15
@@ -109,12 +123,13 @@ class ManipulationSetup:
         self.v_address = np.array([model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n)]
                                    for n in self.arm.joints])
         self.arm_actuators = np.array([physics.actuated.index(n) for n in self.arm.joints])
-        self.grip_actuators = np.array([physics.actuated.index(n) for n in physics.gripper])
+        self.gripper = hand_gripper(self.arm, physics)
+        self.grip_actuators = np.array([physics.actuated.index(n) for n in self.gripper])
         ranges = model.actuator_ctrlrange[self.grip_actuators]
         low, high = ranges[:, 0].copy(), ranges[:, 1].copy()
         self.grip_closed, self.grip_open = (low, high) if self.space.grip.open_high else (high, low)
-        self.grip_speed = np.array(physics.gripper_speed)
-        first = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, physics.gripper[0])
+        self.grip_speed = np.array([physics.gripper_speed[physics.gripper.index(n)] for n in self.gripper])
+        first = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, self.gripper[0])
         self.finger_q, self.finger_v = int(model.jnt_qposadr[first]), int(model.jnt_dofadr[first])
         joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, OBJECT)
         self.object_q, self.object_v = int(model.jnt_qposadr[joint]), int(model.jnt_dofadr[joint])

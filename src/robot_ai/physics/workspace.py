@@ -106,6 +106,19 @@ def _finger_points(arm: Arm, physics: Physics, data, links: list[str]) -> list[n
     return out
 
 
+def hand_gripper(arm: Arm, physics: Physics) -> tuple[str, ...]:
+    """The actuated gripper joints of the arm's own hand (below its tip: a two-armed robot's other hand is not it);
+    PhysicsError of one line where there are none."""
+    hand = set(links_below(arm.tree, arm.tip))
+    mine = tuple(n for n in physics.gripper if arm.tree.joints[n].child in hand)
+    if not mine:
+        others = f' (the robot\'s grippers, {", ".join(physics.gripper)}, are not below {arm.tip})' \
+            if physics.gripper else ''
+        raise PhysicsError(f'{arm.tree.name}: the arm has no gripper (no actuated finger joints below '
+                           f'{arm.tip}){others}: a manipulation task needs one')
+    return mine
+
+
 def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     """The gripper from its fingers' geometry (see the module's text): the grip point and the approach at home (the
     middle of the gripper's range); the closing axis from the middle toward the first gripper joint's finger (along
@@ -113,11 +126,10 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     approach axis at either end of its range. PhysicsError for an arm without a gripper or fingers without geometry."""
     import mujoco
     tree = arm.tree
-    if not physics.gripper:
-        raise PhysicsError(f'{tree.name}: the arm has no gripper (no actuated finger joints): a manipulation task '
-                           f'needs one')
-    fingers = finger_links(tree, [n for n in tree.finger_joints() if n in tree.joints])
-    first = finger_links(tree, [physics.gripper[0]])
+    gripper = hand_gripper(arm, physics)
+    hand = set(links_below(tree, arm.tip))
+    fingers = finger_links(tree, [n for n in tree.finger_joints() if n in tree.joints and tree.joints[n].child in hand])
+    first = finger_links(tree, [gripper[0]])
     model, data = physics.model, physics.data()
     corners = _finger_points(arm, physics, data, fingers)
     if not corners:
@@ -130,7 +142,7 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     approach = middle / np.linalg.norm(middle)
     far = float((points @ approach).max())
     closing = np.concatenate(_finger_points(arm, physics, data, first) or [middle[None]]).mean(axis=0) - middle
-    joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, physics.gripper[0])
+    joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, gripper[0])
     if model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_SLIDE:     # a slide closes along its axis (a mesh's middle
         tip = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, arm.tip)            # is a little off it)
         axis = data.xaxis[joint] @ data.xmat[tip].reshape(3, 3)
@@ -141,9 +153,9 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     closing /= np.linalg.norm(closing)
     gaps, hands = [], []
     hand = links_below(tree, arm.tip)
-    k = physics.actuated.index(physics.gripper[0])
+    k = physics.actuated.index(gripper[0])
     for end in model.actuator_ctrlrange[k] if model.actuator_ctrllimited[k] else (-0.01, 0.01):
-        data.qpos[physics.qpos_address(physics.gripper[0])] = end
+        data.qpos[physics.qpos_address(gripper[0])] = end
         for e in range(model.neq):            # the mimic joints with it
             if model.eq_type[e] == mujoco.mjtEq.mjEQ_JOINT:
                 data.qpos[model.jnt_qposadr[model.eq_obj1id[e]]] = \
