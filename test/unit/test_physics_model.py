@@ -261,3 +261,20 @@ def test_the_gripper_is_the_finger_joints_the_package_detects():
         mujoco.mj_step(model, data)
     np.testing.assert_allclose(panda.joint_positions(data, ['panda_finger_joint1', 'panda_finger_joint2']), 0.035,
                                atol=1e-3)
+
+
+def test_an_inertia_that_is_not_positive_definite_is_made_so_and_said():
+    """The Fetch's fingers have a principal moment of 0 (MuJoCo refuses the model: 'inertia must have positive
+    eigenvalues'): the nearest positive definite inertia, said in a note; a physical one is left as it is."""
+    good = np.array([0.02, 0.03, 0.04, 0.001, 0.0, 0.0])
+    assert physics_model._positive(good) is good
+    flat = np.array([1e-4, 1e-4, 0.0, 0.0, 0.0, 0.0])
+    fixed = physics_model._positive(flat)
+    assert np.allclose(fixed[:2], 1e-4) and fixed[2] >= 1e-10 and np.all(np.linalg.eigvalsh(np.array(
+        [[fixed[0], fixed[3], fixed[4]], [fixed[3], fixed[1], fixed[5]], [fixed[4], fixed[5], fixed[2]]])) > 0)
+    urdf = ('<robot name="thin"><link name="base"/><link name="finger"><inertial><mass value="0.1"/>'
+            '<inertia ixx="1e-4" iyy="1e-4" izz="0" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+            '<joint name="slide" type="prismatic"><parent link="base"/><child link="finger"/><axis xyz="0 1 0"/>'
+            '<limit lower="0" upper="0.05" effort="60" velocity="0.05"/></joint></robot>')
+    physics = build_physics(load_model(urdf=urdf))
+    assert any('not positive definite made so' in n and 'finger' in n for n in physics.notes)

@@ -303,6 +303,19 @@ def _inertials(root) -> dict[str, tuple[float, np.ndarray, np.ndarray, np.ndarra
     return out
 
 
+def _positive(full: np.ndarray) -> np.ndarray:
+    """full (ixx iyy izz ixy ixz iyz) itself where its matrix is positive definite; else the nearest one whose
+    eigenvalues are at least a millionth of the largest (a URDF's zero or negative principal moment: the Fetch's)."""
+    xx, yy, zz, xy, xz, yz = full
+    m = np.array([[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]])
+    values, vectors = np.linalg.eigh(m)
+    floor = max(1e-9, 1e-6 * float(np.abs(values).max()))
+    if values.min() >= floor:
+        return full
+    m = vectors @ np.diag(np.maximum(values, floor)) @ vectors.T
+    return np.array([m[0, 0], m[1, 1], m[2, 2], m[0, 1], m[0, 2], m[1, 2]])
+
+
 def _quaternion(r: np.ndarray) -> np.ndarray:
     """(w, x, y, z) of a rotation matrix, as MuJoCo orders it."""
     import mujoco
@@ -333,7 +346,7 @@ def _build(robot: Model, root, urdf_dir: str, world: tuple[Obstacle, ...], loose
     inertials, dynamics = _inertials(root), _dynamics(root)
     joints = {j.get('name'): j for j in root.findall('joint')}
     parent_joint = {j.child: j for j in tree.joints.values()}
-    estimated = []
+    estimated, repaired = [], []
     # the root, welded to the world (a root named world, as many URDFs have, is MuJoCo's world body itself)
     bodies = {tree.root: spec.worldbody if tree.root == 'world' else spec.worldbody.add_body(name=tree.root)}
     moved_by = {}                         # link -> the joint that moves it (None: fixed to its parent)
@@ -379,6 +392,9 @@ def _build(robot: Model, root, urdf_dir: str, world: tuple[Obstacle, ...], loose
             body.explicitinertial = True
             body.mass, body.ipos, body.iquat = mass, centre, orientation
             body.fullinertia = full if np.any(full) else [1e-6, 1e-6, 1e-6, 0, 0, 0]
+            if np.any(full) and _positive(full) is not full:
+                body.fullinertia = _positive(full)
+                repaired.append(link)
         if link != tree.root:
             body.gravcomp = 1.0
         for k, mesh in enumerate(shapes.get(link, [])):
@@ -391,6 +407,9 @@ def _build(robot: Model, root, urdf_dir: str, world: tuple[Obstacle, ...], loose
                           rgba=[0.7, 0.7, 0.75, 1.0])
         if link not in inertials and link != tree.root and shapes.get(link):
             estimated.append(link)
+    if repaired:
+        notes.append(f'inertias that were not positive definite made so (their eigenvalues at least a millionth of '
+                     f'the largest) for {len(repaired)} links: ' + _listed(repaired, ', '))
     if estimated:
         notes.append(f'inertias estimated from the collision geometry at {DENSITY:g} kg/m^3 (the URDF gives none) '
                      f'for {len(estimated)} links: ' + _listed(estimated, ', '))

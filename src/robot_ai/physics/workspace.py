@@ -8,9 +8,11 @@ the robot itself, so that an arm the package has never seen gets a task without 
 - The grip point: the fingers' collision geometry (every link below a gripper joint), seen from the tip at home; it
   lies along the approach axis (from the tip toward the fingers' middle), halfway between their middle and their far
   end, where the pads of a parallel gripper are.
-- The ready configuration: the grip point READY_REACH of the arm's length in front of its shoulder (the first joint
-  of the chain whose axis is level), at the shoulder's height, the approach axis straight down; found by damped
-  least squares from the middle of every range (Arm.move_t on the grip point's 6-row Jacobian).
+- The ready configuration: the grip point READY_REACH of the arm's length (less a torso's lift; nearer, down to
+  0.6 of that, where the arm falls short) in front of its shoulder (the first joint of the chain whose axis is
+  level), at the shoulder's height, the approach axis straight down and the fingers closing along y; found by damped
+  least squares (Arm.move_t on the grip point's 6-row Jacobian) from the middle of every range, or where that ends
+  short, from random configurations.
 - The table: its top READY_HEIGHT below the ready grip point, under the whole workspace, clear of the arm's base.
 """
 from __future__ import annotations
@@ -26,6 +28,7 @@ READY_REACH = 0.55          # the ready grip point's distance in front of the sh
 READY_HEIGHT = 0.2          # m: the ready grip point above the table (panda-gym's and Fetch's gripper start so)
 READY_ITERATIONS = 400      # damped least squares steps to the ready configuration
 READY_TOLERANCE = (0.005, 0.02)     # m and rad: how near the ready pose must come
+READY_STARTS = 16           # damped least squares from the middle of every range, then from random configurations
 DOWN = np.array([0.0, 0.0, -1.0])
 
 
@@ -212,12 +215,28 @@ def workspace(arm: Arm, physics: Physics, reach: float = READY_REACH, height: fl
     grip = grip_geometry(arm, physics)
     shoulder = _shoulder(arm, arm.home)
     forward = np.array([1.0, 0.0, 0.0])
-    target = shoulder + forward * reach * arm.length
-    target[2] = shoulder[2]
-    q, miss, angle = ready_pose(arm, grip.offset, grip.approach, grip.closing, target)
+    travel = sum(float(arm.upper[k] - arm.lower[k]) for k in range(arm.n) if not arm.revolute_joints[k])
+    length = arm.length - travel          # a torso's lift (the Fetch's) reaches no farther forward
+    best = None
+    for share in (reach, 0.8 * reach, 0.6 * reach):     # nearer where the wrist's height above the grip point
+        target = shoulder + forward * share * length    # leaves the arm short (the Fetch's)
+        target[2] = shoulder[2]
+        rng = np.random.default_rng(0)
+        for attempt in range(READY_STARTS):   # from the middle of every range; where that ends short, elsewhere
+            start = None if attempt == 0 else rng.uniform(arm.lower, arm.upper)
+            q, miss, angle = ready_pose(arm, grip.offset, grip.approach, grip.closing, target, start)
+            score = miss / READY_TOLERANCE[0] + angle / READY_TOLERANCE[1]
+            if best is None or score < best[0]:
+                best = (score, q, miss, angle, target)
+            if miss <= READY_TOLERANCE[0] and angle <= READY_TOLERANCE[1]:
+                break
+        if best[2] <= READY_TOLERANCE[0] and best[3] <= READY_TOLERANCE[1]:
+            break
+    _, q, miss, angle, target = best
     if miss > READY_TOLERANCE[0] or angle > READY_TOLERANCE[1]:
-        raise PhysicsError(f'{arm.tree.name}: no configuration points the gripper down {reach * arm.length:.2f} m '
-                           f'in front of the shoulder (closest: {miss:.3f} m and {angle:.2f} rad off)')
+        raise PhysicsError(f'{arm.tree.name}: no configuration points the gripper down in front of the shoulder, '
+                           f'{0.6 * reach * length:.2f} to {reach * length:.2f} m out (closest: {miss:.3f} m and '
+                           f'{angle:.2f} rad off)')
     tip, rotation, _, _ = arm.pose_t(q[:, None])
     return Workspace(ready=q, rotation=rotation[:, :, 0].copy(), grip=grip, centre=target,
                      table_top=float(target[2] - height))
