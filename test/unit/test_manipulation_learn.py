@@ -42,14 +42,19 @@ def test_the_network_fits_a_function_and_its_arrays_give_it_back():
 
 @pytest.fixture(scope='module')
 def training():
-    setup = ManipulationSetup('pick_and_place', model=PANDA)
-    return learn(setup, LearnSettings(rounds=20, worlds=32, target=None), seed=0)
+    """Built before the function-scoped fixtures run: the meshes' path set here too (without it the Panda's fingers
+    were stand-in capsules and the expert failed every episode, on a machine whose environment did not have it)."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv('ROS_PACKAGE_PATH', os.pathsep.join((MESHES, os.environ.get('ROS_PACKAGE_PATH', ''))))
+        setup = ManipulationSetup('pick_and_place', model=PANDA)
+        return learn(setup, LearnSettings(rounds=20, worlds=32, target=None), seed=0)
 
 
 def test_dagger_learns_pick_and_place_in_twenty_rounds(training):
     """20 rounds of 32 episodes (98 % of the held-out goals measured, 22 s on this machine); on 128 goals neither
-    training nor its checks saw: at least 80 %."""
+    training nor its checks saw: at least 80 %. The expert drives the first three rounds and succeeds in them."""
     assert len(training.history) == 20 and training.best_success >= 0.8
+    assert training.history[0].rollout_success >= 0.9
     env = ManipulationVectorEnv(32, 'pick_and_place', setup=training.setup)
     success, distance = evaluate(training.net.act_batch, env, 128, FINAL_SEED)
     assert success >= 0.8 and distance < 0.05
@@ -69,7 +74,7 @@ def test_the_policy_file_and_its_onnx_act_as_the_network_and_refuse_another_robo
     np.testing.assert_array_equal(policy.act_batch(x), training.net.act_batch(x))
     onnx_policy, _ = policy_files.load(onnx_path)
     assert onnx_policy.note == ''
-    np.testing.assert_allclose(onnx_policy.act_batch(x.astype(np.float32)), training.net.act_batch(x), atol=1e-5)
+    np.testing.assert_allclose(onnx_policy.act_batch(x.astype(np.float32)), training.net.act_batch(x), atol=1e-4)
     assert policy.metadata['figures']['success_rate'] == 0.9
     robotiq = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', 'urdf',
                            'ur5_robotiq_2f85.urdf.xacro')
