@@ -156,3 +156,21 @@ def test_a_two_armed_robot_grips_with_the_hand_of_its_arm():
     assert left.gripper and all(n.startswith('l_gripper') for n in left.gripper)
     with pytest.raises(PhysicsError, match='no actuated finger joints below r_gripper_tool_frame'):
         ManipulationSetup('push', model=os.path.join(ROBOTS, 'pr2.urdf'), tip='r_gripper_tool_frame')
+
+
+def test_a_reset_mask_resets_those_worlds_only_as_sync_vector_env_does():
+    vec = gymnasium.make_vec('robot_ai/Push-v0', num_envs=3, model=PANDA)
+    sync = gymnasium.vector.SyncVectorEnv([lambda: gymnasium.make('robot_ai/Push-v0', model=PANDA)] * 3)
+    vec.reset(seed=3)
+    sync.reset(seed=3)
+    a = np.full((3, 4), 0.5, dtype=np.float32)
+    vec.step(a)
+    sync.step(a)
+    mask = np.array([False, True, False])
+    (o1, i1), (o2, _) = vec.reset(seed=[None, 9, None], options={"reset_mask": mask}), \
+        sync.reset(seed=[None, 9, None], options={'reset_mask': mask})
+    for key in o1:
+        np.testing.assert_array_equal(o1[key], o2[key])
+    np.testing.assert_array_equal(i1['_is_success'], mask)
+    with pytest.raises(ValueError, match='length must match num_envs=3'):
+        vec.reset(seed=[1, 2])

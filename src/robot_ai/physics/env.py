@@ -43,6 +43,7 @@ from gymnasium.vector.utils import batch_space
 from robot_ai.physics.model import PhysicsError, build_physics
 from robot_ai.physics.workspace import Workspace, hand_gripper, links_below, workspace
 from robot_ai.reach.arm import Arm, ReachError
+from robot_ai.reach.env import vector_reset_args
 from robot_ai.reach.model import load_model
 
 TASKS = ('push', 'pick_and_place')
@@ -297,7 +298,8 @@ class ManipulationEnv(gymnasium.Env):
 class ManipulationVectorEnv(VectorEnv):
     """num_envs worlds of one ManipulationSetup stepped together (one least-squares pass for all, then each world's
     physics), equal bit for bit to gymnasium's SyncVectorEnv over ManipulationEnvs (autoreset next-step,
-    reset(seed=s) seeds env i with s + i). The kwargs are ManipulationEnv's."""
+    reset(seed=s) seeds env i with s + i, options['reset_mask'] resets those only). The kwargs are
+    ManipulationEnv's."""
 
     metadata = {'render_modes': [], 'autoreset_mode': AutoresetMode.NEXT_STEP}
 
@@ -326,16 +328,12 @@ class ManipulationVectorEnv(VectorEnv):
         return self.setup.compute_reward(achieved_goal, desired_goal, info)
 
     def reset(self, *, seed=None, options=None):
-        if seed is None:
-            seeds = [None] * self.num_envs
-        elif isinstance(seed, int):
-            seeds = [seed + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-        self._reset_envs(np.arange(self.num_envs), seeds)
-        self._autoreset[:] = False
-        success = self._successes()
-        return self._observations(), {'is_success': success, '_is_success': np.ones(self.num_envs, dtype=bool)}
+        seeds, mask = vector_reset_args(self.num_envs, seed, options)
+        chosen = np.flatnonzero(mask)
+        self._reset_envs(chosen, seeds)
+        self._autoreset[chosen] = False
+        infos = {'is_success': np.where(mask, self._successes(), False), '_is_success': mask.copy()}
+        return self._observations(), infos
 
     def _reset_envs(self, rows, seeds) -> None:
         for i in rows:

@@ -1329,6 +1329,34 @@ class ReachEnv(gymnasium.Env):
         super().close()
 
 
+def vector_reset_args(num_envs: int, seed, options) -> tuple[list, np.ndarray]:
+    """(a seed per env, the envs to reset) of a vector env's reset(seed=, options=) as gymnasium's SyncVectorEnv
+    reads them: seed s seeds env i with s + i, a list gives one per env; options['reset_mask'] (a bool array, one per
+    env, at least one true) resets those envs only. ValueError or TypeError as SyncVectorEnv words them."""
+    if seed is None:
+        seeds = [None] * num_envs
+    elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+        seeds = [int(seed) + i for i in range(num_envs)]
+    else:
+        seeds = list(seed)
+        if len(seeds) != num_envs:
+            raise ValueError(f'If seeds are passed as a list the length must match num_envs={num_envs} '
+                             f'but got length={len(seeds)}.')
+    mask = np.ones(num_envs, dtype=np.bool_)
+    if options is not None and 'reset_mask' in options:     # as SyncVectorEnv: reset only these envs
+        mask = options['reset_mask']
+        if not isinstance(mask, np.ndarray):
+            raise TypeError(f"`options['reset_mask']` must be a numpy array, got {type(mask)}")
+        if mask.shape != (num_envs,):
+            raise ValueError(f"`options['reset_mask']` must have shape `({num_envs},)`, got {mask.shape}")
+        if mask.dtype != np.bool_:
+            raise TypeError(f"`options['reset_mask']` must have `dtype=np.bool_`, got {mask.dtype}")
+        if not mask.any():
+            raise ValueError(f"`options['reset_mask']` must contain a boolean array with at least one True "
+                             f"value, got reset_mask={mask}")
+    return seeds, mask
+
+
 class ReachVectorEnv(VectorEnv):
     """num_envs ReachEnvs computed together, equal bit for bit to gymnasium's SyncVectorEnv over them (autoreset
     next-step, reset(seed=s) seeds env i with s + i, infos with their masks). The kwargs are ReachEnv's (or a
@@ -1409,27 +1437,7 @@ class ReachVectorEnv(VectorEnv):
                     self._renderers[i].new_episode()
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
-        if seed is None:
-            seeds = [None] * self.num_envs
-        elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-            seeds = [int(seed) + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(f'If seeds are passed as a list the length must match num_envs={self.num_envs} '
-                                 f'but got length={len(seeds)}.')
-        mask = np.ones(self.num_envs, dtype=np.bool_)
-        if options is not None and 'reset_mask' in options:     # as SyncVectorEnv: reset only these envs
-            mask = options['reset_mask']
-            if not isinstance(mask, np.ndarray):
-                raise TypeError(f"`options['reset_mask']` must be a numpy array, got {type(mask)}")
-            if mask.shape != (self.num_envs,):
-                raise ValueError(f"`options['reset_mask']` must have shape `({self.num_envs},)`, got {mask.shape}")
-            if mask.dtype != np.bool_:
-                raise TypeError(f"`options['reset_mask']` must have `dtype=np.bool_`, got {mask.dtype}")
-            if not mask.any():
-                raise ValueError(f"`options['reset_mask']` must contain a boolean array with at least one True "
-                                 f"value, got reset_mask={mask}")
+        seeds, mask = vector_reset_args(self.num_envs, seed, options)
         chosen = np.flatnonzero(mask)
         self._reset_envs(chosen, seeds)
         self._autoreset[chosen] = False
