@@ -328,6 +328,17 @@ class KinematicTree:
             below.setdefault(self._floating_parent[name], []).append((name, self._floating_child[name]))
         return below
 
+    def subtree(self, link: str) -> list[str]:
+        """link and every link below it (through floating joints too), depth first."""
+        below = self._children()
+        out, todo = [], [link]
+        while todo:
+            here = todo.pop()
+            if here not in out:
+                out.append(here)
+                todo.extend(child for _, child in below.get(here, []))
+        return out
+
     def _arm_joint_below(self, link: str, below: dict, fingers: set[str]) -> bool:
         todo = [link]
         while todo:

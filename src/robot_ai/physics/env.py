@@ -41,7 +41,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from robot_ai.physics.model import PhysicsError, build_physics
-from robot_ai.physics.workspace import Workspace, hand_gripper, links_below, workspace
+from robot_ai.physics.workspace import Workspace, hand_gripper, workspace
 from robot_ai.reach.arm import Arm, ReachError
 from robot_ai.reach.env import vector_reset_args
 from robot_ai.reach.model import load_model
@@ -61,12 +61,12 @@ def _gripping_arm(tree, tip: str | None) -> Arm:
     arm = Arm(tree, tip)
     if tip is not None:
         return arm
-    fingers = {tree.joints[n].child for n in tree.finger_joints() if n in tree.joints}
+    fingers = {tree.joints[n].child for n in tree.finger_joints()}
     parents = {j.child: j.parent for j in tree.joints.values()}
     link = arm.tip
-    while link in parents and not fingers & set(links_below(tree, link)):
+    while link in parents and not fingers & set(tree.subtree(link)):
         link = parents[link]
-    return Arm(tree, link) if link != arm.tip and fingers & set(links_below(tree, link)) else arm
+    return Arm(tree, link) if link != arm.tip and fingers & set(tree.subtree(link)) else arm
 
 
 class ManipulationSetup:
@@ -111,6 +111,7 @@ class ManipulationSetup:
         self.step_time = float(step_time)
         self.substeps = max(1, int(round(step_time / self.physics.model.opt.timestep)))
         self._layout()
+        self.ready_grip = self.grip_points(self.space.ready[:, None])[0][:, 0]     # where every episode starts
         self.action_space = spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
         goal = spaces.Box(-np.inf, np.inf, (3,), dtype=np.float64)
         self.observation_space = spaces.Dict({'achieved_goal': goal, 'desired_goal': goal,
@@ -121,8 +122,6 @@ class ManipulationSetup:
         import mujoco
         model, physics = self.physics.model, self.physics
         self.q_address = np.array([physics.qpos_address(n) for n in self.arm.joints])
-        self.v_address = np.array([model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, n)]
-                                   for n in self.arm.joints])
         self.arm_actuators = np.array([physics.actuated.index(n) for n in self.arm.joints])
         self.gripper = hand_gripper(self.arm, physics)
         self.grip_actuators = np.array([physics.actuated.index(n) for n in self.gripper])
@@ -131,14 +130,11 @@ class ManipulationSetup:
         self.grip_closed, self.grip_open = (low, high) if self.space.grip.open_high else (high, low)
         self.grip_speed = np.array([physics.gripper_speed[physics.gripper.index(n)] for n in self.gripper])
         first = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, self.gripper[0])
-        self.finger_q, self.finger_v = int(model.jnt_qposadr[first]), int(model.jnt_dofadr[first])
+        self.finger_q = int(model.jnt_qposadr[first])
         joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, OBJECT)
         self.object_q, self.object_v = int(model.jnt_qposadr[joint]), int(model.jnt_dofadr[joint])
         self.object_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, OBJECT)
         self.tip_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, self.arm.tip)
-        self.mimics = [(int(model.jnt_qposadr[model.eq_obj1id[k]]), int(model.jnt_qposadr[model.eq_obj2id[k]]),
-                        float(model.eq_data[k, 0]), float(model.eq_data[k, 1]))
-                       for k in range(model.neq) if model.eq_type[k] == mujoco.mjtEq.mjEQ_JOINT]
         centre, top = self.space.centre, self.space.table_top
         reach = max(self.obj_range, self.goal_range) / 2 + 0.1
         self.low = np.array([centre[0] - reach, centre[1] - reach, top + TABLE_MARGIN + self.space.grip.beyond])
@@ -172,6 +168,12 @@ class ManipulationSetup:
         import mujoco
         return mujoco.MjData(self.physics.model)
 
+    def start(self, data, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float]:
+        """A new episode in data, drawn from rng: (the goal, the grip point, the gripper's first joint)."""
+        cube, goal = self.sample(rng)
+        self.place(data, cube)
+        return goal, self.ready_grip.copy(), float(data.qpos[self.finger_q])
+
     def place(self, data, cube: np.ndarray) -> None:
         """data at the ready configuration, at rest, the gripper open (closed for push), the cube at cube."""
         import mujoco
@@ -182,8 +184,7 @@ class ManipulationSetup:
         opening = self.grip_closed if self.task == 'push' else self.grip_open
         data.ctrl[self.grip_actuators] = opening
         data.qpos[self.finger_q] = opening[0]
-        for follower, source, offset, multiplier in self.mimics:
-            data.qpos[follower] = offset + multiplier * data.qpos[source]
+        self.physics.follow_mimics(data)
         data.qpos[self.object_q:self.object_q + 7] = [*cube, 1.0, 0.0, 0.0, 0.0]
         data.qacc_warmstart[:] = 0.0
         data.time = 0.0
@@ -268,17 +269,14 @@ class ManipulationEnv(gymnasium.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        cube, self._goal = self.setup.sample(self.np_random)
-        self.setup.place(self.data, cube)
-        self._grip = self.setup.grip_points(self.setup.space.ready[:, None])[0][:, 0]
-        self._finger = float(self.data.qpos[self.setup.finger_q])
+        self._goal, self._grip, self._finger = self.setup.start(self.data, self.np_random)
         obs = self._obs()
         return obs, {'is_success': self._success(obs)}
 
     def step(self, action):
         if self._goal is None:
             raise ResetNeeded('Cannot call env.step() before calling env.reset()')
-        a = self.setup.check_actions(np.reshape(action, (1, -1)) if np.size(action) == 4 else np.asarray(action))
+        a = self.setup.check_actions(np.reshape(action, (1, -1)))
         self.setup.act([self.data], self._grip[None], a)
         obs = self._obs()
         info = {'is_success': self._success(obs)}
@@ -339,10 +337,7 @@ class ManipulationVectorEnv(VectorEnv):
         for i in rows:
             if seeds[i] is not None or self._rngs[i] is None:
                 self._rngs[i], _ = seeding.np_random(seeds[i])
-            cube, self._goal[i] = self.setup.sample(self._rngs[i])
-            self.setup.place(self.datas[i], cube)
-            self._grip[i] = self.setup.grip_points(self.setup.space.ready[:, None])[0][:, 0]
-            self._finger[i] = self.datas[i].qpos[self.setup.finger_q]
+            self._goal[i], self._grip[i], self._finger[i] = self.setup.start(self.datas[i], self._rngs[i])
             self._observe(i)
             self._elapsed[i] = 0
             self._started[i] = True

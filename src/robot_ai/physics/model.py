@@ -165,6 +165,17 @@ class Physics:
         mujoco.mj_forward(self.model, data)
         return data
 
+    def follow_mimics(self, data) -> None:
+        """Each mimic joint of data at offset + multiplier x its source's position (the joint equalities), as the
+        constraint holds it: after its source is placed by hand."""
+        import mujoco
+        model = self.model
+        for k in range(model.neq):
+            if model.eq_type[k] == mujoco.mjtEq.mjEQ_JOINT:
+                offset, multiplier = model.eq_data[k, :2]
+                data.qpos[model.jnt_qposadr[model.eq_obj1id[k]]] = \
+                    offset + multiplier * data.qpos[model.jnt_qposadr[model.eq_obj2id[k]]]
+
     def qpos_address(self, joint: str) -> int:
         """Where a hinge or slide joint's position is in qpos."""
         import mujoco
@@ -391,9 +402,9 @@ def _build(robot: Model, root, urdf_dir: str, world: tuple[Obstacle, ...], loose
             mass, centre, orientation, full = inertials[link]
             body.explicitinertial = True
             body.mass, body.ipos, body.iquat = mass, centre, orientation
-            body.fullinertia = full if np.any(full) else [1e-6, 1e-6, 1e-6, 0, 0, 0]
-            if np.any(full) and _positive(full) is not full:
-                body.fullinertia = _positive(full)
+            positive = _positive(full) if np.any(full) else None
+            body.fullinertia = [1e-6, 1e-6, 1e-6, 0, 0, 0] if positive is None else positive
+            if positive is not None and positive is not full:
                 repaired.append(link)
         if link != tree.root:
             body.gravcomp = 1.0

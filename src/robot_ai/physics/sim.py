@@ -94,12 +94,7 @@ class ArmPhysics:
         self.data.ctrl[self._actuator] = positions
         for k in self._actuator:              # placed: a gripper joint placed here is the gripper command no more
             self._grip.pop(int(k), None)
-        for k in range(self.model.neq):       # a mimic joint: position = offset + multiplier x its source's
-            if self.model.eq_type[k] == self._mj.mjtEq.mjEQ_JOINT:
-                follower, source = self.model.eq_obj1id[k], self.model.eq_obj2id[k]
-                offset, multiplier = self.model.eq_data[k, :2]
-                self.data.qpos[self.model.jnt_qposadr[follower]] = \
-                    offset + multiplier * self.data.qpos[self.model.jnt_qposadr[source]]
+        self.physics.follow_mimics(self.data)
         self.data.qvel[:] = 0.0
         self.data.qacc_warmstart[:] = 0.0
         self._mj.mj_forward(self.model, self.data)

@@ -44,23 +44,9 @@ class Workspace:
     table_top: float
 
 
-def links_below(tree, link: str) -> list[str]:
-    """link and every link below it."""
-    return [link] + finger_links(tree, [n for n, j in tree.joints.items() if j.parent == link])
-
-
 def finger_links(tree, joints) -> list[str]:
-    """Every link below the joints (a gripper's fingers and what they carry)."""
-    below: dict[str, list[str]] = {}
-    for j in tree.joints.values():
-        below.setdefault(j.parent, []).append(j.child)
-    out, todo = [], [tree.joints[n].child for n in joints]
-    while todo:
-        link = todo.pop()
-        if link not in out:
-            out.append(link)
-            todo.extend(below.get(link, []))
-    return out
+    """Every link below the joints (a gripper's fingers and what they carry), once each."""
+    return list(dict.fromkeys(link for n in joints for link in tree.subtree(tree.joints[n].child)))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,7 +98,7 @@ def _finger_points(arm: Arm, physics: Physics, data, links: list[str]) -> list[n
 def hand_gripper(arm: Arm, physics: Physics) -> tuple[str, ...]:
     """The actuated gripper joints of the arm's own hand (below its tip: a two-armed robot's other hand is not it);
     PhysicsError of one line where there are none."""
-    hand = set(links_below(arm.tree, arm.tip))
+    hand = set(arm.tree.subtree(arm.tip))
     mine = tuple(n for n in physics.gripper if arm.tree.joints[n].child in hand)
     if not mine:
         others = f' (the robot\'s grippers, {", ".join(physics.gripper)}, are not below {arm.tip})' \
@@ -130,8 +116,8 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     import mujoco
     tree = arm.tree
     gripper = hand_gripper(arm, physics)
-    hand = set(links_below(tree, arm.tip))
-    fingers = finger_links(tree, [n for n in tree.finger_joints() if n in tree.joints and tree.joints[n].child in hand])
+    hand = tree.subtree(arm.tip)
+    fingers = finger_links(tree, [n for n in tree.finger_joints() if tree.joints[n].child in hand])
     first = finger_links(tree, [gripper[0]])
     model, data = physics.model, physics.data()
     corners = _finger_points(arm, physics, data, fingers)
@@ -155,14 +141,10 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
         closing = np.cross(approach, [1.0, 0.0, 0.0] if abs(approach[0]) < 0.9 else [0.0, 1.0, 0.0])
     closing /= np.linalg.norm(closing)
     gaps, hands = [], []
-    hand = links_below(tree, arm.tip)
     k = physics.actuated.index(gripper[0])
     for end in model.actuator_ctrlrange[k] if model.actuator_ctrllimited[k] else (-0.01, 0.01):
         data.qpos[physics.qpos_address(gripper[0])] = end
-        for e in range(model.neq):            # the mimic joints with it
-            if model.eq_type[e] == mujoco.mjtEq.mjEQ_JOINT:
-                data.qpos[model.jnt_qposadr[model.eq_obj1id[e]]] = \
-                    model.eq_data[e, 0] + model.eq_data[e, 1] * data.qpos[model.jnt_qposadr[model.eq_obj2id[e]]]
+        physics.follow_mimics(data)           # the mimic joints with it
         mujoco.mj_kinematics(model, data)
         finger = np.concatenate(_finger_points(arm, physics, data, first) or [middle[None]]).mean(axis=0)
         gaps.append(float(np.linalg.norm(finger - approach * (finger @ approach))))
