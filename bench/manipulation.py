@@ -30,7 +30,7 @@ sys.path.insert(0, os.path.join(HERE, '..', 'src'))
 
 import robot_ai.physics  # noqa: E402,F401  (registers the envs)
 from robot_ai.physics.env import ManipulationSetup, ManipulationVectorEnv  # noqa: E402
-from robot_ai.physics.learn import FINAL_SEED, LearnSettings, evaluate, learn  # noqa: E402
+from robot_ai.physics.learn import FINAL_SEED, LearnSettings, evaluate, expert_policy, learn  # noqa: E402
 
 ROBOTS = os.path.join(HERE, '..', '..', 'shared', 'robots')
 PANDA = os.path.join(ROBOTS, 'panda.urdf')
@@ -85,7 +85,7 @@ def learning(name: str, model: str, task: str, minutes: float) -> None:
     training = learn(setup, LearnSettings(minutes=minutes), seed=0, on_round=on_round)
     env = ManipulationVectorEnv(32, task, setup=setup)
     held, _ = evaluate(training.net.act_batch, env, 200, FINAL_SEED)
-    expert, _ = evaluate(lambda x: setup.expert(x[:, 6:], x[:, 3:6]), env, 200, FINAL_SEED)
+    expert, _ = evaluate(expert_policy(setup), env, 200, FINAL_SEED)
     reached = f'{first["seconds"]:7.0f} s' if 'seconds' in first else '  never'
     print(f'{name:<22}{task:<16}{reached:>10}  {training.elapsed:7.0f} s  {100 * held:6.1f} %  {100 * expert:6.1f} %  '
           f'{training.steps:>10,d}', flush=True)

@@ -43,13 +43,13 @@ def object_frames(names, taken) -> dict[str, str]:
 
 
 class PhysicsWorld:
-    """The objects of arm (an ArmPhysics) on tf (each in its own frame, a child of base) and as markers drawn in
-    those frames (~object_markers, latched); the gripper's action server, its goals carried out over the sim's
-    ticks (lock: the sim's, held while the physics is read or commanded)."""
+    """The objects of arm (an ArmPhysics; objects: what its model was built with) on tf (each in its own frame, a
+    child of base) and as markers drawn in those frames (~object_markers, latched); the gripper's action server,
+    its goals carried out over the sim's ticks (lock: the sim's, held while the physics is read or commanded)."""
 
     def __init__(self, arm: ArmPhysics, objects: tuple[Object, ...], base: str, links, lock: threading.Lock):
         self.arm, self.base, self.lock = arm, base, lock
-        self.frames = object_frames(arm.physics.objects, set(links))
+        self.frames = object_frames([o.name for o in objects], set(links))
         self.tick = threading.Condition()
         self.tf_pub = rospy.Publisher('tf', TFMessage, queue_size=10) if self.frames else None
         self.markers_pub = rospy.Publisher('~object_markers', MarkerArray, queue_size=1, latch=True)

@@ -21,7 +21,7 @@ from robot_ai.cli import (command_parser, output_folder, positive_number, refuse
                           whole_number, write_or_say)
 from robot_ai.physics import PhysicsError, policy_files
 from robot_ai.physics.env import TASKS, ManipulationSetup, ManipulationVectorEnv
-from robot_ai.physics.learn import FINAL_SEED, LearnSettings, Round, evaluate, learn
+from robot_ai.physics.learn import FINAL_SEED, LearnSettings, Round, evaluate, expert_policy, learn
 from robot_ai.policies import PolicyError
 from robot_ai.reach.arm import ReachError
 from robot_ai.text import percent
@@ -89,7 +89,7 @@ def run_train(a, parser) -> int:
         signal.signal(signal.SIGINT, previous)
     env = ManipulationVectorEnv(settings.worlds, setup.task, setup=setup)
     held = evaluate(training.net.act_batch, env, HELD_OUT, FINAL_SEED)
-    expert = evaluate(lambda x: setup.expert(x[:, 6:], x[:, 3:6]), env, HELD_OUT, FINAL_SEED)
+    expert = evaluate(expert_policy(setup), env, HELD_OUT, FINAL_SEED)
     print(f'held-out          {percent(held[0])} of {HELD_OUT} fresh goals (mean final distance {held[1]:.3f} m), '
           f'the network of round {training.best_round}')
     print(f'expert            {percent(expert[0])} of the same goals (the scripted expert it learned from)')
@@ -126,7 +126,7 @@ def run_evaluate(a, parser) -> int:
         print(f'note: {policy.note}', file=sys.stderr)
     env = ManipulationVectorEnv(min(32, a.episodes), setup.task, setup=setup)
     success, distance = evaluate(policy.act_batch, env, a.episodes, a.seed)
-    expert = evaluate(lambda x: setup.expert(x[:, 6:], x[:, 3:6]), env, a.episodes, a.seed)
+    expert = evaluate(expert_policy(setup), env, a.episodes, a.seed)
     print(f'policy            {a.policy}')
     print(f'success           {percent(success)} of {a.episodes} goals (mean final distance {distance:.3f} m)')
     print(f'expert            {percent(expert[0])} of the same goals')

@@ -14,7 +14,6 @@ when it reaches ``target`` or the wall-clock budget (``minutes``) is spent.
 """
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 import time
@@ -98,6 +97,12 @@ def flatten(obs: dict) -> np.ndarray:
     return np.concatenate([obs['achieved_goal'], obs['desired_goal'], obs['observation']], axis=1)
 
 
+def expert_policy(setup: ManipulationSetup) -> Callable[[np.ndarray], np.ndarray]:
+    """The setup's scripted expert as a policy of flattened observations (flatten's layout), as evaluate takes
+    one."""
+    return lambda x: setup.expert(x[:, 6:], x[:, 3:6])
+
+
 def evaluate(act_batch: Callable[[np.ndarray], np.ndarray], env: ManipulationVectorEnv, episodes: int,
              seed: int) -> tuple[float, float]:
     """(success rate, mean final distance) of act_batch (flattened observations -> actions) over episodes played on
@@ -128,7 +133,7 @@ def learn(setup: ManipulationSetup, settings: LearnSettings = LearnSettings(), s
     ys: list[np.ndarray] = []
     held = 0
     history: list[Round] = []
-    best, best_net, best_round, steps, loss = -1.0, copy.deepcopy(net), 0, 0, float('nan')
+    best, best_net, best_round, steps, loss = -1.0, Mlp.from_arrays(net.arrays()), 0, 0, float('nan')
     budget = settings.minutes * 60.0
     for k in range(10 ** 9):
         obs, _ = env.reset(seed=seed * 10 ** 5 + k * settings.worlds)
@@ -156,13 +161,12 @@ def learn(setup: ManipulationSetup, settings: LearnSettings = LearnSettings(), s
         if k + 1 >= settings.expert_rounds and ((k + 1) % settings.eval_every == 0 or last):
             measured, _ = evaluate(net.act_batch, env, settings.eval_episodes, EVAL_SEED)
             steps += env.max_episode_steps * settings.eval_episodes
-            if measured > best:
-                best, best_net, best_round = measured, copy.deepcopy(net), k + 1
+            if measured > best:       # the network only (its arrays), not the optimiser's moments
+                best, best_net, best_round = measured, Mlp.from_arrays(net.arrays()), k + 1
         history.append(Round(k + 1, time.monotonic() - start, held, loss, float(np.mean(info['is_success'])),
                              measured))
         if on_round is not None:
             on_round(history[-1])
         if last or (measured is not None and settings.target is not None and measured >= settings.target):
             break
-    best_net._adam = None
     return Training(best_net, setup, settings, seed, history, best, best_round, time.monotonic() - start, steps)

@@ -42,6 +42,8 @@ class ArmPhysics:
         self._gripper = np.array([physics.actuated.index(n) for n in physics.gripper], dtype=int)
         self._gripper_range = np.array([self.model.actuator_ctrlrange[k] if self.model.actuator_ctrllimited[k]
                                         else (-np.inf, np.inf) for k in self._gripper]).reshape(-1, 2)
+        span = float(np.diff(self._gripper_range[0])[0]) if len(self._gripper) else 1.0
+        self._span = span if np.isfinite(span) else 1.0      # the first joint's range: tolerances are shares of it
         self._force = self.model.actuator_forcerange.copy()    # the URDF's effort limits, max_effort's default
         self._grip: dict[int, tuple[float, float]] = {}    # actuator -> the gripper command's target and speed
         self._ramp: dict[int, float] = {}     # actuator -> where its target stands on the way to the command
@@ -79,8 +81,7 @@ class ArmPhysics:
             self._mj.mj_step(self.model, self.data)
         self.time += steps * self.model.opt.timestep
         if self._grip:
-            span = np.diff(self._gripper_range[0])[0]
-            still = abs(self.gripper_state()[1]) < STALL_SPEED * (span if np.isfinite(span) else 1.0)
+            still = abs(self.gripper_state()[1]) < STALL_SPEED * self._span
             self._still = self._still + steps * self.model.opt.timestep if still else 0.0
         return steps
 
@@ -143,8 +144,7 @@ class ArmPhysics:
         k = int(self._gripper[0]) if self.gripper else -1
         if k not in self._grip:
             return None
-        span = np.diff(self._gripper_range[0])[0]
-        tolerance = GRIP_TOLERANCE * (span if np.isfinite(span) else 1.0)
+        tolerance = GRIP_TOLERANCE * self._span
         if abs(self.gripper_state()[0] - self._grip[k][0]) <= tolerance and self._ramp[k] == self._grip[k][0]:
             return True, False
         return (False, True) if self._still >= STALL_TIME and self._ramp[k] == self._grip[k][0] else None
