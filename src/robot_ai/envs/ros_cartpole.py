@@ -39,6 +39,7 @@ from std_msgs.msg import Float64
 
 from robot_ai.envs.link import DEFAULT_TIMEOUT, RosEnvError, claim, ensure_node, lease, new_token, release, resolve
 from robot_ai.lease import node_alive
+from robot_ai.reach.env import vector_reset_args
 from robot_ai.srv import SetCartPoleState
 
 POLL = 0.05                  # s: how often a wait looks at what no message announces (connections)
@@ -384,28 +385,9 @@ class RosCartPoleVectorEnv(VectorEnv):
         self._observations = np.zeros((num_envs, 4), dtype=np.float32)
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None):
-        if seed is None:
-            seeds = [None] * self.num_envs
-        elif isinstance(seed, int):
-            seeds = [seed + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ValueError(f'If seeds are passed as a list the length must match num_envs={self.num_envs} '
-                                 f'but got length={len(seeds)}.')
-        mask = np.ones(self.num_envs, dtype=np.bool_)
-        if options is not None and 'reset_mask' in options:   # as SyncVectorEnv: reset only these envs
-            options = dict(options)
-            mask = options.pop('reset_mask')
-            if not isinstance(mask, np.ndarray):
-                raise TypeError(f"`options['reset_mask']` must be a numpy array, got {type(mask)}")
-            if mask.shape != (self.num_envs,):
-                raise ValueError(f"`options['reset_mask']` must have shape `({self.num_envs},)`, got {mask.shape}")
-            if mask.dtype != np.bool_:
-                raise TypeError(f"`options['reset_mask']` must have `dtype=np.bool_`, got {mask.dtype}")
-            if not mask.any():
-                raise ValueError(f"`options['reset_mask']` must contain a boolean array with at least one True "
-                                 f"value, got reset_mask={mask}")
+        seeds, mask = vector_reset_args(self.num_envs, seed, options)
+        if options is not None and 'reset_mask' in options:   # the envs take the other options
+            options = {k: v for k, v in options.items() if k != 'reset_mask'}
         chosen = np.flatnonzero(mask)
         for i in chosen:
             self.envs[i].begin_reset(seed=seeds[i], options=options)
