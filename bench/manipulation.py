@@ -21,34 +21,23 @@ import subprocess
 import sys
 import time
 
-import gymnasium
 import numpy as np
 from threadpoolctl import threadpool_limits
 
 HERE = os.path.dirname(os.path.realpath(__file__))
 sys.path.insert(0, os.path.join(HERE, '..', 'src'))
+sys.path.insert(0, HERE)
 
 import robot_ai.physics  # noqa: E402,F401  (registers the envs)
 from robot_ai.physics.env import ManipulationSetup, ManipulationVectorEnv  # noqa: E402
 from robot_ai.physics.learn import FINAL_SEED, LearnSettings, evaluate, expert_policy, learn  # noqa: E402
+from sb3_panda_gym import speed  # noqa: E402  (bench/: the same loop in SB3's Python)
 
 ROBOTS = os.path.join(HERE, '..', '..', 'shared', 'robots')
 PANDA = os.path.join(ROBOTS, 'panda.urdf')
 UR5_ROBOTIQ = os.path.join(HERE, '..', 'urdf', 'ur5_robotiq_2f85.urdf.xacro')
 THRESHOLDS = {'push': 0.9, 'pick_and_place': 0.8}
 SB3_ENVS = {'push': 'PandaPush-v3', 'pick_and_place': 'PandaPickAndPlace-v3'}
-
-
-def single_rate(seconds: float) -> float:
-    env = gymnasium.make('robot_ai/Push-v0', model=PANDA)
-    env.reset(seed=0)
-    steps, t0 = 0, time.perf_counter()
-    while time.perf_counter() - t0 < seconds:
-        _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-        steps += 1
-        if terminated or truncated:
-            env.reset()
-    return steps / (time.perf_counter() - t0)
 
 
 def vector_rate(n: int, seconds: float) -> float:
@@ -64,8 +53,6 @@ def vector_rate(n: int, seconds: float) -> float:
 
 def panda_gym_rate(sb3_python: str) -> tuple[float | None, str]:
     if importlib.util.find_spec('panda_gym') is not None:
-        sys.path.insert(0, HERE)
-        from sb3_panda_gym import speed      # the same loop as in SB3's Python
         return speed(5.0), 'here'
     if sb3_python:
         out = subprocess.run([sb3_python, os.path.join(HERE, 'sb3_panda_gym.py'), '--speed'], capture_output=True,
@@ -111,7 +98,7 @@ def main() -> None:
     a = p.parse_args()
     print('== Push-v0 and PickAndPlace-v0 (MuJoCo) beside panda-gym (PyBullet) and SB3 ==')
     with threadpool_limits(limits=1):
-        single = single_rate(5.0)
+        single = speed(5.0, 'robot_ai/Push-v0', model=PANDA)     # the loop that times PandaPush-v3
         vectors = {n: vector_rate(n, 5.0) for n in (32, 128)}
         reference, where = panda_gym_rate(a.sb3_python)
     print('env steps per second, one core (random actions, the Panda with its meshes):')

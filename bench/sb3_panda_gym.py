@@ -18,11 +18,14 @@ import time
 
 import gymnasium
 import numpy as np
-import panda_gym  # noqa: F401 (registers the envs)
 
 
-def speed(seconds: float) -> float:
-    env = gymnasium.make('PandaPush-v3')
+def speed(seconds: float, env_id: str = 'PandaPush-v3', **kwargs) -> float:
+    """Steps per second of one env made by gymnasium.make, random actions, for seconds (bench/manipulation.py times
+    Push-v0 with it too)."""
+    if env_id.startswith('Panda'):
+        import panda_gym  # noqa: F401 (registers the envs)
+    env = gymnasium.make(env_id, **kwargs)
     env.reset(seed=0)
     steps, t0 = 0, time.perf_counter()
     while time.perf_counter() - t0 < seconds:
@@ -41,6 +44,7 @@ def main() -> None:
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--speed', action='store_true')
     a = p.parse_args()
+    import panda_gym  # noqa: F401 (registers the envs)
     if a.speed:
         print(json.dumps({'env': 'PandaPush-v3', 'steps_per_second': speed(5.0)}))
         return
