@@ -76,7 +76,7 @@ class ManipulationSetup:
     def __init__(self, task: str = 'push', model: str | None = None, xacro_args=None, tip: str | None = None,
                  object_size: float = 0.04, object_mass: float = 0.1, distance_threshold: float = 0.05,
                  reward_type: str = 'sparse', obj_range: float = 0.3, goal_range: float = 0.3,
-                 goal_height: float = 0.2, step_time: float = 0.04):
+                 goal_height: float = 0.2, step_time: float = 0.04, urdf: str | None = None):
         if task not in TASKS:
             raise ValueError(f'task must be one of {TASKS}, got {task!r}')
         if reward_type not in ('sparse', 'dense'):
@@ -88,23 +88,21 @@ class ManipulationSetup:
         for name, value in (('obj_range', obj_range), ('goal_range', goal_range), ('goal_height', goal_height)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f'{name} must be a number of metres, 0 or more, got {value!r}')
-        if model is None:
+        if model is None and urdf is None:
             raise ReachError('give model= an arm with a gripper (a URDF or xacro file): the package\'s own arms have '
                              'none')
         self.task, self.reward_type = task, reward_type
         self.distance_threshold, self.object_size = float(distance_threshold), float(object_size)
         self.obj_range, self.goal_range, self.goal_height = float(obj_range), float(goal_range), float(goal_height)
-        self.robot = load_model(model, xacro_args)
+        self.robot = load_model(model, xacro_args, urdf)
         self.arm = _gripping_arm(self.robot.tree, tip)
         bare = build_physics(self.robot)
         self.space: Workspace = workspace(self.arm, bare)
-        half = max(self.obj_range, self.goal_range) / 2 + 0.15
         centre, top = self.space.centre, self.space.table_top
-        table = {'box': [2 * half, 2 * half, 0.04], 'position': [centre[0], centre[1], top - 0.02], 'name': 'table'}
-        start = [centre[0], centre[1], top + object_size / 2]
-        cube = {'box': [object_size] * 3, 'position': start, 'mass': float(object_mass), 'name': OBJECT}
+        self.object_mass = float(object_mass)
+        cube = self.cube([centre[0], centre[1], top + object_size / 2])
         home = dict(zip(self.arm.joints, self.space.ready.tolist()))
-        self.physics = build_physics(self.robot, obstacles=[table], objects=[cube], home=home)
+        self.physics = build_physics(self.robot, obstacles=[self.table()], objects=[cube], home=home)
         if any('the robot touches' in n for n in self.physics.notes):
             raise PhysicsError(f'{self.robot.tree.name}: at the ready configuration the robot touches the table or '
                                f'the cube ({self.physics.notes[-1]})')
@@ -141,6 +139,18 @@ class ManipulationSetup:
         self.high = np.array([centre[0] + reach, centre[1] + reach, top + self.goal_height + 0.2])
         half = self.object_size / 2             # where a push starts behind the cube: the hand clear of it
         self.behind = half + self.space.grip.radius(half + 0.01) + 0.015
+
+    def table(self) -> dict:
+        """The table, as an obstacle (motion.body's YAML): its top table_top, under the whole workspace."""
+        half = max(self.obj_range, self.goal_range) / 2 + 0.15
+        centre, top = self.space.centre, self.space.table_top
+        return {'box': [2 * half, 2 * half, 0.04], 'position': [float(centre[0]), float(centre[1]), top - 0.02],
+                'name': 'table'}
+
+    def cube(self, position, name: str = OBJECT) -> dict:
+        """The task's cube at position, as a loose object (physics.model's YAML)."""
+        return {'box': [self.object_size] * 3, 'position': [float(x) for x in position], 'mass': self.object_mass,
+                'name': name}
 
     def expert(self, observation, desired_goal) -> np.ndarray:
         """The scripted expert's actions (physics.expert) for this arm: its push start and lowest grip point."""

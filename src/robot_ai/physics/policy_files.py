@@ -25,7 +25,7 @@ from robot_ai.policies.npz import MAX_TEXT, plain, shown
 from robot_ai.policies.onnx import METADATA_KEY
 
 ENV_IDS = {'push': 'robot_ai/Push-v0', 'pick_and_place': 'robot_ai/PickAndPlace-v0'}
-ENV_SETTINGS = ('model', 'xacro_args', 'tip', 'object_size', 'object_mass', 'distance_threshold', 'reward_type',
+ENV_SETTINGS = ('model', 'urdf', 'xacro_args', 'tip', 'object_size', 'object_mass', 'distance_threshold', 'reward_type',
                 'obj_range', 'goal_range', 'goal_height', 'step_time')
 MAX_WIDTH = 4096
 MAX_INPUTS = 1024
@@ -134,7 +134,7 @@ def load(path: str, **overrides):
                               f'{" or ".join(ENV_IDS.values())}')
         kwargs = {**file.env_kwargs, **{k: v for k, v in overrides.items() if v is not None}}
         robot = (getattr(file, 'metadata', None) or {}).get('robot', '')
-        if 'model' in overrides and overrides['model'] is not None and robot:
+        if overrides.get('model') and robot:
             from robot_ai.reach.model import load_model
             try:
                 name = load_model(kwargs['model'], kwargs.get('xacro_args')).tree.name
