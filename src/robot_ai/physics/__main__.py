@@ -139,12 +139,49 @@ def show_parser(sub) -> None:
     p.set_defaults(run=lambda a, parser: show_policy(a.policy, parser))
 
 
+def world_parser(sub) -> None:
+    p = sub.add_parser('world', formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       help='the pick-and-place task\'s table, cubes and ready configuration as YAML, for arm_sim and '
+                       'pick_place (pick.launch world:=)',
+                       description='The table the task lays out under the arm (robot_ai.physics.workspace), cubes on '
+                       'it and the ready configuration (home: arm_sim\'s start), one YAML that arm_sim\'s and '
+                       'pick_place\'s ~obstacles, ~objects and ~home take (rosparam load).')
+    p.add_argument('--model', required=True, metavar='FILE',
+                   help='the arm with a gripper: a URDF or xacro file ($(find pkg) through ROS_PACKAGE_PATH)')
+    p.add_argument('--xacro-args', default='', metavar='ARGS', help='the xacro file\'s arguments: "name:=value ..."')
+    p.add_argument('--tip', default=None, help='the link the gripper hangs from; default: the arm\'s end')
+    p.add_argument('--cubes', type=whole_number(0, 20), default=2, help='cubes on the table')
+    p.add_argument('--seed', type=int, default=0, help='where the cubes lie')
+    p.add_argument('--output', default='', metavar='FILE', help='write it there (default: print it)')
+    p.set_defaults(run=run_world)
+
+
+def run_world(a, parser) -> int:
+    import yaml
+    from robot_ai.physics.pick import PickError, world
+    try:
+        setup = ManipulationSetup('pick_and_place', model=a.model, xacro_args=a.xacro_args or None, tip=a.tip)
+        made = world(setup, a.cubes, a.seed)
+    except (ReachError, PhysicsError, PickError) as e:
+        refuse(parser, str(e))
+    text = (f'# python -m robot_ai.physics world --model {a.model}: the pick-and-place task of '
+            f'{setup.robot.tree.name} (tip {setup.arm.tip})\n' + yaml.safe_dump(made, sort_keys=False,
+                                                                               default_flow_style=None))
+    if not a.output:
+        print(text, end='')
+        return 0
+    artifacts.write_whole(a.output, lambda f: f.write(text.encode()))
+    print(a.output)
+    return 0
+
+
 def build_parser():
     parser, sub = command_parser('python -m robot_ai.physics', 'Push and pick-and-place in MuJoCo on any arm with '
                                  'a gripper, learned in minutes (robot_ai/Push-v0, robot_ai/PickAndPlace-v0).')
     train_parser(sub)
     evaluate_parser(sub)
     show_parser(sub)
+    world_parser(sub)
     return parser, sub
 
 

@@ -1,0 +1,113 @@
+"""A pick and place as rviz asks for it (physics.pick), in-process: the arm driven through the safety layer in the
+MuJoCo world arm_sim runs (the plans followed in time, the gripper's goals), on the package's UR5 with a Robotiq
+2F-85 and the Panda with its real meshes: the cube placed where the click says, what the physics measured on the way
+(no joint past its URDF velocity or position limits, no contact but the fingers' with the cube), the world the
+`world` command writes (and pick.launch's default, config/pick_world.yaml, equal to it), and clicks that cannot be
+picks said in one line. No roscore."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+import yaml
+
+from robot_ai.motion.body import parse_obstacles
+from robot_ai.physics import parse_objects
+from robot_ai.physics.__main__ import main
+from robot_ai.physics.env import ManipulationSetup
+from robot_ai.physics.model import build_physics
+from robot_ai.physics.pick import PickError, PickPlace, run_in_physics, world
+from robot_ai.physics.sim import ArmPhysics
+from robot_ai.physics.workspace import finger_links
+
+from exact_meshes import MESHES, ROBOTS
+
+PACKAGE = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..')
+ROBOTIQ = os.path.join(PACKAGE, 'urdf', 'ur5_robotiq_2f85.urdf.xacro')
+PANDA = os.path.join(ROBOTS, 'panda.urdf')
+SETUPS = {}
+
+
+def setup_of(model: str) -> ManipulationSetup:
+    if model not in SETUPS:
+        with pytest.MonkeyPatch.context() as mp:      # the Panda's real meshes, also in a module-scoped use
+            mp.setenv('ROS_PACKAGE_PATH', os.pathsep.join((MESHES, os.environ.get('ROS_PACKAGE_PATH', ''))))
+            SETUPS[model] = ManipulationSetup('pick_and_place', model=model)
+    return SETUPS[model]
+
+
+def picking_in(setup: ManipulationSetup, made: dict, **kwargs) -> tuple[PickPlace, ArmPhysics]:
+    physics = build_physics(setup.robot, obstacles=made['obstacles'], objects=made['objects'], home=made['home'])
+    return PickPlace(setup, obstacles=made['obstacles'], **kwargs), ArmPhysics(physics, setup.arm.joints)
+
+
+@pytest.mark.parametrize('model', [ROBOTIQ, PANDA], ids=['ur5_robotiq', 'panda'])
+def test_a_clicked_pick_places_the_cube_within_the_limits_touching_nothing_else(model):
+    setup = setup_of(model)
+    hand = set(finger_links(setup.robot.tree, setup.gripper)) | set(setup.robot.tree.subtree(setup.arm.tip))
+    rng = np.random.default_rng(5)
+    for seed in range(3):
+        made = world(setup, 1, seed)
+        picking, arm = picking_in(setup, made)
+        if seed == 2:           # from elsewhere than the ready configuration: a planned way there first
+            arm.set_state(setup.space.ready + rng.uniform(-0.3, 0.3, setup.arm.n))
+        place = [*(setup.space.centre[:2] + rng.uniform(-0.15, 0.15, 2)), setup.space.table_top]
+        run = run_in_physics(picking, arm, 'cube', place)
+        assert run.outcome.startswith('placed cube'), run
+        cube = arm.object_poses()['cube'][:3, 3]
+        np.testing.assert_allclose(cube, np.add(place, [0, 0, setup.object_size / 2]), atol=0.012)
+        assert run.fastest < 1.0 and run.within_limits, run        # the layer's limits held by the servos
+        touched = {c.split(' - ')[0] for c in run.contacts}
+        assert touched and touched <= hand and all(c.endswith(' - cube') for c in run.contacts), run.contacts
+
+
+def test_the_world_command_writes_what_arm_sim_and_pick_place_take(tmp_path):
+    setup = setup_of(ROBOTIQ)
+    made = world(setup, 3, seed=1)
+    table = setup.table()
+    assert made['obstacles'][0]['box'] == table['box']
+    np.testing.assert_allclose(made['obstacles'][0]['position'], table['position'], atol=1e-4)
+    cubes = np.array([o['position'] for o in made['objects']])
+    assert [o['name'] for o in made['objects']] == ['cube', 'cube_2', 'cube_3']
+    assert (np.abs(cubes[:, :2] - setup.space.centre[:2]) <= setup.obj_range / 2 + 1e-4).all()
+    np.testing.assert_allclose(cubes[:, 2], setup.space.table_top + setup.object_size / 2, atol=1e-4)
+    gaps = [np.linalg.norm(a[:2] - b[:2]) for i, a in enumerate(cubes) for b in cubes[i + 1:]]
+    assert min(gaps) >= 0.1
+    np.testing.assert_allclose(list(made['home'].values()), setup.space.ready, atol=1e-6)
+    out = tmp_path / 'world.yaml'
+    assert main(['world', '--model', ROBOTIQ, '--output', str(out)]) == 0
+    written = yaml.safe_load(out.read_text())
+    assert len(parse_obstacles(str(out))) == 1 and len(parse_objects(str(out))) == 2
+    shipped = yaml.safe_load(open(os.path.join(PACKAGE, 'config', 'pick_world.yaml')).read())
+    assert written == shipped == world(setup, 2, 0)         # pick.launch's default world is this command's
+
+
+def test_clicks_that_cannot_be_picks_say_why():
+    setup = setup_of(ROBOTIQ)
+    made = world(setup, 1, 0)
+    picking, arm = picking_in(setup, made)
+    cube = np.array(made['objects'][0]['position'])
+    assert picking.choose(cube + [0.01, 0, 0.02], {'cube': cube}) == 'cube'
+    with pytest.raises(PickError, match='no object within 0.08 m .* the nearest, cube, is 0.300 m away'):
+        picking.choose(cube + [0, 0.3, 0], {'cube': cube})
+    with pytest.raises(PickError, match='no objects to pick'):
+        picking.choose(cube, {})
+    top = setup.space.table_top
+    with pytest.raises(PickError, match=r'\+0.100 m from the table\'s top .* click on the table'):
+        picking.place_of([cube[0], cube[1], top + 0.1])
+    with pytest.raises(PickError, match='outside the workspace'):
+        picking.place_of([cube[0] + 1.0, cube[1], top])
+    with pytest.raises(PickError, match='lies outside the workspace'):
+        picking.start('cube', cube + [0, 0, -0.5], picking.place_of([cube[0], cube[1], top]), 0.0)
+    assert not picking.phase                # nothing started
+
+
+def test_a_policy_that_answers_nan_ends_the_pick_and_the_arm_holds():
+    setup = setup_of(ROBOTIQ)
+    made = world(setup, 1, 0)
+    picking, arm = picking_in(setup, made, policy=lambda x: np.full((len(x), 4), np.nan))
+    run = run_in_physics(picking, arm, 'cube', [*setup.space.centre[:2], setup.space.table_top])
+    assert run.outcome.startswith('not placed: the policy answered [nan'), run
+    assert not picking.phase
+    np.testing.assert_allclose(arm.object_poses()['cube'][:3, 3], made['objects'][0]['position'], atol=2e-3)
