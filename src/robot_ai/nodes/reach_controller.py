@@ -132,6 +132,7 @@ from robot_ai.nodes.params import (bool_param, init_node, int_param, number_para
                                    str_param)
 from robot_ai.srv import LoadPolicy, LoadPolicyResponse
 from robot_ai.nodes.robot_description import wait_for_tree
+from robot_ai.nodes.markers import obstacle_markers
 from robot_ai.priority import NICE, raise_priority
 from robot_ai.reach import learn, policy_files
 from robot_ai.reach.arm import ReachError
@@ -158,14 +159,6 @@ PREDICTION_GOALS = 200     # fresh goals of the in-process prediction through th
 PLANNING_SAID_AFTER = 1.0  # s a plan takes before the log says one is being made
 PREDICTION_PLANNED = 50    # as many where the arm has a body: each goal is planned first, as here (UR5 among a table
                            # and two objects: 200 took 15 s, 50 take 3)
-
-
-def _quaternion(rotation: np.ndarray) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of a rotation matrix."""
-    from tf import transformations as tft
-    m = np.identity(4)
-    m[:3, :3] = rotation
-    return tuple(float(v) for v in tft.quaternion_from_matrix(m))
 
 
 def _multiply(a, b) -> tuple[float, float, float, float]:
@@ -749,20 +742,7 @@ class ReachController:
         return True
 
     def _draw_obstacles(self) -> None:
-        markers = MarkerArray()
-        for k, o in enumerate(self.setup.obstacles):
-            m = Marker()
-            m.header.frame_id = self.base
-            m.ns, m.id, m.action = 'obstacles', k, Marker.ADD
-            m.type = Marker.CUBE if o.kind == 'box' else Marker.SPHERE
-            size = o.size if o.kind == 'box' else (2 * o.size[0],) * 3
-            m.scale.x, m.scale.y, m.scale.z = size
-            m.pose.position.x, m.pose.position.y, m.pose.position.z = o.pose[:3, 3]
-            x, y, z, w = _quaternion(o.pose[:3, :3])
-            m.pose.orientation.x, m.pose.orientation.y, m.pose.orientation.z, m.pose.orientation.w = x, y, z, w
-            m.color.r, m.color.g, m.color.b, m.color.a = 0.55, 0.45, 0.35, 0.8
-            markers.markers.append(m)
-        publish(self.obstacles_pub, markers)
+        publish(self.obstacles_pub, obstacle_markers(self.setup.obstacles, self.base))
 
     def _tip(self) -> list[float] | None:
         """The tip from /tf in the base frame: its position, and for pose goals its orientation after it (unit,
