@@ -20,7 +20,7 @@ NODES = ROOT / 'src' / 'robot_ai' / 'nodes'
 # node module -> its page; the helpers share one
 NODE_PAGES = {name: DOCS / 'nodes' / f'{name}.md' for name in (
     'forward_kinematics', 'check_fk', 'cartpole_search', 'cartpole_q_learning', 'cartpole_sim', 'cartpole_controller',
-    'arm_sim', 'reach_controller')}
+    'arm_sim', 'reach_controller', 'pick_place')}
 NODE_PAGES.update({name: DOCS / 'nodes' / 'helpers.md' for name in ('joint_sweep', 'demo_client', 'rviz_view',
                                                                      'sliders')})
 
