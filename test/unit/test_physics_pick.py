@@ -98,6 +98,8 @@ def test_clicks_that_cannot_be_picks_say_why():
         picking.place_of([cube[0], cube[1], top + 0.1])
     with pytest.raises(PickError, match='outside the workspace'):
         picking.place_of([cube[0] + 1.0, cube[1], top])
+    with pytest.raises(PickError, match=r'is taken: cube_2 stands 0.030 m from it'):
+        picking.place_of([cube[0], cube[1], top], {'cube_2': cube + [0.03, 0, 0]})
     with pytest.raises(PickError, match='lies outside the workspace'):
         picking.start('cube', cube + [0, 0, -0.5], picking.place_of([cube[0], cube[1], top]), 0.0)
     assert not picking.phase                # nothing started

@@ -186,7 +186,7 @@ class PickPlaceNode:
                 name, self.chosen = self.chosen, None
                 if name not in objects:
                     raise PickError(f'{name}\'s frame {self.frames[name]} is not on /tf')
-                place = self.picking.place_of(point)
+                place = self.picking.place_of(point, {k: v for k, v in objects.items() if k != name})
                 self._say(self.picking.start(name, objects[name], place, self._now()))
                 self._marker(objects[name], place)
             except PickError as e:

@@ -125,9 +125,9 @@ class PickPlace:
                             f'{d:.3f} m away (click on an object first)')
         return name
 
-    def place_of(self, clicked) -> np.ndarray:
+    def place_of(self, clicked, others: dict[str, np.ndarray] | None = None) -> np.ndarray:
         """Where the object's middle goes for a click on the table (the object set down on it there), within the
-        workspace; PickError."""
+        workspace and clear of the others (objects: {name: position}, the one picked left out); PickError."""
         s = self.setup
         clicked = np.asarray(clicked, dtype=float)
         goal = clicked + [0.0, 0.0, s.object_size / 2]
@@ -140,6 +140,11 @@ class PickPlace:
             raise PickError(f'the place {_point(clicked)} is outside the workspace the arm picks and places in (x '
                             f'{low[0]:+.2f}..{high[0]:+.2f}, y {low[1]:+.2f}..{high[1]:+.2f}, from the table\'s top '
                             f'at z {s.space.table_top:+.3f} up to {high[2]:+.3f}, in the robot\'s root frame)')
+        for name, where in (others or {}).items():
+            gap = float(np.linalg.norm(np.asarray(where, dtype=float)[:2] - goal[:2]))
+            if gap < s.object_size * 1.5:
+                raise PickError(f'the place {_point(clicked)} is taken: {name} stands {gap:.3f} m from it (click '
+                                f'where the table is clear)')
         return goal
 
     def check_object(self, name: str, position) -> None:
