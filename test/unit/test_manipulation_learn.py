@@ -86,6 +86,29 @@ def test_the_policy_file_and_its_onnx_act_as_the_network_and_refuse_another_robo
         policy_files.load(str(broken))
 
 
+def test_the_learned_policy_places_clicked_cubes_through_the_safety_layer(training, tmp_path):
+    """What pick_place does with ~policy: the file loaded onto robot_description's text (model '', urdf=), the
+    network carrying each cube over the place and setting it down, every command through the safety layer
+    (physics.pick.run_in_physics: the plans followed in MuJoCo's world, as arm_sim follows them)."""
+    from robot_ai.physics.model import build_physics
+    from robot_ai.physics.pick import PickPlace, run_in_physics, world
+    from robot_ai.physics.sim import ArmPhysics
+    path = policy_files.save(training, str(tmp_path / 'pick.npz'))
+    policy, setup = policy_files.load(path, model='', urdf=training.setup.robot.urdf)
+    assert setup.robot.path == '' and setup.robot.tree.name == 'panda' and policy.note == ''
+    rng = np.random.default_rng(3)
+    for seed in range(3):
+        made = world(setup, 1, seed)
+        physics = build_physics(setup.robot, obstacles=made['obstacles'], objects=made['objects'],
+                                home=made['home'])
+        arm = ArmPhysics(physics, setup.arm.joints)
+        picking = PickPlace(setup, obstacles=made['obstacles'], policy=policy.act_batch)
+        place = [*(setup.space.centre[:2] + rng.uniform(-0.15, 0.15, 2)), setup.space.table_top]
+        run = run_in_physics(picking, arm, 'cube', place)
+        assert run.outcome.startswith('placed cube'), run
+        assert run.fastest < 1.0 and run.within_limits and all(c.endswith(' - cube') for c in run.contacts), run
+
+
 def test_the_command_line_trains_writes_three_files_and_evaluates_them(tmp_path, capsys):
     """`python -m robot_ai.physics train` on the package's UR5 with a Robotiq (a short budget: the files, not the
     rate), then `evaluate` of its ONNX model and `show`; an arm without a gripper is one line, status 2."""
