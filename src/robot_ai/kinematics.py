@@ -311,13 +311,23 @@ class KinematicTree:
             j = self.joints[name]
             if not j.moving:
                 continue
-            words = {w.lower() for w in re.findall(r'[A-Z]?[a-z]+|[A-Z]+(?![a-z])|\d+', name)}
-            if words & FINGER_WORDS or any(w.startswith('finger') for w in words):
+            if self._named_finger(name):
                 fingers.add(name)
             elif (j.type == 'prismatic' or j.mimic is not None or name in mimicked) and \
                     not self._arm_joint_below(j.child, below, fingers):
                 fingers.add(name)
+        # a lone slide (not named so, no mimic) is no finger where the link it hangs from carries the arm too: the
+        # Fetch's torso bellows, beside its arm on the torso, is not its gripper
+        for name in [n for n in fingers if self.joints[n].type == 'prismatic' and self.joints[n].mimic is None
+                     and n not in mimicked and not self._named_finger(n)]:
+            if self._arm_joint_below(self.joints[name].parent, below, fingers):
+                fingers.discard(name)
         return fingers
+
+    @staticmethod
+    def _named_finger(name: str) -> bool:
+        words = {w.lower() for w in re.findall(r'[A-Z]?[a-z]+|[A-Z]+(?![a-z])|\d+', name)}
+        return bool(words & FINGER_WORDS) or any(w.startswith('finger') for w in words)
 
     def _children(self) -> dict[str, list[tuple[str, str]]]:
         """{link: [(joint, child link)]}, floating joints included (their names as joints have no entry)."""

@@ -293,3 +293,20 @@ def test_loading_grows_linearly_with_the_links():
         return best
     small, large = seconds(4000), seconds(16000)
     assert large / small < 10, f'4,000 links {small:.3f} s, 16,000 links {large:.3f} s (quadratic: 16 times)'
+
+
+def test_a_slide_beside_the_arm_is_no_finger():
+    """The Fetch's torso bellows (a prismatic leaf on the torso, which carries the arm) was taken for a gripper joint,
+    and arm_sim's gripper action moved it with the fingers; the slides of the hand at the arm's end, named so or not,
+    are the fingers."""
+    def joint(name, kind, parent, child, axis='0 0 1'):
+        limit = '<limit lower="0" upper="0.4" effort="10" velocity="0.1"/>' if kind != 'fixed' else ''
+        return (f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
+                f'<origin xyz="0 0 0.1"/><axis xyz="{axis}"/>{limit}</joint>')
+    links = ['base', 'torso', 'bellows', 'upper', 'fore', 'hand', 'left', 'right']
+    xml = ('<robot name="fetchlike">' + ''.join(f'<link name="{n}"/>' for n in links)
+           + joint('torso_lift', 'prismatic', 'base', 'torso') + joint('bellows', 'prismatic', 'torso', 'bellows')
+           + joint('shoulder', 'revolute', 'torso', 'upper') + joint('elbow', 'revolute', 'upper', 'fore', '0 1 0')
+           + joint('wrist', 'revolute', 'fore', 'hand') + joint('left_slide', 'prismatic', 'hand', 'left', '0 1 0')
+           + joint('right_slide', 'prismatic', 'hand', 'right', '0 -1 0') + '</robot>')
+    assert KinematicTree.from_xml_string(xml).finger_joints() == {'left_slide', 'right_slide'}
