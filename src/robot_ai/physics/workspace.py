@@ -28,6 +28,8 @@ READY_REACH = 0.55          # the ready grip point's distance in front of the sh
 READY_HEIGHT = 0.2          # m: the ready grip point above the table (panda-gym's and Fetch's gripper start so)
 READY_ITERATIONS = 400      # damped least squares steps to the ready configuration
 READY_TOLERANCE = (0.005, 0.02)     # m and rad: how near the ready pose must come
+CORNER = 0.17               # m: the workspace's corners from its centre, along x and y (the envs' 0.3 m square of
+                            # objects and goals, and a grasp's reach round it)
 READY_STARTS = 16           # damped least squares from the middle of every range, then from random configurations
 DOWN = np.array([0.0, 0.0, -1.0])
 
@@ -191,6 +193,19 @@ def ready_pose(arm: Arm, offset: np.ndarray, approach: np.ndarray, closing: np.n
     return q[:, 0].copy(), float(np.linalg.norm(target - grip)), angle
 
 
+def _corners_reached(arm: Arm, grip: Grip, ready: np.ndarray, centre: np.ndarray, height: float) -> bool:
+    """Whether the gripper, pointing down as at ready, reaches the workspace's corners (CORNER from the centre)
+    low, at a grasp's height over the table (the Fetch pointing down could not reach its far side)."""
+    low = centre[2] - height + grip.beyond + 0.02
+    for dx in (CORNER, -CORNER):
+        for dy in (CORNER, -CORNER):
+            q, miss, angle = ready_pose(arm, grip.offset, grip.approach, grip.closing,
+                                        np.array([centre[0] + dx, centre[1] + dy, low]), ready)
+            if miss > READY_TOLERANCE[0] or angle > READY_TOLERANCE[1]:
+                return False
+    return True
+
+
 def workspace(arm: Arm, physics: Physics, reach: float = READY_REACH, height: float = READY_HEIGHT) -> Workspace:
     """The task's layout for arm (see the module's text); PhysicsError of one line where the arm cannot point its
     gripper down in front of itself."""
@@ -199,7 +214,7 @@ def workspace(arm: Arm, physics: Physics, reach: float = READY_REACH, height: fl
     forward = np.array([1.0, 0.0, 0.0])
     travel = sum(float(arm.upper[k] - arm.lower[k]) for k in range(arm.n) if not arm.revolute_joints[k])
     length = arm.length - travel          # a torso's lift (the Fetch's) reaches no farther forward
-    best = None
+    best, fallback = None, None
     for share in (reach, 0.8 * reach, 0.6 * reach):     # nearer where the wrist's height above the grip point
         target = shoulder + forward * share * length    # leaves the arm short (the Fetch's)
         target[2] = shoulder[2]
@@ -213,7 +228,13 @@ def workspace(arm: Arm, physics: Physics, reach: float = READY_REACH, height: fl
             if miss <= READY_TOLERANCE[0] and angle <= READY_TOLERANCE[1]:
                 break
         if best[2] <= READY_TOLERANCE[0] and best[3] <= READY_TOLERANCE[1]:
-            break
+            if _corners_reached(arm, grip, best[1], target, height):
+                break
+            if fallback is None:
+                fallback = best
+            best = None
+    if best is None:            # no share reaches every corner: the first ready pose found, its far side short
+        best = fallback
     _, q, miss, angle, target = best
     if miss > READY_TOLERANCE[0] or angle > READY_TOLERANCE[1]:
         raise PhysicsError(f'{arm.tree.name}: no configuration points the gripper down in front of the shoulder, '
