@@ -158,10 +158,11 @@ def world_parser(sub) -> None:
 
 def run_world(a, parser) -> int:
     import yaml
-    from robot_ai.physics.pick import PickError, world
+    from robot_ai.physics.pick import PickError, PickPlace, world
     try:
         setup = ManipulationSetup('pick_and_place', model=a.model, xacro_args=a.xacro_args or None, tip=a.tip)
-        made = world(setup, a.cubes, a.seed)
+        ready = PickPlace(setup, obstacles=[setup.table()]).ready      # clear of the safety layer's body
+        made = world(setup, a.cubes, a.seed, ready)
     except (ReachError, PhysicsError, PickError) as e:
         refuse(parser, str(e))
     text = (f'# python -m robot_ai.physics world --model {a.model}: the pick-and-place task of '

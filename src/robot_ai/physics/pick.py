@@ -28,7 +28,8 @@ from robot_ai.reach.safety import DEFAULT_MARGIN, Limits, Plan, SafetyLayer
 
 SELECT_RADIUS = 0.08        # m: a click this near an object's middle chooses it
 PLACE_HEIGHT = 0.02         # m: a place is a click on the table: this near its top
-READY_TOLERANCE = 0.02      # rad (or m): the arm at the ready configuration, the policy takes over
+AT_READY = 0.02             # rad (or m): the arm at the ready configuration, the policy takes over
+READY_TRIES = 64            # other ready configurations tried where the task's touches the layer's body
 TASK_TIME = 12.0            # s: the policy's time to bring the object to the place
 PLACED_WITHIN = 0.02        # m: the object this near the place (and resting on what is under it), the gripper opens
 CARRY = 0.08               # m: the object is carried this high over the place, then set down
@@ -41,10 +42,10 @@ HELD_TIME = 2.0             # s: a layer that refuses every step this long ends 
 PLAN_TIME = 5.0             # s: the planner's time for the way to the ready configuration
 
 
-def world(setup: ManipulationSetup, count: int = 2, seed: int = 0) -> dict:
+def world(setup: ManipulationSetup, count: int = 2, seed: int = 0, ready=None) -> dict:
     """The task's world for arm_sim and pick_place (both take the same YAML): the table (obstacles), count cubes
     on it at least 0.1 m apart (objects: cube, cube_2, ...), drawn from the task's object range with seed, and the
-    ready configuration (home: {joint: position}, arm_sim's start)."""
+    ready configuration (home: {joint: position}, arm_sim's start: ready, PickPlace.ready, or the task's)."""
     if not (isinstance(count, int) and 0 <= count <= 20):
         raise PickError(f'count must be a whole number from 0 to 20, got {count!r}')
     rng = np.random.default_rng(seed)
@@ -62,7 +63,8 @@ def world(setup: ManipulationSetup, count: int = 2, seed: int = 0) -> dict:
     table['position'] = [round(float(x), 4) for x in table['position']]
     return {'obstacles': [table],
             'objects': [setup.cube([round(float(x), 4) for x in p], n) for n, p in zip(names, cubes)],
-            'home': {n: round(float(v), 6) for n, v in zip(setup.arm.joints, setup.space.ready)}}
+            'home': {n: round(float(v), 6) for n, v in zip(setup.arm.joints, setup.space.ready if ready is None
+                                                           else ready)}}
 
 
 class PickError(ValueError):
@@ -109,8 +111,30 @@ class PickPlace:
         self.layer = SafetyLayer(self.limits, self.period, self.reach.body, self.margin)
         self.planner = self.reach.joint_planner(self.margin, self.limits, max(self.margin, 0.001))
         self.span = float(setup.grip_open[0] - setup.grip_closed[0])
+        self.ready, self.ready_note = self._clear_ready()
         self.name = ''
         self.phase = ''
+
+    def _clear_ready(self) -> tuple[np.ndarray, str]:
+        """The task's ready configuration, or where the layer's body finds it touching (its spheres are a little
+        larger than the meshes: the Fetch's upper arm by its head), another with the gripper at the same pose, clear
+        by the margin (the policy acts on the grip point, not the joints); (configuration, a note for the log)."""
+        from robot_ai.physics.workspace import READY_TOLERANCE, ready_pose
+        s, body = self.setup, self.reach.body
+        ready = s.space.ready
+        if body is None or not body.in_collision(ready[None], self.margin)[0]:
+            return ready, ''
+        touching = ', '.join(body.contacts(ready, self.margin)[:2])
+        grip, rng = s.space.grip, np.random.default_rng(0)
+        for _ in range(READY_TRIES):
+            q, miss, angle = ready_pose(s.arm, grip.offset, grip.approach, grip.closing, s.ready_grip,
+                                        rng.uniform(s.arm.lower, s.arm.upper))
+            if miss <= READY_TOLERANCE[0] and angle <= READY_TOLERANCE[1] and \
+                    not body.in_collision(q[None], self.margin)[0]:
+                return q, (f'the task\'s ready configuration touches ({touching}) within {self.margin:g} m: '
+                           f'another with the gripper there is used')
+        raise PickError(f'{s.robot.tree.name}: the task\'s ready configuration touches ({touching}) within '
+                        f'{self.margin:g} m, and no other with the gripper there is clear')
 
     # ------------------------------------------------------------------------------------------- what to pick
     def choose(self, clicked, objects: dict[str, np.ndarray]) -> str:
@@ -306,23 +330,25 @@ class PickPlace:
 
     def _ready(self, now: float, q: np.ndarray) -> PickStep:
         """The way to the ready configuration: planned once, followed in time through the layer."""
-        ready = self.setup.space.ready
+        ready = self.ready
         if self.way is None:
-            if np.abs(q - ready).max() < READY_TOLERANCE:
+            if np.abs(q - ready).max() < AT_READY:
                 self._enter('task', now)
                 return PickStep(plan=self._send(now, q, q), opening=1.0, said='at the ready configuration')
             from robot_ai.motion import time_path
-            path = self.planner.plan(q, ready[None], PLAN_TIME)
+            planner = self.planner
+            if self.reach.body.in_collision(q[None], self.margin)[0]:      # within the margin: out with none kept
+                planner = self.reach.joint_planner(0.0, self.limits, 0.001)
+            path = planner.plan(q, ready[None], PLAN_TIME)
             if not path.found:
                 return self._end(f'not placed: no way to the ready configuration ({path.reason})')
-            self.way = time_path(path.waypoints, self.limits.velocity, self.limits.acceleration,
-                                 self.planner.path_clear)
+            self.way = time_path(path.waypoints, self.limits.velocity, self.limits.acceleration, planner.path_clear)
             self.way_began = now
             return PickStep(plan=self._send(now, q, q), opening=1.0,
                             said=f'a way to the ready configuration planned ({path.how}, '
                                  f'{self.way.duration:.1f} s)')
         t = now - self.way_began + self.layer.lead + self.period
-        if t > self.way.duration and np.abs(q - ready).max() < READY_TOLERANCE:
+        if t > self.way.duration and np.abs(q - ready).max() < AT_READY:
             self._enter('task', now)
             self.way = None
             return PickStep(plan=self._send(now, ready, q), said='at the ready configuration: the policy has the arm')
