@@ -30,7 +30,9 @@ SELECT_RADIUS = 0.08        # m: a click this near an object's middle chooses it
 PLACE_HEIGHT = 0.02         # m: a place is a click on the table: this near its top
 AT_READY = 0.02             # rad (or m): the arm at the ready configuration, the policy takes over
 READY_TRIES = 64            # other ready configurations tried where the task's touches the layer's body
-TASK_TIME = 12.0            # s: the policy's time to bring the object to the place
+TASK_TIME = 60.0            # s: the policy's longest time to bring the object to the place
+STALL_TIME = 6.0            # s: ... and without progress (the hand nearer the object, or the object nearer the place)
+PROGRESS = 0.005            # m: what counts as progress
 PLACED_WITHIN = 0.02        # m: the object this near the place (and resting on what is under it), the gripper opens
 CARRY = 0.08               # m: the object is carried this high over the place, then set down
 RELEASE_TIME = 1.5          # s: the gripper's time to open
@@ -186,7 +188,8 @@ class PickPlace:
         """A pick of the object name (at position) to place (place_of's); the line to say. PickError."""
         self.check_object(name, position)
         self.name, self.place = name, np.asarray(place, dtype=float)
-        self.phase, self.began, self.phase_began = 'ready', now, now
+        self.began = now
+        self._enter('ready', now)
         self.way = None
         self.last: tuple | None = None          # (now, grip, object position, object rotation, finger)
         self.held_since: float | None = None
@@ -201,6 +204,7 @@ class PickPlace:
 
     def _enter(self, phase: str, now: float) -> None:
         self.phase, self.phase_began = phase, now
+        self.best, self.best_at = np.inf, now
         if phase == 'task':         # the hand comes within millimetres of the table: only touching is refused
             self.layer.margin = 0.0
 
@@ -262,9 +266,14 @@ class PickPlace:
                 self._enter('release', now)
                 return PickStep(plan=self._send(now, q, q), opening=1.0,
                                 said=f'{self.name} at the place ({distance:.3f} m): opening the gripper')
-            if now - self.phase_began > TASK_TIME:
-                return self._end(f'not placed: {self.name} is {distance:.3f} m from the place after {TASK_TIME:g} s '
-                                 f'of the policy ({self._where(obs)})')
+            progress = distance + float(np.linalg.norm(obs['observation'][6:9]))    # object to place, hand to it
+            if progress < self.best - PROGRESS:
+                self.best, self.best_at = progress, now
+            if now - self.best_at > STALL_TIME or now - self.phase_began > TASK_TIME:
+                took = f'no progress for {STALL_TIME:g} s' if now - self.best_at > STALL_TIME else \
+                    f'after {TASK_TIME:g} s'
+                return self._end(f'not placed: {self.name} is {distance:.3f} m from the place, {took} of the policy '
+                                 f'({self._where(obs)})')
             # the goal the policy is given: where the grip point must go for the object, as it sits in the hand,
             # to be at the place (an object held off its middle was set down that far off)
             # (measured while the object is lifted clear of the table, kept while it is set down)
