@@ -294,3 +294,19 @@ def test_a_floating_base_robot_has_its_body_below_the_floating_joint():
     assert [bool(exact.contacts(poses, n)) for n in range(2)] == [False, True]
     assert body.in_collision(q).tolist() == [False, True]
     assert any('pelvis' in pair for pair in body.contacts(q[1]))
+
+
+def test_a_collada_mesh_is_read_at_its_unit_as_rviz_scales_it(tmp_path):
+    """A .dae collision mesh (Kinova's, in their units) read through trimesh and pycollada, scaled by its asset's
+    <unit meter=...> as rviz and MoveIt (assimp) scale it; trimesh alone would leave millimetres as metres."""
+    box = trimesh.creation.box(extents=[40.0, 20.0, 10.0])         # millimetres
+    text = trimesh.exchange.dae.export_collada(box).decode()
+    assert '<unit' not in text and '<asset>' in text
+    text = text.replace('<asset>', '<asset>\n    <unit meter="0.001" name="millimeter"/>', 1)
+    (tmp_path / 'box.dae').write_text(text)
+    urdf = (f'<robot name="r"><link name="a"><collision><geometry><mesh filename="{tmp_path}/box.dae"/></geometry>'
+            f'</collision></link></robot>')
+    shapes, missing = body_module.link_shapes(urdf)
+    assert missing == [] and len(shapes['a']) == 1
+    np.testing.assert_allclose(sorted(shapes['a'][0].extents), [0.01, 0.02, 0.04], atol=1e-9)
+    assert body_module.collada_unit(str(tmp_path / 'box.dae')) == 0.001

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import stat
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -285,6 +286,20 @@ def link_shapes(urdf: str, urdf_dir: str = '') -> tuple[dict, list[str]]:
     return shapes, missing
 
 
+def collada_unit(path: str) -> float:
+    """Metres per unit of a COLLADA file (its asset's <unit meter=...>, 1 where it gives none): rviz and MoveIt
+    (assimp) scale a .dae by it, trimesh does not (a Kinova's meshes in millimetres would be a thousand times too
+    large)."""
+    with open(path, 'rb') as f:
+        head = f.read(65536).decode('utf-8', 'replace')
+    found = re.search(r'<unit\b[^>]*\bmeter\s*=\s*["\']([^"\']+)["\']', head)
+    try:
+        unit = float(found.group(1)) if found else 1.0
+    except ValueError:
+        return 1.0
+    return unit if math.isfinite(unit) and unit > 0 else 1.0
+
+
 def _geometry(element, urdf_dir: str):
     """(trimesh.Trimesh in the link's frame or None, why it is missing ('' when read or when there is none)) of a
     <collision> or <visual> element."""
@@ -310,6 +325,8 @@ def _geometry(element, urdf_dir: str):
             if not len(getattr(mesh, 'vertices', ())):
                 return None, f'{g.get("filename")} (no triangles read)'
             mesh.apply_scale([float(v) for v in (g.get('scale') or '1 1 1').split()])
+            if path.lower().endswith('.dae'):
+                mesh.apply_scale(collada_unit(path))
         else:
             return None, ''
     except (TypeError, ValueError, AttributeError, OSError, IndexError) as e:
