@@ -113,3 +113,20 @@ def test_a_policy_that_answers_nan_ends_the_pick_and_the_arm_holds():
     assert run.outcome.startswith('not placed: the policy answered [nan'), run
     assert not picking.phase
     np.testing.assert_allclose(arm.object_poses()['cube'][:3, 3], made['objects'][0]['position'], atol=2e-3)
+
+
+def test_a_can_and_a_brick_are_set_down_at_their_own_height():
+    """Objects of other shapes (arm_sim's objects: cylinders, boxes of any size) are set down where clicked, their
+    middle at their own half height over the table, not the task's cube's."""
+    setup = setup_of(ROBOTIQ)
+    c, top = setup.space.centre, setup.space.table_top
+    for spec, half in (({'cylinder': [0.02, 0.06], 'name': 'can'}, 0.03),
+                       ({'box': [0.03, 0.05, 0.05], 'name': 'brick'}, 0.025)):
+        made = {'obstacles': [setup.table()], 'objects': [dict(spec, position=[c[0] + 0.05, c[1] - 0.05, top + half])],
+                'home': dict(zip(setup.arm.joints, setup.space.ready))}
+        picking, arm = picking_in(setup, made, objects=made['objects'])
+        assert picking.half_height(spec['name']) == pytest.approx(half)
+        run = run_in_physics(picking, arm, spec['name'], [c[0] - 0.1, c[1] + 0.1, top])
+        assert run.outcome.startswith(f'placed {spec["name"]}'), run
+        np.testing.assert_allclose(arm.object_poses()[spec['name']][:3, 3], [c[0] - 0.1, c[1] + 0.1, top + half],
+                                   atol=0.015)

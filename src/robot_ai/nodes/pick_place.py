@@ -100,7 +100,7 @@ class PickPlaceNode:
                 said = 'the scripted expert'
             objects = parse_objects(rospy.get_param('~objects', '') or ())
             self.picking = PickPlace(
-                setup, obstacles=rospy.get_param('~obstacles', '') or (), policy=policy,
+                setup, obstacles=rospy.get_param('~obstacles', '') or (), policy=policy, objects=objects,
                 velocity_scale=number_param('~velocity_scale', 0.5, 'a number in (0, 1]', lambda v: 0 < v <= 1),
                 margin=number_param('~collision_margin', 0.02, 'metres, 0 to 1', lambda v: 0 <= v <= 1),
                 joint_limits=str_param('~joint_limits', '') or None)
@@ -186,7 +186,7 @@ class PickPlaceNode:
                 name, self.chosen = self.chosen, None
                 if name not in objects:
                     raise PickError(f'{name}\'s frame {self.frames[name]} is not on /tf')
-                place = self.picking.place_of(point, {k: v for k, v in objects.items() if k != name})
+                place = self.picking.place_of(point, {k: v for k, v in objects.items() if k != name}, name)
                 self._say(self.picking.start(name, objects[name], place, self._now()))
                 self._marker(objects[name], place)
             except PickError as e:

@@ -23,6 +23,7 @@ from typing import Callable
 import numpy as np
 
 from robot_ai.physics.env import EE_STEP, ManipulationSetup
+from robot_ai.physics.model import parse_objects
 from robot_ai.reach.env import ReachSetup
 from robot_ai.reach.safety import DEFAULT_MARGIN, Limits, Plan, SafetyLayer
 
@@ -101,7 +102,7 @@ class PickPlace:
     obstacles, keeping margin; period: the control step (the env's step_time)."""
 
     def __init__(self, setup: ManipulationSetup, obstacles=(), policy: Callable | None = None,
-                 velocity_scale: float = 0.5, margin: float = DEFAULT_MARGIN, joint_limits=None):
+                 velocity_scale: float = 0.5, margin: float = DEFAULT_MARGIN, joint_limits=None, objects=()):
         if setup.task != 'pick_and_place':
             raise PickError(f'a pick needs the pick_and_place task\'s setup, not {setup.task}\'s')
         self.setup, self.period = setup, setup.step_time
@@ -113,6 +114,7 @@ class PickPlace:
         self.layer = SafetyLayer(self.limits, self.period, self.reach.body, self.margin)
         self.planner = self.reach.joint_planner(self.margin, self.limits, max(self.margin, 0.001))
         self.span = float(setup.grip_open[0] - setup.grip_closed[0])
+        self.objects = {o.name: o for o in parse_objects(objects)}      # their sizes: how high each is set down
         self.ready, self.ready_note = self._clear_ready()
         self.name = ''
         self.phase = ''
@@ -151,12 +153,21 @@ class PickPlace:
                             f'{d:.3f} m away (click on an object first)')
         return name
 
-    def place_of(self, clicked, others: dict[str, np.ndarray] | None = None) -> np.ndarray:
-        """Where the object's middle goes for a click on the table (the object set down on it there), within the
-        workspace and clear of the others (objects: {name: position}, the one picked left out); PickError."""
+    def half_height(self, name: str) -> float:
+        """How far the object's middle stands above what it rests on, upright (the task's cube where it is not one
+        of the objects given)."""
+        o = self.objects.get(name)
+        if o is None:
+            return self.setup.object_size / 2
+        return {'box': o.size[-1] / 2, 'sphere': o.size[0], 'cylinder': o.size[-1] / 2}.get(o.kind, o.size[0])
+
+    def place_of(self, clicked, others: dict[str, np.ndarray] | None = None, name: str = '') -> np.ndarray:
+        """Where the middle of the object name goes for a click on the table (the object set down on it there),
+        within the workspace and clear of the others (objects: {name: position}, the one picked left out);
+        PickError."""
         s = self.setup
         clicked = np.asarray(clicked, dtype=float)
-        goal = clicked + [0.0, 0.0, s.object_size / 2]
+        goal = clicked + [0.0, 0.0, self.half_height(name)]
         low, high = s.low.copy(), s.high.copy()
         low[2] = s.space.table_top - 0.01
         if abs(clicked[2] - s.space.table_top) > PLACE_HEIGHT:
@@ -166,10 +177,10 @@ class PickPlace:
             raise PickError(f'the place {_point(clicked)} is outside the workspace the arm picks and places in (x '
                             f'{low[0]:+.2f}..{high[0]:+.2f}, y {low[1]:+.2f}..{high[1]:+.2f}, from the table\'s top '
                             f'at z {s.space.table_top:+.3f} up to {high[2]:+.3f}, in the robot\'s root frame)')
-        for name, where in (others or {}).items():
+        for other, where in (others or {}).items():
             gap = float(np.linalg.norm(np.asarray(where, dtype=float)[:2] - goal[:2]))
-            if gap < s.object_size * 1.5:
-                raise PickError(f'the place {_point(clicked)} is taken: {name} stands {gap:.3f} m from it (click '
+            if gap < 1.5 * max(s.object_size, 2 * self.half_height(name), 2 * self.half_height(other)):
+                raise PickError(f'the place {_point(clicked)} is taken: {other} stands {gap:.3f} m from it (click '
                                 f'where the table is clear)')
         return goal
 
@@ -278,7 +289,7 @@ class PickPlace:
             # to be at the place (an object held off its middle was set down that far off)
             # (measured while the object is lifted clear of the table, kept while it is set down)
             o = obs['observation']
-            if cube[2] > s.space.table_top + s.object_size / 2 + 0.01 and np.linalg.norm(o[6:8]) < 0.03:
+            if cube[2] > s.space.table_top + self.half_height(self.name) + 0.01 and np.linalg.norm(o[6:8]) < 0.03:
                 self.in_hand = o[6:8].copy()
             goal = self.place.copy()
             goal[:2] -= self.in_hand
@@ -323,7 +334,7 @@ class PickPlace:
         top = self.setup.space.table_top
         if cube[2] < top - 0.01:
             return 'it fell off the table'
-        if np.linalg.norm(cube - grip) < 0.05 and self.setup.object_size / 2 + 0.01 < cube[2] - top:
+        if np.linalg.norm(cube - grip) < 0.05 and self.half_height(self.name) + 0.01 < cube[2] - top:
             return 'the gripper holds it'
         return 'on the table, not held'
 
@@ -393,7 +404,7 @@ def run_in_physics(picking: PickPlace, arm, name: str, place, tick: float = 0.01
     from robot_ai.physics.model import ARM_CONTYPE
     s, model = picking.setup, arm.model
     position = arm.object_poses()[name][:3, 3]
-    picking.start(name, position, picking.place_of(place), 0.0)
+    picking.start(name, position, picking.place_of(place, name=name), 0.0)
     velocity_limit = s.arm.velocity           # the URDF's (unscaled)
     t, opening, outcome = 0.0, None, ''
     fastest, tracking, contacts, within = 0.0, 0.0, set(), True
