@@ -483,8 +483,12 @@ def _build(robot: Model, root, urdf_dir: str, world: tuple[Obstacle, ...], loose
 
 def _touching(physics: Physics) -> list[str]:
     """'link - geom' of the robot's contacts with the world and the objects at home."""
+    return robot_contacts(physics.model, physics.data())
+
+
+def robot_contacts(model, data) -> list[str]:
+    """'link - geom' of the robot's contacts with the world and the objects in data (a MuJoCo model's), sorted."""
     import mujoco
-    model, data = physics.model, physics.data()
     names = []
     for c in data.contact[:data.ncon] if data.ncon else ():
         a, b = (int(g) for g in c.geom)

@@ -400,9 +400,8 @@ def run_in_physics(picking: PickPlace, arm, name: str, place, tick: float = 0.01
     and world, its joints the setup's arm's), as arm_sim runs it: the layer's plans followed in time (each tick's
     servo target the plan's position then), the gripper's goals as gripper_action_controller takes them, a control
     step every picking.period; what the physics measured on the way."""
-    import mujoco
-    from robot_ai.physics.model import ARM_CONTYPE
-    s, model = picking.setup, arm.model
+    from robot_ai.physics.model import robot_contacts
+    s = picking.setup
     position = arm.object_poses()[name][:3, 3]
     picking.start(name, position, picking.place_of(place, name=name), 0.0)
     velocity_limit = s.arm.velocity           # the URDF's (unscaled)
@@ -425,14 +424,7 @@ def run_in_physics(picking: PickPlace, arm, name: str, place, tick: float = 0.01
             fastest = max(fastest, float(np.max(np.abs(arm.velocities) / velocity_limit)))
             tracking = max(tracking, float(np.max(np.abs(target - arm.positions))))
             within = within and bool(((arm.positions >= lower) & (arm.positions <= upper)).all())
-            data = arm.data
-            for c in data.contact[:data.ncon] if data.ncon else ():
-                a, b = (int(g) for g in c.geom)
-                for mine, other in ((a, b), (b, a)):
-                    if model.geom_contype[mine] == ARM_CONTYPE and model.geom_contype[other] != ARM_CONTYPE:
-                        link = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, model.geom_bodyid[mine])
-                        other_name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, other) or f'geom {other}'
-                        contacts.add(f'{link} - {other_name}')
+            contacts.update(robot_contacts(arm.model, arm.data))
         t += picking.period
     return PickRun(outcome or f'not placed: still going after {most:g} s', t, fastest, tracking, sorted(contacts),
                    within)
