@@ -29,6 +29,13 @@ PANDA = os.path.join(ROBOTS, 'panda.urdf')
 SETUPS = {}
 
 
+@pytest.fixture(autouse=True)
+def meshes(monkeypatch):
+    """The Panda's real meshes for every model and body a test builds (the setups are kept across tests: setup_of sets
+    the path for itself too)."""
+    monkeypatch.setenv('ROS_PACKAGE_PATH', os.pathsep.join((MESHES, os.environ.get('ROS_PACKAGE_PATH', ''))))
+
+
 def setup_of(model: str) -> ManipulationSetup:
     if model not in SETUPS:
         with pytest.MonkeyPatch.context() as mp:      # the Panda's real meshes, also in a module-scoped use
