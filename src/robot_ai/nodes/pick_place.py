@@ -27,7 +27,8 @@ ROS Parameters
     ~collision_margin (float, 0.02): metres kept between the arm's body and itself or an obstacle on the way.
     ~controller (str, "joint_trajectory_controller"): the controller whose <controller>/command takes the arm's
         trajectories.
-    ~state_timeout (float, 0.5): joint_states or an object's pose older than this (s of ROS time): the arm holds.
+    ~state_timeout (float, 0.5): joint_states or an object's pose older than this (s of ROS time): the arm holds; a pick
+        that waits INPUT_WAIT (5 s) for them ends, not placed. A pick with no gripper action server is refused.
 
 ROS Subscribers
     joint_states (sensor_msgs/JointState): the arm's and the gripper's joints.
@@ -68,9 +69,11 @@ from robot_ai.nodes.markers import obstacle_markers
 from robot_ai.nodes.params import number_param, publish, run_node, str_param
 from robot_ai.nodes.robot_description import wait_for_tree
 from robot_ai.physics import PhysicsError, parse_objects
-from robot_ai.physics.pick import PickError, PickPlace
+from robot_ai.physics.pick import PickError, PickPlace, PickStep
 
 GRIPPER_STEP = 0.05         # the gripper's opening (0 to 1) moves this much before a new goal is sent
+INPUT_WAIT = 5.0            # s of ROS time a pick waits for joint_states or its object's pose before it ends
+GRIPPER_WAIT = 2.0          # s: how long a pick waits for the gripper's action server to be there
 
 
 def _transform_matrix(t) -> np.ndarray:
@@ -114,6 +117,7 @@ class PickPlaceNode:
         self.joints: dict[str, float] = {}
         self.joints_at = None
         self.chosen: str | None = None
+        self.missing_since: float | None = None
         self.opening: float | None = None
         self.epoch = rospy.Time.now()
         self.buffer = tf2_ros.Buffer()
@@ -187,7 +191,11 @@ class PickPlaceNode:
                 if name not in objects:
                     raise PickError(f'{name}\'s frame {self.frames[name]} is not on /tf')
                 place = self.picking.place_of(point, {k: v for k, v in objects.items() if k != name}, name)
+                if not self.gripper.wait_for_server(rospy.Duration(GRIPPER_WAIT)):
+                    raise PickError(f'no gripper action server on {rospy.resolve_name(GRIPPER_ACTION)} (arm_sim with '
+                                    f'~physics mujoco serves one, a real arm\'s gripper_action_controller does)')
                 self._say(self.picking.start(name, objects[name], place, self._now()))
+                self.missing_since = None
                 self._marker(objects[name], place)
             except PickError as e:
                 self._say(f'not placed: {e}', error=True)
@@ -242,26 +250,34 @@ class PickPlaceNode:
                 return
             now = self._now()
             name = self.picking.name
+            missing = ''
             try:
                 arm = [self.joints[n] for n in self.setup.arm.joints]
                 finger = self.joints[self.setup.gripper[0]]
-                stale = self.joints_at is None or (rospy.Time.now() - self.joints_at).to_sec() > self.timeout
                 t = self.buffer.lookup_transform(self.tree.root, self.frames[name], rospy.Time(0))
                 pose = _transform_matrix(t)
-                stale = stale or (rospy.Time.now() - t.header.stamp).to_sec() > self.timeout
+                if self.joints_at is None or (rospy.Time.now() - self.joints_at).to_sec() > self.timeout:
+                    missing = f'joint_states older than {self.timeout:g} s'
+                elif (rospy.Time.now() - t.header.stamp).to_sec() > self.timeout:
+                    missing = f'{name}\'s pose on /tf older than {self.timeout:g} s'
             except KeyError as e:
-                rospy.logwarn_throttle(5, f'pick_place: joint_states has no {e}: the arm holds')
-                return
-            except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException) as e:
-                rospy.logwarn_throttle(5, f'pick_place: {name}\'s pose is not on /tf ({e}): the arm holds')
-                return
-            if stale:
-                rospy.logwarn_throttle(5, f'pick_place: joint_states or {name}\'s pose older than '
-                                          f'{self.timeout:g} s: the arm holds')
+                missing = f'joint_states without {e}'
+            except (tf2_ros.LookupException, tf2_ros.ConnectivityException, tf2_ros.ExtrapolationException):
+                missing = f'no pose of {name} on /tf'
+            if missing:             # the arm holds; a pick that waits INPUT_WAIT for its inputs ends
+                if self.missing_since is None:
+                    self.missing_since = now
+                rospy.logwarn_throttle(5, f'pick_place: {missing}: the arm holds')
                 if self.picking.layer.last is not None:
-                    self._send(self.picking.layer.plan(now, None, None, why_not='the arm\'s state is late'))
-                return
-            step = self.picking.step(now, np.array(arm), float(finger), pose)
+                    self._send(self.picking.layer.plan(now, None, None, why_not=missing))
+                if now - self.missing_since < INPUT_WAIT:
+                    return
+                self.picking.stop()
+                step = PickStep(said=f'not placed: {missing} for {INPUT_WAIT:g} s: the pick of {name} ends, the arm '
+                                     f'holds', outcome='not placed')
+            else:
+                self.missing_since = None
+                step = self.picking.step(now, np.array(arm), float(finger), pose)
             if step.plan is not None:
                 self._send(step.plan)
             if step.opening is not None:
