@@ -502,9 +502,10 @@ def robot_contacts(model, data) -> list[str]:
 
 def _set_gains(physics: Physics, hz: float) -> None:
     """Each servo critically damped at hz for the inertia its joint moves at home (the joint-space inertia's
-    diagonal): kp = m w^2, kv = 2 m w. A gripper's servo grips: it exerts its effort limit GRIP_SQUEEZE of its range
-    short of its target (an object between the fingers is squeezed with the force asked for), critically damped at
-    GRIPPER_HZ, its rotor's inertia (armature) raised to what that takes (a finger's own is grams: MuJoCo's step
+    diagonal): kp = m w^2, kv = 2 m w; where the URDF damps the joint (d), kp = m w^2 + d w, its slowest pole still
+    w. A gripper's servo grips: it exerts its effort limit GRIP_SQUEEZE of its range short of its target (an object
+    between the fingers is squeezed with the force asked for), critically damped at GRIPPER_HZ, its rotor's inertia
+    (armature) raised to what that takes (a finger's own is grams: MuJoCo's step
     would not hold so stiff a servo on it)."""
     import mujoco
     model = physics.model
@@ -515,7 +516,9 @@ def _set_gains(physics: Physics, hz: float) -> None:
     for k, name in enumerate(physics.actuated):
         dof = model.jnt_dofadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)]
         m = float(full[dof, dof])
-        kp, kv = m * w * w, 2.0 * m * w
+        # the joint's own damping (the URDF's) slows the servo: kp raised by damping * w keeps its slow pole at w
+        # (m s^2 + (kv + damping) s + kp has the root -w): the Fetch's wrist roll, damping 5 on grams, lagged 1.7 s
+        kp, kv = m * w * w + float(model.dof_damping[dof]) * w, 2.0 * m * w
         lo, hi = model.actuator_ctrlrange[k]
         effort = model.actuator_forcerange[k, 1]
         if name in physics.gripper and model.actuator_ctrllimited[k] and model.actuator_forcelimited[k] and hi > lo:
