@@ -2,7 +2,8 @@
 """pick_place in the ROS graph (pick.launch, no rviz): clicks on /clicked_point as rviz's Publish Point sends them.
 A click on nothing and a place off the table are refused with one line on ~result; a cube clicked, then a place on
 the table: ~result says placed, and the cube's frame on /tf (arm_sim's physics) rests there; the second cube, from
-where the first pick left the arm (a planned way to the ready configuration first), placed too."""
+where the first pick left the arm (a planned way to the ready configuration first), placed too; a pick cancelled on
+its way (~cancel) is said not placed."""
 import time
 import unittest
 
@@ -12,6 +13,7 @@ import rostest
 import tf2_ros
 from geometry_msgs.msg import PointStamped
 from std_msgs.msg import String
+from std_srvs.srv import Trigger
 
 ROOT = 'base_link'
 
@@ -36,8 +38,9 @@ class TestPickPlace(unittest.TestCase):
         msg.point.x, msg.point.y, msg.point.z = x, y, z
         self.clicks.publish(msg)
 
-    def result(self, timeout: float = 180.0) -> str:
-        count = len(self.results)
+    def result(self, timeout: float = 180.0, count: int | None = None) -> str:
+        """The first result after the count-th (default: the next one to come)."""
+        count = len(self.results) if count is None else count
         deadline = time.monotonic() + timeout
         while len(self.results) == count and time.monotonic() < deadline and not rospy.is_shutdown():
             time.sleep(0.05)
@@ -64,6 +67,21 @@ class TestPickPlace(unittest.TestCase):
             self.assertTrue(said.startswith(f'placed {name} at'), said)
             time.sleep(0.5)
             np.testing.assert_allclose(self.position(name), [place[0], place[1], top + 0.02], atol=0.015)
+        # a pick cancelled on its way: said, the arm holds, and the next click chooses again
+        rospy.wait_for_service('/pick_place/cancel', timeout=30)
+        cancel = rospy.ServiceProxy('/pick_place/cancel', Trigger)
+        self.assertFalse(cancel().success)                # nothing under way
+        start = self.position('cube')
+        count = len(self.results)
+        self.click(*(start + [0, 0, 0.02]))
+        self.click(0.65, 0.15, top)
+        deadline = time.monotonic() + 60
+        answer = cancel()
+        while not answer.success and time.monotonic() < deadline:     # as soon as the pick is under way
+            time.sleep(0.05)
+            answer = cancel()
+        self.assertTrue(answer.success, answer.message)
+        self.assertEqual(self.result(30, count), 'not placed: the pick of cube was cancelled (the arm holds)')
 
 
 if __name__ == '__main__':
