@@ -238,9 +238,8 @@ class PickPlaceNode:
         if self.opening is not None and abs(opening - self.opening) < GRIPPER_STEP:
             return
         self.opening = opening
-        s = self.setup
         goal = GripperCommandGoal()
-        goal.command.position = float(s.grip_closed[0] + opening * (s.grip_open[0] - s.grip_closed[0]))
+        goal.command.position = self.setup.grip_position(opening)
         goal.command.max_effort = 0.0
         self.gripper.send_goal(goal)
 

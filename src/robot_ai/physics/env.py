@@ -55,6 +55,11 @@ IK_ITERATIONS = 2
 TABLE_MARGIN = 0.005        # m: the fingertips' lowest target above the table
 
 
+def rpy_of(m: np.ndarray) -> list[float]:
+    """Roll, pitch, yaw of a rotation matrix, as the envs observe the cube."""
+    return [math.atan2(m[2, 1], m[2, 2]), math.asin(-max(-1.0, min(1.0, m[2, 0]))), math.atan2(m[1, 0], m[0, 0])]
+
+
 def _gripping_arm(tree, tip: str | None) -> Arm:
     """The arm to tip; with no tip given, the arm's end, or where it has no gripper below it (a tool frame beside
     the fingers: the PR2's r_gripper_tool_frame), the nearest link up its chain that has."""
@@ -151,6 +156,10 @@ class ManipulationSetup:
         """The task's cube at position, as a loose object (physics.model's YAML)."""
         return {'box': [self.object_size] * 3, 'position': [float(x) for x in position], 'mass': self.object_mass,
                 'name': name}
+
+    def grip_position(self, opening: float) -> float:
+        """The gripper's first joint (a gripper command's position, m or rad) at opening (0 closed, 1 open)."""
+        return float(self.grip_closed[0] + opening * (self.grip_open[0] - self.grip_closed[0]))
 
     def expert(self, observation, desired_goal) -> np.ndarray:
         """The scripted expert's actions (physics.expert) for this arm: its push start and lowest grip point."""
@@ -249,8 +258,7 @@ class ManipulationSetup:
         r = data.xmat[self.tip_body].reshape(3, 3)
         grip = data.xpos[self.tip_body] + r @ self.space.grip.offset
         cube = data.xpos[self.object_body].copy()
-        m = data.xmat[self.object_body].reshape(3, 3)
-        rpy = [math.atan2(m[2, 1], m[2, 2]), math.asin(-max(-1.0, min(1.0, m[2, 0]))), math.atan2(m[1, 0], m[0, 0])]
+        rpy = rpy_of(data.xmat[self.object_body].reshape(3, 3))
         span = self.grip_open[0] - self.grip_closed[0]
         finger = data.qpos[self.finger_q]
         velocity = data.qvel[self.object_v:self.object_v + 6]

@@ -17,12 +17,12 @@ the layer's world either: the arm may push them.
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Callable
 
 import numpy as np
 
-from robot_ai.physics.env import EE_STEP, ManipulationSetup
+from robot_ai.physics.env import EE_STEP, ManipulationSetup, rpy_of
+from robot_ai.physics.learn import expert_policy, flatten
 from robot_ai.physics.model import parse_objects
 from robot_ai.reach.env import ReachSetup
 from robot_ai.reach.safety import DEFAULT_MARGIN, Limits, Plan, SafetyLayer
@@ -85,12 +85,6 @@ class PickStep:
     outcome: str = ''
 
 
-def rpy_of(rotation: np.ndarray) -> list[float]:
-    """Roll, pitch, yaw of a rotation matrix (as the envs observe the cube)."""
-    m = rotation
-    return [math.atan2(m[2, 1], m[2, 2]), math.asin(-max(-1.0, min(1.0, m[2, 0]))), math.atan2(m[1, 0], m[0, 0])]
-
-
 def _point(p) -> str:
     return '(' + ', '.join(f'{x:+.3f}' for x in p) + ')'
 
@@ -106,7 +100,7 @@ class PickPlace:
         if setup.task != 'pick_and_place':
             raise PickError(f'a pick needs the pick_and_place task\'s setup, not {setup.task}\'s')
         self.setup, self.period = setup, setup.step_time
-        self.policy = policy if policy is not None else (lambda x: setup.expert(x[:, 6:], x[:, 3:6]))
+        self.policy = policy if policy is not None else expert_policy(setup)
         self.reach = ReachSetup(urdf=setup.robot.urdf, tip=setup.arm.tip, obstacles=obstacles or None,
                                 collision=True)
         self.limits = Limits.of(self.reach.arm, joint_limits, velocity_scale)
@@ -295,7 +289,7 @@ class PickPlace:
             goal[:2] -= self.in_hand
             if np.linalg.norm(cube[:2] - self.place[:2]) > PLACED_WITHIN / 2:     # carried over it first, then down
                 goal[2] += CARRY
-            flat = np.concatenate([obs['achieved_goal'], goal, obs['observation']])[None]
+            flat = flatten({'achieved_goal': cube[None], 'desired_goal': goal[None], 'observation': o[None]})
             action = np.asarray(self.policy(flat), dtype=float).reshape(-1)
             if action.shape != (4,) or not np.isfinite(action).all():
                 return self._end(f'not placed: the policy answered {action.tolist()}, not 4 finite numbers')
@@ -413,7 +407,7 @@ def run_in_physics(picking: PickPlace, arm, name: str, place, tick: float = 0.01
         step = picking.step(t, arm.positions, arm.gripper_state()[0], arm.object_poses()[name])
         if step.opening is not None and step.opening != opening:
             opening = step.opening
-            arm.grip(float(s.grip_closed[0] + opening * (s.grip_open[0] - s.grip_closed[0])))
+            arm.grip(s.grip_position(opening))
         if step.outcome:
             outcome = step.outcome
             break
