@@ -122,7 +122,9 @@ class PickPlaceNode:
         self.epoch = rospy.Time.now()
         self.buffer = tf2_ros.Buffer()
         self.listener = tf2_ros.TransformListener(self.buffer)
-        self.command_pub = rospy.Publisher(f'{controller}/command', JointTrajectory, queue_size=1,
+        # every plan starts where the one before leaves the arm: none may be dropped (reach_controller's lesson: a
+        # queue of 1 dropped one under load and the controller joined the next from where the arm was)
+        self.command_pub = rospy.Publisher(f'{controller}/command', JointTrajectory, queue_size=100,
                                            tcp_nodelay=True)
         self.result_pub = rospy.Publisher('~result', String, queue_size=10, latch=True)
         self.marker_pub = rospy.Publisher('~place_marker', Marker, queue_size=1, latch=True)
@@ -137,6 +139,8 @@ class PickPlaceNode:
                       f'{", ".join(setup.gripper)}), {said}, {len(self.frames)} objects '
                       f'({", ".join(self.frames.values()) or "none: give ~objects"}); click an object in rviz '
                       f'(Publish Point), then the place')
+        if self.picking.ready_note:
+            rospy.loginfo(f'pick_place: {self.picking.ready_note}')
 
     # ---------------------------------------------------------------------------------------------- inputs
     def _on_joints(self, msg: JointState) -> None:
