@@ -4,6 +4,7 @@ layout worked out from the robot (physics.workspace), both tasks solved by the s
 line. No roscore."""
 from __future__ import annotations
 
+import copy
 import os
 
 import gymnasium
@@ -174,3 +175,25 @@ def test_a_reset_mask_resets_those_worlds_only_as_sync_vector_env_does():
     np.testing.assert_array_equal(i1['_is_success'], mask)
     with pytest.raises(ValueError, match='length must match num_envs=3'):
         vec.reset(seed=[1, 2])
+
+
+def test_the_observation_is_of_the_joints_as_they_stand_and_the_cube_spins_in_the_root_frame():
+    """After a step the grip point is where the kinematics puts it for the joints reported (MuJoCo's bodies lag its
+    joints by a step after mj_step: 1 mm at speed), the cube's velocity is MuJoCo's own (mj_objectVelocity, in the
+    world frame), and the ready configuration is the same in every process (rounded, whatever BLAS's last bits)."""
+    import mujoco
+    env = gymnasium.make('robot_ai/PickAndPlace-v0', model=PANDA).unwrapped
+    setup = env.setup
+    np.testing.assert_array_equal(np.round(setup.space.ready, 9), setup.space.ready)
+    obs, _ = env.reset(seed=4)
+    moved = 0.0
+    for _ in range(25):
+        obs, *_ = env.step(setup.expert(obs['observation'][None], obs['desired_goal'][None])[0])
+        q = env.data.qpos[setup.q_address]
+        np.testing.assert_allclose(obs['observation'][:3], setup.grip_points(q[:, None])[0][:, 0], atol=1e-9)
+        res, now = np.zeros(6), copy.copy(env.data)
+        mujoco.mj_forward(setup.physics.model, now)     # mj_step leaves its velocities a step behind too
+        mujoco.mj_objectVelocity(setup.physics.model, now, mujoco.mjtObj.mjOBJ_BODY, setup.object_body, res, 0)
+        np.testing.assert_allclose(obs['observation'][13:19], [*res[3:], *res[:3]], atol=1e-12)
+        moved = max(moved, float(np.linalg.norm(obs['observation'][13:19])))
+    assert moved > 0.05                  # the cube was carried: its velocity was checked in motion

@@ -14,7 +14,8 @@ cube within ``distance_threshold`` (0.05 m) of the goal. reward_type 'sparse': -
 
 observation: the grip point (3), the cube's position (3), the cube relative to the grip point (3), the gripper's
 opening (1: its first joint, 0 closed to 1 open), the cube's orientation (3: roll, pitch, yaw), the cube's linear
-(3) and angular (3) velocity, the grip point's velocity (3), the gripper's speed (1: opening per second).
+(3) and angular (3) velocity (the root's frame), the grip point's velocity (3), the gripper's speed (1: opening per
+second).
 
 action: ``Box(-1, 1, (4,))``: the grip point's target is where it stands plus ``ee_step`` (0.05 m) x the first three
 (panda-gym's convention), kept above the table and within the workspace, the gripper's orientation held as it was
@@ -40,7 +41,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from robot_ai.physics.model import PhysicsError, build_physics
+from robot_ai.physics.model import PhysicsError, build_physics, free_velocity
 from robot_ai.physics.workspace import Workspace, hand_gripper, workspace
 from robot_ai.reach.arm import Arm, ReachError
 from robot_ai.reach.env import vector_reset_args
@@ -132,8 +133,9 @@ class ManipulationSetup:
         low, high = ranges[:, 0].copy(), ranges[:, 1].copy()
         self.grip_closed, self.grip_open = (low, high) if self.space.grip.open_high else (high, low)
         self.grip_speed = np.array([physics.gripper_speed[physics.gripper.index(n)] for n in self.gripper])
-        first = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, self.gripper[0])
-        self.finger_q = int(model.jnt_qposadr[first])
+        self.grip_q = np.array([physics.qpos_address(n) for n in self.gripper])
+        self.finger_q = int(self.grip_q[0])
+        self.actuated_q = np.array([physics.qpos_address(n) for n in physics.actuated])
         joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, OBJECT)
         self.object_q, self.object_v = int(model.jnt_qposadr[joint]), int(model.jnt_dofadr[joint])
         self.object_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, OBJECT)
@@ -194,16 +196,16 @@ class ManipulationSetup:
         return goal, self.ready_grip.copy(), float(data.qpos[self.finger_q])
 
     def place(self, data, cube: np.ndarray) -> None:
-        """data at the ready configuration, at rest, the gripper open (closed for push), the cube at cube."""
+        """data at the ready configuration, at rest, every servo holding its joint there, the gripper's joints open
+        (closed for push), the cube at cube."""
         import mujoco
         data.qpos[:] = self.physics.model.qpos0
         data.qvel[:] = 0.0
         data.qpos[self.q_address] = self.space.ready
-        data.ctrl[self.arm_actuators] = self.space.ready
         opening = self.grip_closed if self.task == 'push' else self.grip_open
-        data.ctrl[self.grip_actuators] = opening
-        data.qpos[self.finger_q] = opening[0]
+        data.qpos[self.grip_q] = opening
         self.physics.follow_mimics(data)
+        data.ctrl[:] = data.qpos[self.actuated_q]
         data.qpos[self.object_q:self.object_q + 7] = [*cube, 1.0, 0.0, 0.0, 0.0]
         data.qacc_warmstart[:] = 0.0
         data.time = 0.0
@@ -235,35 +237,54 @@ class ManipulationSetup:
             raise ValueError(f'an action is 4 finite numbers (dx, dy, dz, gripper), got {a.tolist()}')
         return np.clip(a, -1.0, 1.0)
 
-    def act(self, datas: list, grips: np.ndarray, actions: np.ndarray) -> None:
-        """One step of the worlds datas (N), their grip points grips (N, 3) as last observed, under actions (N, 4)
-        checked: the joints' targets by damped least squares for all at once, then step_time of physics each."""
-        import mujoco
+    def commands(self, q_t: np.ndarray, grips: np.ndarray, actions: np.ndarray,
+                 grip_now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(the arms' joint targets (n, N), the gripper servos' targets (N, g)) of one step of N worlds: their
+        joints q_t (n, N), grip points grips (N, 3) as last observed, actions (N, 4) checked and the gripper servos'
+        targets now grip_now (N, g). The joints by damped least squares for all at once; the gripper toward the
+        action's opening (closed for push) at most its joints' velocity limits over the step."""
         targets = np.clip(grips + EE_STEP * actions[:, :3], self.low, self.high)
-        q_t = np.stack([d.qpos[self.q_address] for d in datas], axis=1)
         joints = self.joint_targets(q_t, np.ascontiguousarray(targets.T))
         if self.task == 'push':
-            openings = np.broadcast_to(self.grip_closed, (len(datas), len(self.grip_closed)))
+            openings = np.broadcast_to(self.grip_closed, (len(actions), len(self.grip_closed)))
         else:
             openings = self.grip_closed + (actions[:, 3:4] + 1.0) / 2.0 * (self.grip_open - self.grip_closed)
         reach = self.grip_speed * self.step_time
+        return joints, np.clip(openings, grip_now - reach, grip_now + reach)
+
+    def act(self, datas: list, grips: np.ndarray, actions: np.ndarray) -> None:
+        """One step of the worlds datas (N), their grip points grips (N, 3) as last observed, under actions (N, 4)
+        checked: commands' targets, then step_time of physics each."""
+        import mujoco
+        q_t = np.stack([d.qpos[self.q_address] for d in datas], axis=1)
+        joints, grip = self.commands(q_t, grips, actions, np.stack([d.ctrl[self.grip_actuators] for d in datas]))
         for i, data in enumerate(datas):
             data.ctrl[self.arm_actuators] = joints[:, i]
-            now = data.ctrl[self.grip_actuators]
-            data.ctrl[self.grip_actuators] = np.clip(openings[i], now - reach, now + reach)
+            data.ctrl[self.grip_actuators] = grip[i]
             mujoco.mj_step(self.physics.model, data, nstep=self.substeps)
 
     def observe(self, data, last_grip: np.ndarray, last_finger: float) -> tuple[np.ndarray, np.ndarray]:
-        """(observation (23,), grip point) of data; last_grip, last_finger: the step before's, for velocities."""
-        r = data.xmat[self.tip_body].reshape(3, 3)
-        grip = data.xpos[self.tip_body] + r @ self.space.grip.offset
-        cube = data.xpos[self.object_body].copy()
-        rpy = rpy_of(data.xmat[self.object_body].reshape(3, 3))
+        """(observation (23,), grip point) of data as its last step left it (its bodies' poses brought up to date:
+        mj_step leaves them one MuJoCo step behind the joints); last_grip, last_finger: the step before's, for
+        velocities."""
+        import mujoco
+        mujoco.mj_kinematics(self.physics.model, data)
+        return self.observation(data.xpos[self.tip_body], data.xmat[self.tip_body].reshape(3, 3),
+                                data.xpos[self.object_body], data.xmat[self.object_body].reshape(3, 3),
+                                float(data.qpos[self.finger_q]), free_velocity(data, self.object_body, self.object_v),
+                                last_grip, last_finger)
+
+    def observation(self, tip, tip_rotation, cube, cube_rotation, finger: float, velocity, last_grip,
+                    last_finger: float) -> tuple[np.ndarray, np.ndarray]:
+        """(observation (23,), grip point) of the tip's pose, the cube's pose (positions, 3x3 rotations; the root's
+        frame), the gripper's first joint, the cube's velocity (6: linear, angular, the root's frame) and the step
+        before's grip point and gripper joint: the envs' over MuJoCo and over ROS both observe with it."""
+        grip = tip + tip_rotation @ self.space.grip.offset
+        cube = np.array(cube, dtype=float)
         span = self.grip_open[0] - self.grip_closed[0]
-        finger = data.qpos[self.finger_q]
-        velocity = data.qvel[self.object_v:self.object_v + 6]
-        observation = np.concatenate([grip, cube, cube - grip, [(finger - self.grip_closed[0]) / span], rpy,
-                                      velocity[:3], velocity[3:], (grip - last_grip) / self.step_time,
+        observation = np.concatenate([grip, cube, cube - grip, [(finger - self.grip_closed[0]) / span],
+                                      rpy_of(cube_rotation), velocity[:3], velocity[3:],
+                                      (grip - last_grip) / self.step_time,
                                       [(finger - last_finger) / span / self.step_time]])
         return observation, grip
 

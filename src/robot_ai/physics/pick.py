@@ -230,8 +230,7 @@ class PickPlace:
             grip_velocity = (grip - self.last[1]) / dt
             velocity = (cube - self.last[2]) / dt
             turn = rotation @ self.last[3].T
-            spin = rotation.T @ (np.array([turn[2, 1] - turn[1, 2], turn[0, 2] - turn[2, 0],
-                                           turn[1, 0] - turn[0, 1]]) / 2.0 / dt)
+            spin = np.array([turn[2, 1] - turn[1, 2], turn[0, 2] - turn[2, 0], turn[1, 0] - turn[0, 1]]) / 2.0 / dt
             finger_speed = (opening - self.last[4]) / dt
         self.last = (now, grip, cube, rotation.copy(), opening)
         observation = np.concatenate([grip, cube, cube - grip, [opening], rpy_of(rotation), velocity, spin,
