@@ -30,6 +30,7 @@ READY_ITERATIONS = 400      # damped least squares steps to the ready configurat
 READY_TOLERANCE = (0.005, 0.02)     # m and rad: how near the ready pose must come
 CORNER = 0.17               # m: the workspace's corners from its centre, along x and y (the envs' 0.3 m square of
                             # objects and goals, and a grasp's reach round it)
+READY_DECIMALS = 9          # rad or m: the ready configuration's last digit
 READY_STARTS = 16           # damped least squares from the middle of every range, then from random configurations
 DOWN = np.array([0.0, 0.0, -1.0])
 
@@ -240,6 +241,7 @@ def workspace(arm: Arm, physics: Physics, reach: float = READY_REACH, height: fl
         raise PhysicsError(f'{arm.tree.name}: no configuration points the gripper down in front of the shoulder, '
                            f'{0.6 * reach * length:.2f} to {reach * length:.2f} m out (closest: {miss:.3f} m and '
                            f'{angle:.2f} rad off)')
-    tip, rotation, _, _ = arm.pose_t(q[:, None])
+    q = np.round(q, READY_DECIMALS)     # two processes lay out the same task (BLAS's sums differ in their last bit
+    tip, rotation, _, _ = arm.pose_t(q[:, None])     # with memory alignment): an env over ROS and its sim agree
     return Workspace(ready=q, rotation=rotation[:, :, 0].copy(), grip=grip, centre=target,
                      table_top=float(target[2] - height))
