@@ -3,6 +3,7 @@ trajectory with a tracking error a kinematic sim never has, within the effort li
 arm's weight, a payload sags it, and set_state places it at once. No rospy."""
 from __future__ import annotations
 
+import copy
 import os
 
 import numpy as np
@@ -14,6 +15,7 @@ from robot_ai.reach.model import load_model
 
 from exact_meshes import MESHES, ROBOTS
 
+PANDA = os.path.join(ROBOTS, 'panda.urdf')
 HOME = {'shoulder_lift_joint': -1.57, 'elbow_joint': 1.57, 'wrist_1_joint': -1.57, 'wrist_2_joint': 1.57}
 
 
@@ -162,3 +164,32 @@ def test_a_joint_the_urdf_damps_heavily_still_follows_its_target():
     arm = ArmPhysics(build_physics(load_model(urdf=xml)), ['roll'])
     arm.step([0.3], 0.3)
     assert abs(arm.positions[0] - 0.3) < 0.3 * 0.02
+
+
+def test_an_object_is_set_at_rest_and_its_state_is_the_envs():
+    """set_object puts a loose object at a pose at rest; object_states gives its pose and its velocity in the world
+    frame (MuJoCo's mj_objectVelocity) after a step; an unknown object or a pose that is not one is one line."""
+    import mujoco
+    physics = build_physics(load_model(PANDA), objects=[{'box': [0.04] * 3, 'position': [0.5, 0.0, 0.5],
+                                                         'mass': 0.1, 'name': 'cube'}])
+    arm = ArmPhysics(physics, ['panda_joint1'])
+    half = np.sqrt(0.5)
+    arm.set_object('cube', [0.4, 0.1, 0.6], [half, 0.0, 0.0, half])
+    position, q, velocity = arm.object_states()['cube']
+    np.testing.assert_array_equal(position, [0.4, 0.1, 0.6])
+    np.testing.assert_allclose(q, [half, 0.0, 0.0, half])
+    np.testing.assert_array_equal(velocity, np.zeros(6))
+    arm.data.qvel[-3:] = [0.0, 2.0, 0.0]           # a spin about its own y, which is the world's -x
+    arm.step(arm.positions, 0.01)
+    position, q, velocity = arm.object_states()['cube']
+    body = mujoco.mj_name2id(arm.model, mujoco.mjtObj.mjOBJ_BODY, 'cube')
+    np.testing.assert_array_equal(position, arm.data.xpos[body])   # the bodies of the joints as they now stand
+    res, now = np.zeros(6), copy.copy(arm.data)
+    mujoco.mj_forward(arm.model, now)              # mj_step leaves its velocities a step behind
+    mujoco.mj_objectVelocity(arm.model, now, mujoco.mjtObj.mjOBJ_BODY, body, res, 0)
+    np.testing.assert_allclose(velocity, [*res[3:], *res[:3]], atol=1e-12)
+    assert velocity[3] < -1.0                      # about the world's -x
+    with pytest.raises(PhysicsError, match="no object 'ball'"):
+        arm.set_object('ball', [0, 0, 0], [1, 0, 0, 0])
+    with pytest.raises(PhysicsError, match='unit quaternion'):
+        arm.set_object('cube', [0, 0, 0], [0, 0, 0, 0])

@@ -199,6 +199,22 @@ class Physics:
         return np.array([data.qpos[self.qpos_address(n)] for n in joints])
 
 
+def free_velocity(data, body: int, dof: int) -> np.ndarray:
+    """(6,) a free body's velocity in the world: linear, then angular (MuJoCo keeps the angular one in the body's
+    frame: turned into the world's, as gymnasium-robotics and ROS's twists give it)."""
+    v = data.qvel[dof:dof + 6]
+    return np.concatenate([v[:3], data.xmat[body].reshape(3, 3) @ v[3:]])
+
+
+def model_digest(model) -> str:
+    """sha256 of a MuJoCo model's binary form: two processes that built the same world agree on it (arm_sim's
+    ~world_digest, which the manipulation envs over ROS check)."""
+    import mujoco
+    buffer = np.zeros(mujoco.mj_sizeModel(model), dtype=np.uint8)
+    mujoco.mj_saveModel(model, None, buffer)
+    return hashlib.sha256(buffer.tobytes()).hexdigest()
+
+
 def build_physics(robot: Model, obstacles=(), objects=(), base: str | None = None, home: dict | None = None,
                   position_hz: float = POSITION_HZ) -> Physics:
     """The MuJoCo model of robot (reach.model.Model: a loaded URDF or xacro) among obstacles (motion.body's: a list,

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from robot_ai.physics.model import Physics, PhysicsError
+from robot_ai.physics.model import Physics, PhysicsError, free_velocity
 
 GRIP_TOLERANCE = 0.02       # a gripper command is reached within this share of the joint's range from its target
 STALL_SPEED = 0.01          # a gripper is still below this share of its joint's range per second ...
@@ -79,6 +79,7 @@ class ArmPhysics:
                 reach = speed * self.model.opt.timestep
                 self.data.ctrl[k] = self._ramp[k] = float(np.clip(value, self._ramp[k] - reach, self._ramp[k] + reach))
             self._mj.mj_step(self.model, self.data)
+        self._mj.mj_kinematics(self.model, self.data)    # the bodies' poses of the joints' last positions
         self.time += steps * self.model.opt.timestep
         if self._grip:
             still = abs(self.gripper_state()[1]) < STALL_SPEED * self._span
@@ -152,3 +153,40 @@ class ArmPhysics:
     def object_poses(self) -> dict[str, np.ndarray]:
         """{object: 4x4 pose in the world (the root's frame)}."""
         return {name: self.physics.object_pose(self.data, name) for name in self.physics.objects}
+
+    def object_states(self) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """{object: (position (3), orientation (4: w, x, y, z, MuJoCo's), velocity (6: linear, angular))}, all in
+        the world (the root's frame), as the manipulation envs observe them."""
+        out = {}
+        for name, (body, _, dof) in self._objects().items():
+            out[name] = (self.data.xpos[body].copy(), self.data.xquat[body].copy(),
+                         free_velocity(self.data, body, dof))
+        return out
+
+    def set_object(self, name: str, position, orientation) -> None:
+        """The object name at position (3) with orientation (4: w, x, y, z; normalised), at rest, in the world (the
+        root's frame); the arm stays as it is. PhysicsError of one line for an unknown object or a pose that is not
+        one."""
+        objects = self._objects()
+        if name not in objects:
+            raise PhysicsError(f'no object {name!r} (the objects: {", ".join(objects) or "none"})')
+        p, q = np.asarray(position, dtype=float), np.asarray(orientation, dtype=float)
+        norm = float(np.linalg.norm(q)) if q.shape == (4,) else 0.0
+        if p.shape != (3,) or not np.isfinite(p).all() or not (np.isfinite(q).all() and abs(norm - 1.0) < 1e-3):
+            raise PhysicsError(f'a pose is a finite position and a unit quaternion, got {p.tolist()}, {q.tolist()}')
+        _, address, dof = objects[name]
+        self.data.qpos[address:address + 7] = [*p, *(q / norm)]
+        self.data.qvel[dof:dof + 6] = 0.0
+        self.data.qacc_warmstart[:] = 0.0
+        self._mj.mj_forward(self.model, self.data)
+
+    def _objects(self) -> dict[str, tuple[int, int, int]]:
+        """{object: (its body, its free joint's qpos and qvel addresses)}."""
+        if not hasattr(self, '_object_ids'):
+            ids = {}
+            for name in self.physics.objects:
+                body = self._mj.mj_name2id(self.model, self._mj.mjtObj.mjOBJ_BODY, name)
+                joint = self.model.body_jntadr[body]
+                ids[name] = (body, int(self.model.jnt_qposadr[joint]), int(self.model.jnt_dofadr[joint]))
+            self._object_ids = ids
+        return self._object_ids
