@@ -18,7 +18,7 @@ SYS_PYTHON := /usr/bin/python3
 
 APT_PACKAGES := ros-core-dev catkin catkin-lint ros-message-generation rosbash rospack-tools \
 	python3-rospy python3-roslaunch python3-rostest librostest-dev python3-tf python3-tf2-ros \
-	python3-sensor-msgs python3-geometry-msgs python3-std-msgs python3-std-srvs python3-visualization-msgs libstd-msgs-dev \
+	python3-sensor-msgs python3-geometry-msgs libgeometry-msgs-dev python3-std-msgs python3-std-srvs python3-visualization-msgs libstd-msgs-dev \
 	python3-trajectory-msgs python3-interactive-markers \
 	python3-actionlib python3-actionlib-msgs ros-actionlib-msgs libactionlib-msgs-dev \
 	ros-robot-state-publisher joint-state-publisher joint-state-publisher-gui rviz \

@@ -1,4 +1,5 @@
-"""arm_sim's ROS side of physics (~physics mujoco): the loose objects' poses on /tf and as rviz markers, and the
+"""arm_sim's ROS side of physics (~physics mujoco): the loose objects' poses on /tf, their poses and velocities on
+~object_states (robot_ai/ObjectStates: gazebo_msgs/ModelStates' fields and a stamp), drawn as rviz markers, and the
 gripper's command as ros_control's gripper_action_controller takes it (robot_ai/GripperCommand: the fields, and so
 the md5sums, of control_msgs/GripperCommand, which Debian does not ship).
 
@@ -9,20 +10,19 @@ from __future__ import annotations
 
 import re
 import threading
+import warnings
 
 import actionlib
-import numpy as np
 import rospy
-from geometry_msgs.msg import TransformStamped
+from geometry_msgs.msg import Pose, TransformStamped, Twist
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import Marker, MarkerArray
 
-from robot_ai.msg import GripperCommandAction, GripperCommandFeedback, GripperCommandResult
+from robot_ai.msg import GripperCommandAction, GripperCommandFeedback, GripperCommandResult, ObjectStates
 from robot_ai.nodes.params import publish
 from robot_ai.physics import PhysicsError
 from robot_ai.physics.model import Object
 from robot_ai.physics.sim import ArmPhysics
-from robot_ai.reach.task import quaternions_t
 
 GRIPPER_ACTION = 'gripper_controller/gripper_cmd'
 OBJECT_COLOUR = (0.2, 0.5, 0.8, 1.0)     # as the physics model draws them
@@ -47,11 +47,16 @@ class PhysicsWorld:
     child of base) and as markers drawn in those frames (~object_markers, latched); the gripper's action server,
     its goals carried out over the sim's ticks (lock: the sim's, held while the physics is read or commanded)."""
 
-    def __init__(self, arm: ArmPhysics, objects: tuple[Object, ...], base: str, links, lock: threading.Lock):
+    def __init__(self, arm: ArmPhysics, objects: tuple[Object, ...], base: str, links, lock: threading.Lock,
+                 lockstep: bool = False):
         self.arm, self.base, self.lock = arm, base, lock
         self.frames = object_frames([o.name for o in objects], set(links))
         self.tick = threading.Condition()
         self.tf_pub = rospy.Publisher('tf', TFMessage, queue_size=10) if self.frames else None
+        with warnings.catch_warnings():   # lockstep: published in the command's thread, as joint_states is
+            warnings.simplefilter('ignore')
+            self.states_pub = rospy.Publisher('~object_states', ObjectStates, queue_size=None if lockstep else 10,
+                                              tcp_nodelay=True, latch=lockstep)
         self.markers_pub = rospy.Publisher('~object_markers', MarkerArray, queue_size=1, latch=True)
         publish(self.markers_pub, self._markers(objects))
         self.server = None
@@ -71,18 +76,28 @@ class PhysicsWorld:
     def ticked(self, stamp: rospy.Time) -> None:
         """After a tick of physics (the sim's lock held): the objects' poses on tf at stamp; a gripper goal waiting
         on the tick is woken."""
+        states = self.arm.object_states()
         if self.tf_pub is not None:
             message = TFMessage()
-            poses = self.arm.object_poses()
-            rotations = quaternions_t(np.stack([p[:3, :3] for p in poses.values()], axis=-1))
-            for (name, pose), q in zip(poses.items(), rotations.T):
+            for name, (position, q, _) in states.items():
                 t = TransformStamped()
                 t.header.stamp, t.header.frame_id, t.child_frame_id = stamp, self.base, self.frames[name]
-                t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = pose[:3, 3]
+                t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = position
                 r = t.transform.rotation
-                r.x, r.y, r.z, r.w = q
+                r.w, r.x, r.y, r.z = q
                 message.transforms.append(t)
             publish(self.tf_pub, message)
+        message = ObjectStates(name=list(states))
+        message.header.stamp, message.header.frame_id = stamp, self.base
+        for position, q, velocity in states.values():
+            pose, twist = Pose(), Twist()
+            pose.position.x, pose.position.y, pose.position.z = position
+            pose.orientation.w, pose.orientation.x, pose.orientation.y, pose.orientation.z = q
+            twist.linear.x, twist.linear.y, twist.linear.z = velocity[:3]
+            twist.angular.x, twist.angular.y, twist.angular.z = velocity[3:]
+            message.pose.append(pose)
+            message.twist.append(twist)
+        publish(self.states_pub, message)
         with self.tick:
             self.tick.notify_all()
 

@@ -28,6 +28,13 @@ md5sums): its servos toward the position at the joints' velocity limits with at 
 succeeded when the gripper is there or stalled on what it grips (reached_goal, stalled), over the sim's ticks (in
 ~lockstep, over the following commands); from the first goal on, the arm's commands no longer move those joints.
 
+With ~task push or pick_and_place the world is that manipulation task's (robot_ai.physics.env.ManipulationSetup of
+~task and ~task_args: its table and its cube, named object, the arm at the task's ready configuration), built as
+robot_ai/Push-v0 builds it; with ~lockstep and ~rate 25 (the task's 0.04 s step) the envs over ROS
+(robot_ai.envs.ros_manipulation: robot_ai/RosPush-v0, robot_ai/RosPickAndPlace-v0) drive it and equal the envs over
+MuJoCo. The objects' poses and velocities go on ~object_states after every tick, stamped as the joint_states of that
+tick; ~set_object_pose puts one at rest.
+
 An env takes the sim's ~lease: while it holds it, commands and ~set_state from any other node are ignored or refused
 (robot_ai.nodes.lease).
 
@@ -45,6 +52,10 @@ ROS Parameters
         reach_controller's ~obstacles), static, in the robot's root frame.
     ~objects (str, ""): with ~physics mujoco, loose objects (the same file's objects key: boxes, spheres and
         cylinders with a mass and a friction) the arm can push.
+    ~task (str, ""): with ~physics mujoco, push or pick_and_place: the world is that task's (see above); "" = the
+        world of ~obstacles and ~objects.
+    ~task_args (dict, {}): with ~task, ManipulationSetup's arguments (tip, object_size, object_mass, obj_range,
+        goal_range, step_time, ...), as the env is made with them.
     ~nice (int, -10): the scheduling priority the sim asks for, as a real arm's controller runs real-time (root or
         CAP_SYS_NICE; otherwise it runs as started, and says so); 0 leaves it (robot_ai.priority).
 
@@ -57,6 +68,8 @@ ROS Publishers
         stamped with the time they describe.
     tf (tf2_msgs/TFMessage): with ~physics, the objects' poses in the robot's root frame, after every tick.
     ~object_markers (visualization_msgs/MarkerArray, latched): with ~physics, the objects, each in its frame.
+    ~object_states (robot_ai/ObjectStates): with ~physics, the objects' poses and velocities (linear and angular) in
+        the robot's root frame, after every tick, stamped as that tick's joint_states (latched in ~lockstep).
 
 ROS Actions
     gripper_controller/gripper_cmd (robot_ai/GripperCommand): with ~physics and a gripper, the gripper's command.
@@ -65,6 +78,13 @@ ROS Services
     ~set_state (robot_ai/SetJointPositions): the arm at these positions at once (the command too), published then;
         refused unless one finite number per joint within its limits.
     ~lease (robot_ai/Lease): an env takes the sim (or gives it back).
+    ~set_object_pose (robot_ai/SetObjectPose): with ~physics, an object at a pose in the root frame, at rest; the
+        state published then; refused for an unknown object or a pose that is not one.
+
+Parameters it sets
+    ~joints: the joints it moves, in command order.
+    ~world_digest (str): with ~physics, sha256 of the MuJoCo model's binary form (an env over ROS checks it is its
+        world).
 """
 from __future__ import annotations
 
@@ -86,7 +106,7 @@ from robot_ai.reach.arm import ReachError, joint_limits, joint_velocity
 from robot_ai.reach.safety import DEFAULT_ACCELERATION_TIME, acceleration_limits, joint_names, read_joint_limits
 from robot_ai.reach.trajectory import ArmBounds, Follower, TrajectoryError
 from robot_ai.srv import Lease as LeaseService
-from robot_ai.srv import SetJointPositions, SetJointPositionsResponse
+from robot_ai.srv import SetJointPositions, SetJointPositionsResponse, SetObjectPose, SetObjectPoseResponse
 from robot_ai.tf_wire import JointStateEncoder, WireError, decode_float64_array, raw_message_class
 
 COMMAND_TOPIC = 'joint_group_position_controller/command'
@@ -134,6 +154,8 @@ class ArmSim:
                                                queue_size=100, tcp_nodelay=True)   # none dropped, late ones said
         self.services = [rospy.Service('~set_state', numpy_service(SetJointPositions), self._on_set_state),
                          rospy.Service('~lease', LeaseService, self.lease.handle)]
+        if self.arm is not None:
+            self.services.append(rospy.Service('~set_object_pose', SetObjectPose, self._on_set_object))
         priority = raise_priority(self.nice) if self.nice < 0 else f'at its own priority (~nice {self.nice})'
         mode = ('lockstep: one step per command, reached at once' if self.lockstep else
                 f'{self.rate * self.real_time_factor:g} ticks per second of ROS time, at the URDF velocity limits')
@@ -168,23 +190,54 @@ class ArmSim:
         kind = rospy.get_param('~physics', '') or ''
         if kind not in ('', 'mujoco'):
             raise ValueError(f'~physics must be "" (kinematic) or mujoco, got {kind!r}')
+        task = rospy.get_param('~task', '') or ''
+        if task not in ('', 'push', 'pick_and_place'):
+            raise ValueError(f'~task must be "", push or pick_and_place, got {task!r}')
         if not kind:
+            if task:
+                raise ValueError(f'~task {task} is a world of physics: give ~physics mujoco too')
             return None, None
         from robot_ai.nodes.arm_physics import PhysicsWorld
         from robot_ai.physics import PhysicsError, build_physics, parse_objects
+        from robot_ai.physics.model import model_digest
         from robot_ai.physics.sim import ArmPhysics
         from robot_ai.reach.model import load_model
         try:
-            objects = parse_objects(rospy.get_param('~objects', '') or ())
-            physics = build_physics(load_model(urdf=xml), obstacles=rospy.get_param('~obstacles', '') or (),
-                                    objects=objects, home=dict(zip(self.joints, self.positions.tolist())))
+            if task:
+                physics, objects = self._task_world(task, xml)
+            else:
+                objects = parse_objects(rospy.get_param('~objects', '') or ())
+                physics = build_physics(load_model(urdf=xml), obstacles=rospy.get_param('~obstacles', '') or (),
+                                        objects=objects, home=dict(zip(self.joints, self.positions.tolist())))
             arm = ArmPhysics(physics, self.joints)
-            world = PhysicsWorld(arm, objects, tree.root, tree.links, self.lock)
-        except (PhysicsError, ReachError, ValueError) as e:
+            world = PhysicsWorld(arm, objects, tree.root, tree.links, self.lock, self.lockstep)
+        except (PhysicsError, ReachError, ValueError, TypeError) as e:
             raise ValueError(f'~physics mujoco: {e}') from None
         for note in physics.notes:
             rospy.loginfo(f'arm_sim: physics: {note}')
+        if task:                                  # it starts where the task's episodes do
+            self.positions, self.command = arm.positions, arm.positions
+        rospy.set_param('~world_digest', model_digest(physics.model))
         return arm, world
+
+    def _task_world(self, task: str, xml: str):
+        """(physics, objects) of the manipulation task's world (robot_ai.physics.env.ManipulationSetup of task and
+        ~task_args on this robot: the table, the cube, the ready configuration), as Push-v0 or PickAndPlace-v0 build
+        it."""
+        from robot_ai.physics import parse_objects
+        from robot_ai.physics.env import OBJECT, ManipulationSetup
+        args = rospy.get_param('~task_args', {}) or {}
+        if not isinstance(args, dict):
+            raise ValueError(f'~task_args must be a dict of ManipulationSetup\'s arguments, got {args!r}')
+        if rospy.get_param('~obstacles', '') or rospy.get_param('~objects', ''):
+            raise ValueError('~task builds the task\'s world (its table and cube): leave ~obstacles and ~objects '
+                             'empty')
+        setup = ManipulationSetup(task, urdf=xml, **args)
+        missing = [n for n in (*setup.arm.joints, *setup.gripper) if n not in self.joints]
+        if missing:
+            raise ValueError(f'~task {task}: the sim must move the arm\'s and the gripper\'s joints; ~joints lacks '
+                             f'{", ".join(missing)}')
+        return setup.physics, parse_objects([setup.cube(setup.space.centre, OBJECT)])
 
     def _bounds(self, tree) -> tuple[ArmBounds, tuple[str, ...]]:
         """What the arm can do: the URDF's positions and velocities, ~joint_limits' accelerations."""
@@ -386,6 +439,20 @@ class ArmSim:
         positions = np.array([p.positions for p in points], dtype=float)
         velocities = np.array([p.velocities for p in points], dtype=float) if given[0] else None
         return [self.joints.index(n) for n in names], times, positions, velocities
+
+    def _on_set_object(self, req) -> SetObjectPoseResponse:
+        from robot_ai.physics.model import PhysicsError
+        caller = caller_of(req)
+        if not self.lease.allows(caller):
+            return SetObjectPoseResponse(success=False, message=self.lease.refusal(caller))
+        p, q = req.pose.position, req.pose.orientation
+        with self.lock:
+            try:
+                self.arm.set_object(req.name, [p.x, p.y, p.z], [q.w, q.x, q.y, q.z])
+            except PhysicsError as e:
+                return SetObjectPoseResponse(success=False, message=str(e))
+            self._publish()
+        return SetObjectPoseResponse(success=True, message=f'{req.name} at rest at ({p.x:g}, {p.y:g}, {p.z:g})')
 
     def _on_set_state(self, req) -> SetJointPositionsResponse:
         caller = caller_of(req)
