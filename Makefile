@@ -110,7 +110,7 @@ bench: build ray
 	mkdir -p $(OUT)
 	@{ python3 $(ROOT)/bench/last_figures.py; \
 	  echo "load average at start: $$(cut -d' ' -f1-3 /proc/loadavg)"; \
-	  for b in fk_load search_speed q_learning_speed cartpole_loop ros_env_speed reach_speed reach_ars ros_reach_speed reach_safety reach_planner policy_latency manipulation pick_place class_on_ray; do \
+	  for b in fk_load search_speed q_learning_speed cartpole_loop ros_env_speed reach_speed reach_ars ros_reach_speed ros_manipulation_speed reach_safety reach_planner policy_latency manipulation pick_place class_on_ray; do \
 	    $(RUN) python $(ROOT)/bench/$$b.py 2>>$(OUT)/bench-stderr.log \
 	      || { echo "bench/$$b.py failed; its stderr: $(OUT)/bench-stderr.log"; tail -n 20 $(OUT)/bench-stderr.log; exit 1; }; \
 	  done; \
