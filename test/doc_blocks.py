@@ -31,7 +31,8 @@ NEEDS = {'--ray': 'a Ray cluster (docs/fleet.md; ray_cluster.test runs the packa
 class Block:
     page: str
     code: str
-    needs_ros: str            # '' (runs anywhere), 'cartpole' (CartPole sims to lease) or 'reach' (arms to lease)
+    needs_ros: str            # '' (runs anywhere), 'cartpole' (CartPole sims to lease), 'reach' (arms to lease) or
+    #                           'manipulation' (arms with physics to lease)
     missing: list[str]        # modules it imports that are not installed here
 
     def source(self, arm: str) -> str:
@@ -50,7 +51,8 @@ def python_blocks() -> list[Block]:
             if lang not in ('python', 'py'):
                 continue
             needs_ros = 'cartpole' if re.search(r'["\']robot_ai/RosCartPole', code) else \
-                'reach' if re.search(r'["\']robot_ai/RosReach', code) else ''
+                'reach' if re.search(r'["\']robot_ai/RosReach', code) else \
+                'manipulation' if re.search(r'["\']robot_ai/Ros(Push|PickAndPlace)', code) else ''
             imported = re.findall(r'^\s*(?:from|import) ([\w.]+)', code, re.M)
             missing = sorted({m for m in imported if not _importable(m)})
             found.append(Block(str(page.relative_to(ROOT)), code, needs_ros, missing))

@@ -5,6 +5,9 @@ bit for bit under the scripted expert and under random actions, on the UR5 with 
 real meshes; gymnasium's env checker; make_vec's sync vectoriser equal to the package's vector env; an env made for
 another world refused, naming the sim; arm_sim's set_object_pose refusing what is not an object or a pose."""
 import os
+import subprocess
+import sys
+import time
 import unittest
 
 import gymnasium
@@ -19,6 +22,9 @@ import robot_ai.envs  # noqa: F401  (registers the envs over ROS)
 import robot_ai.physics  # noqa: F401  (registers the envs over MuJoCo)
 from robot_ai.envs.ros_manipulation import RosManipulationError
 from robot_ai.srv import SetObjectPose
+
+sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
+from doc_blocks import python_blocks  # noqa: E402
 
 MESHES = os.path.normpath(os.path.join(os.path.dirname(__file__), '..', '..', 'shared', 'robots', 'meshes'))
 
@@ -101,6 +107,34 @@ class TestRosManipulation(unittest.TestCase):
         finally:
             ros.close()
             ref.close()
+
+    def test_a_sim_that_dies_is_said_within_the_timeout_and_then_every_call_raises(self):
+        env = gymnasium.make('robot_ai/RosPush-v0', robot_ns='/doomed/arm_0', timeout=3.0)
+        try:
+            env.reset(seed=0)
+            env.step(env.action_space.sample())
+            subprocess.run(['rosnode', 'kill', '/doomed/arm_0/arm_sim'], capture_output=True, timeout=60)
+            start = time.monotonic()
+            with self.assertRaises(RosManipulationError) as caught:
+                for _ in range(3):     # a step already on its way may still be answered
+                    env.step(env.action_space.sample())
+            self.assertLess(time.monotonic() - start, 30.0)
+            self.assertIn('/doomed/arm_0', str(caught.exception))
+            with self.assertRaisesRegex(RosManipulationError, r'call reset\(\) to start again'):
+                env.step(env.action_space.sample())
+        finally:
+            env.close()
+
+    def test_the_docs_blocks_run_as_written(self):
+        """Issue 57: the python blocks of the docs that lease an arm with physics (docs/envs/RosManipulation.md) run
+        as written on manipulation_gym.launch's arms, each in a process of its own."""
+        blocks = [b for b in python_blocks() if b.needs_ros == 'manipulation' and not b.missing]
+        self.assertGreaterEqual(len(blocks), 2, 'the test finds too few blocks')
+        for block in blocks:
+            run = subprocess.run([sys.executable, '-c', block.source('')], capture_output=True, text=True,
+                                 timeout=300, stdin=subprocess.DEVNULL)
+            self.assertEqual(run.returncode, 0,
+                             f'{block.page}:\n{block.code}\n{run.stdout[-2000:]}{run.stderr[-3000:]}')
 
     def test_another_world_is_refused(self):
         env = gymnasium.make('robot_ai/RosPush-v0', robot_ns='/arm_0', object_size=0.05, timeout=10)

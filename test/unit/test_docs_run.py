@@ -1,7 +1,8 @@
 """Issue 57: every command in the docs runs as written. The python blocks and the `python -m robot_ai.<cli>` commands
 of README.md and docs/ that need no ROS graph run here as a reader runs them (their arm file: the UR5 of
 ../shared/robots; a file an earlier command wrote: one the CLI wrote, `home`); the python blocks that lease ROS sims
-run in ros_env.test and reach_ros.test; what cannot run on this machine is named with its reason, checked true."""
+run in ros_env.test, reach_ros.test and manipulation_gym.test; what cannot run on this machine is named with its
+reason, checked true."""
 import os
 import subprocess
 import sys
@@ -26,7 +27,7 @@ def env_of(home):
 def test_the_blocks_are_found_and_what_cannot_run_here_says_why():
     blocks = python_blocks()
     assert len([b for b in blocks if not b.needs_ros and not b.missing]) >= 4, 'the test finds too few blocks'
-    assert {b.needs_ros for b in blocks} == {'', 'cartpole', 'reach'}
+    assert {b.needs_ros for b in blocks} == {'', 'cartpole', 'reach', 'manipulation'}
     for block in blocks:
         unknown = [m for m in block.missing if not any(m == k or m.startswith(k + '.') for k in NOT_HERE)]
         assert not unknown, f'{block.page}: {unknown} do not import here:\n{block.code}'

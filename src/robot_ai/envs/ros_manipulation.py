@@ -255,10 +255,7 @@ class RosManipulationEnv(gymnasium.Env):
         if not (isinstance(timeout, (int, float)) and 0 < timeout <= 3600):
             raise ValueError(f'timeout must be a number of seconds in (0, 3600], got {timeout!r}')
         if model is None and urdf is None:
-            try:
-                urdf = description_of(robot_ns, float(timeout))
-            except RosEnvError as e:
-                raise RosManipulationError(str(e).replace('reach_gym.launch', 'manipulation_gym.launch')) from None
+            urdf = description_of(robot_ns, float(timeout), LAUNCH_HINT, RosManipulationError, 'world_digest')
         self.setup = ManipulationSetup(task, model=model, urdf=urdf, **kwargs)
         self.observation_space, self.action_space = self.setup.observation_space, self.setup.action_space
         self.robot_ns, self.timeout = robot_ns, float(timeout)

@@ -57,28 +57,32 @@ class RosReachError(RosEnvError):
     stopped answering, or no frames from forward_kinematics."""
 
 
-def description_of(robot_ns: str, timeout: float) -> str:
-    """The robot_description of robot_ns (or, without one, of the first running arm_sim's namespace in natural order:
-    in a graph of several robots, give robot_ns or model), read from the master without starting a node."""
+def description_of(robot_ns: str, timeout: float, hint: str = LAUNCH_HINT, error=None, sim_param: str = '') -> str:
+    """The robot_description of robot_ns (or, without one, of the first running arm_sim's namespace in natural order,
+    among those that set sim_param if given: in a graph of several robots, give robot_ns or model), read from the
+    master without starting a node; error (RosReachError) of one line, ending with hint, where there is none."""
+    error = error or RosReachError
     problem = master_answers(timeout)
     if problem:
-        raise RosReachError(problem)
+        raise error(problem)
     master = rosgraph.Master('/robot_ai_env')
     ns = robot_ns
     if not ns:
         sims = [name[:-len(f'/{SIM_NODE}/lease')] or '/' for name, _ in master.getSystemState()[2]
                 if name.endswith(f'/{SIM_NODE}/lease')]
+        if sim_param:
+            sims = [n for n in sims if master.hasParam(rosgraph.names.ns_join(resolve(n, SIM_NODE), sim_param))]
         if not sims:
-            raise RosReachError(f'no arm_sim runs, and no model= was given: start the sims first ({LAUNCH_HINT})')
+            raise error(f'no arm_sim{" with ~" + sim_param if sim_param else ""} runs, and no model= was given: '
+                        f'start the sims first ({hint})')
         ns = min(sims, key=lambda n: [int(t) if t.isdigit() else t for t in re.split(r'(\d+)', n)])
     try:
         key = rosgraph.Master(rosgraph.names.ns_join(ns, 'robot_ai_env')).searchParam('robot_description')
         xml = master.getParam(key)
     except rosgraph.MasterException:
-        raise RosReachError(f'{ns}: no robot_description there or above: give model= or start the sims '
-                            f'({LAUNCH_HINT})') from None
+        raise error(f'{ns}: no robot_description there or above: give model= or start the sims ({hint})') from None
     if not isinstance(xml, str):
-        raise RosReachError(f'{ns}: robot_description holds {type(xml).__name__}, not a URDF')
+        raise error(f'{ns}: robot_description holds {type(xml).__name__}, not a URDF')
     return xml
 
 
