@@ -2,7 +2,8 @@
 """Push-v0 and PickAndPlace-v0 through ROS (robot_ai/RosPush-v0, robot_ai/RosPickAndPlace-v0) on
 manipulation_gym.launch's arm_sims with physics: every observation, reward and success equal to the envs over MuJoCo
 bit for bit under the scripted expert and under random actions, on the UR5 with a Robotiq and on the Panda with its
-real meshes; gymnasium's env checker; make_vec's sync vectoriser equal to the package's vector env; an env made for
+real meshes; gymnasium's env checker; make_vec's sync and async vectorisers equal to the package's vector env; a sim
+killed mid-episode said within the timeout; the docs' blocks run as written; an env made for
 another world refused, naming the sim; arm_sim's set_object_pose refusing what is not an object or a pose."""
 import os
 import subprocess
@@ -135,6 +136,28 @@ class TestRosManipulation(unittest.TestCase):
                                  timeout=300, stdin=subprocess.DEVNULL)
             self.assertEqual(run.returncode, 0,
                              f'{block.page}:\n{block.code}\n{run.stdout[-2000:]}{run.stderr[-3000:]}')
+
+    def test_the_async_vectoriser(self):
+        """make_vec's async vectoriser (each env in a process of its own, leasing its arm) equals the package's
+        vector env, past the autoreset."""
+        ros = gymnasium.make_vec('robot_ai/RosPickAndPlace-v0', num_envs=2, vectorization_mode='async',
+                                 vector_kwargs={'context': 'spawn'})
+        ref = gymnasium.make_vec('robot_ai/PickAndPlace-v0', num_envs=2, urdf=description('/arm_0'))
+        try:
+            a_obs, _ = ros.reset(seed=9)
+            b_obs, _ = ref.reset(seed=9)
+            rng = np.random.default_rng(1)
+            for _ in range(55):
+                for key in b_obs:
+                    np.testing.assert_array_equal(a_obs[key], b_obs[key])
+                actions = rng.uniform(-1, 1, (2, 4))
+                a_obs, a_reward, _, a_cut, _ = ros.step(actions)
+                b_obs, b_reward, _, b_cut, _ = ref.step(actions)
+                np.testing.assert_array_equal(a_reward, b_reward)
+                np.testing.assert_array_equal(a_cut, b_cut)
+        finally:
+            ros.close()
+            ref.close()
 
     def test_another_world_is_refused(self):
         env = gymnasium.make('robot_ai/RosPush-v0', robot_ns='/arm_0', object_size=0.05, timeout=10)

@@ -197,3 +197,28 @@ def test_the_observation_is_of_the_joints_as_they_stand_and_the_cube_spins_in_th
         np.testing.assert_allclose(obs['observation'][13:19], [*res[3:], *res[:3]], atol=1e-12)
         moved = max(moved, float(np.linalg.norm(obs['observation'][13:19])))
     assert moved > 0.05                  # the cube was carried: its velocity was checked in motion
+
+
+def test_two_processes_build_the_same_world_and_observe_the_same_episode():
+    """The same seed and actions give the same observations, bit for bit, in two processes (an env over ROS and its
+    sim are two): the layout and the servos' gains no longer carry BLAS's last bits, which follow memory alignment."""
+    import subprocess
+    import sys
+    code = ('import hashlib, numpy as np, gymnasium, robot_ai.physics\n'
+            'from robot_ai.physics.model import model_digest\n'
+            f'env = gymnasium.make("robot_ai/PickAndPlace-v0", model={PANDA!r}).unwrapped\n'
+            'h = hashlib.sha256(model_digest(env.setup.physics.model).encode())\n'
+            'obs, _ = env.reset(seed=3)\n'
+            'rng = np.random.default_rng(0)\n'
+            'for _ in range(30):\n'
+            '    h.update(obs["observation"].tobytes())\n'
+            '    obs, *_ = env.step(rng.uniform(-1, 1, 4))\n'
+            'print(h.hexdigest())\n')
+    env = dict(os.environ)
+    digests = set()
+    for pad in ('', 'x' * 4099, 'x' * 12345):    # the environment's size: the process's memory laid out otherwise
+        env['ROBOT_AI_TEST_PAD'] = pad
+        run = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, timeout=300, env=env)
+        assert run.returncode == 0, run.stderr[-2000:]
+        digests.add(run.stdout.strip())
+    assert len(digests) == 1

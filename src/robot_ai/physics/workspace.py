@@ -154,7 +154,9 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
         hands.append(np.concatenate(_finger_points(arm, physics, data, hand)))
     grip = (float(middle @ approach) + far) / 2.0
     open_high = gaps[1] >= gaps[0]
-    return Grip(approach * grip, approach, closing, far - grip, open_high, hands[0 if open_high else 1])
+    fixed = lambda v: np.round(v, READY_DECIMALS)      # noqa: E731  the same in every process (see workspace())
+    return Grip(fixed(approach * grip), fixed(approach), fixed(closing), float(fixed(far - grip)), open_high,
+                hands[0 if open_high else 1])
 
 
 def _shoulder(arm: Arm, q: np.ndarray) -> np.ndarray:
