@@ -23,21 +23,8 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.realpath(__file__))
 sys.path.insert(0, HERE)
-from ros_env_speed import echo_node, free_port, ping_pong_rate, rate, stop_all  # noqa: E402
-
-
-def env_rate(env, steps: int) -> float:
-    rng = np.random.default_rng(0)
-    actions = rng.uniform(-1, 1, (64,) + env.action_space.shape).astype(np.float32)
-    env.reset(seed=0)
-    count = [0]
-
-    def one():
-        _, _, terminated, truncated, _ = env.step(actions[count[0] % 64])
-        count[0] += 1
-        if terminated or truncated:
-            env.reset()
-    return rate(one, steps)
+from ros_env_speed import echo_node, free_port, ping_pong_rate, stop_all  # noqa: E402
+from ros_reach_speed import env_rate  # noqa: E402  (random actions, resets at the episode's end)
 
 
 def equal_steps(ros, local, steps: int) -> tuple[int, float]:

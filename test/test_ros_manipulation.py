@@ -38,6 +38,20 @@ def expert(env, obs) -> np.ndarray:
     return env.unwrapped.setup.expert(obs['observation'][None], obs['desired_goal'][None])[0]
 
 
+def same_vector_steps(ros, ref, observations, steps: int, seed: int) -> None:
+    """Two vector envs stepped with the same random actions from their observations: equal bit for bit."""
+    a_obs, b_obs = observations
+    rng = np.random.default_rng(seed)
+    for _ in range(steps):
+        for key in b_obs:
+            np.testing.assert_array_equal(a_obs[key], b_obs[key])
+        actions = rng.uniform(-1, 1, (2, 4))
+        a_obs, a_reward, _, a_cut, _ = ros.step(actions)
+        b_obs, b_reward, _, b_cut, _ = ref.step(actions)
+        np.testing.assert_array_equal(a_reward, b_reward)
+        np.testing.assert_array_equal(a_cut, b_cut)
+
+
 class TestRosManipulation(unittest.TestCase):
 
     @classmethod
@@ -96,15 +110,7 @@ class TestRosManipulation(unittest.TestCase):
             a_obs, _ = ros.reset(seed=5)
             b_obs, _ = ref.reset(seed=5)
             self.assertEqual(sorted(e.unwrapped.sim_namespace for e in ros.envs), ['/arm_0', '/arm_1'])
-            rng = np.random.default_rng(0)
-            for _ in range(60):                   # past the 50 steps: the autoreset of both
-                for key in b_obs:
-                    np.testing.assert_array_equal(a_obs[key], b_obs[key])
-                actions = rng.uniform(-1, 1, (2, 4))
-                a_obs, a_reward, _, a_cut, _ = ros.step(actions)
-                b_obs, b_reward, _, b_cut, _ = ref.step(actions)
-                np.testing.assert_array_equal(a_reward, b_reward)
-                np.testing.assert_array_equal(a_cut, b_cut)
+            same_vector_steps(ros, ref, (a_obs, b_obs), 60, 0)     # past the 50 steps: the autoresets
         finally:
             ros.close()
             ref.close()
@@ -144,17 +150,7 @@ class TestRosManipulation(unittest.TestCase):
                                  vector_kwargs={'context': 'spawn'})
         ref = gymnasium.make_vec('robot_ai/PickAndPlace-v0', num_envs=2, urdf=description('/arm_0'))
         try:
-            a_obs, _ = ros.reset(seed=9)
-            b_obs, _ = ref.reset(seed=9)
-            rng = np.random.default_rng(1)
-            for _ in range(55):
-                for key in b_obs:
-                    np.testing.assert_array_equal(a_obs[key], b_obs[key])
-                actions = rng.uniform(-1, 1, (2, 4))
-                a_obs, a_reward, _, a_cut, _ = ros.step(actions)
-                b_obs, b_reward, _, b_cut, _ = ref.step(actions)
-                np.testing.assert_array_equal(a_reward, b_reward)
-                np.testing.assert_array_equal(a_cut, b_cut)
+            same_vector_steps(ros, ref, (ros.reset(seed=9)[0], ref.reset(seed=9)[0]), 55, 1)
         finally:
             ros.close()
             ref.close()

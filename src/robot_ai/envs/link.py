@@ -4,6 +4,7 @@ own (claimed by a lease), and the rule that only that simulator's answers count.
     ensure_node(timeout)                                   # RosEnvError within timeout if no master answers
     ns = claim('cartpole_sim', token, timeout)             # the first free sim of the running ones, leased
     lease('/cartpole_3', 'cartpole_sim', token, timeout)   # that one, or RosEnvError naming its holder
+    ns = take(ns, 'cartpole_sim', token, timeout, hint, unusable)     # ns's (checked), or claim's without one
     release('/cartpole_3', 'cartpole_sim', token)
 
 A simulator (cartpole_sim, arm_sim) serves its ~lease (robot_ai.nodes.lease): it grants it to one token at a time
@@ -129,6 +130,20 @@ def release(ns: str, sim: str, token: str, timeout: float = 1.0) -> None:
         _call(ns, sim, token, True, timeout)
     except RosEnvError:
         pass
+
+
+def take(ns: str, sim: str, token: str, timeout: float, launch_hint: str, unusable=None, said: str = '') -> str:
+    """The namespace of the sim an env leases for token: ns's (resolved), or RosEnvError naming its holder, or
+    '<ns>: <said><the reason unusable(ns) gives>' (the lease given back); without ns, claim's."""
+    if not ns:
+        return claim(sim, token, timeout, launch_hint, unusable)
+    ns = rospy.resolve_name(ns)
+    lease(ns, sim, token, timeout, launch_hint)
+    reason = unusable(ns) if unusable is not None else ''
+    if reason:
+        release(ns, sim, token)
+        raise RosEnvError(f'{ns}: {said}{reason}')
+    return ns
 
 
 def claim(sim: str, token: str, timeout: float, launch_hint: str, unusable=None) -> str:

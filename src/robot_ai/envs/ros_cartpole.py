@@ -37,7 +37,7 @@ from gymnasium.vector.utils import batch_space
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from robot_ai.envs.link import DEFAULT_TIMEOUT, RosEnvError, claim, ensure_node, lease, new_token, release, resolve
+from robot_ai.envs.link import DEFAULT_TIMEOUT, RosEnvError, ensure_node, new_token, release, resolve, take
 from robot_ai.lease import node_alive
 from robot_ai.reach.env import vector_reset_args
 from robot_ai.srv import SetCartPoleState
@@ -87,16 +87,8 @@ class SimLink:
         return RosCartPoleError(f'{self.ns}: {what}')
 
     def _connect(self) -> None:
-        if self.ns:
-            self.ns = rospy.resolve_name(self.ns)
-            lease(self.ns, SIM_NODE, self.token, self.timeout, LAUNCH_HINT)
-            self.leased = True
-            reason = self._unusable(self.ns)
-            if reason:
-                raise self._fail(reason)
-        else:
-            self.ns = claim(SIM_NODE, self.token, self.timeout, LAUNCH_HINT, self._unusable)
-            self.leased = True
+        self.ns = take(self.ns, SIM_NODE, self.token, self.timeout, LAUNCH_HINT, self._unusable)
+        self.leased = True
         self.force_topic = resolve(self.ns, 'cart_force')
         self.state_topic = resolve(self.ns, 'joint_states')
         self.sim_node = resolve(self.ns, SIM_NODE)

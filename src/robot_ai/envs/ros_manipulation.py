@@ -33,7 +33,7 @@ import rospy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from robot_ai.envs.link import DEFAULT_TIMEOUT, RosEnvError, claim, ensure_node, lease, new_token, release, resolve
+from robot_ai.envs.link import DEFAULT_TIMEOUT, RosEnvError, ensure_node, new_token, release, resolve, take
 from robot_ai.envs.ros_reach import description_of
 from robot_ai.msg import ObjectStates
 from robot_ai.physics.env import OBJECT, ManipulationSetup
@@ -106,16 +106,8 @@ class WorldLink:
         return ''
 
     def _connect(self) -> None:
-        if self.ns:
-            self.ns = rospy.resolve_name(self.ns)
-            lease(self.ns, SIM_NODE, self.token, self.timeout, LAUNCH_HINT)
-            self.leased = True
-            reason = self._unusable(self.ns)
-            if reason:
-                raise self._fail(f'the arm_sim {reason}')
-        else:
-            self.ns = claim(SIM_NODE, self.token, self.timeout, LAUNCH_HINT, self._unusable)
-            self.leased = True
+        self.ns = take(self.ns, SIM_NODE, self.token, self.timeout, LAUNCH_HINT, self._unusable, said='the arm_sim ')
+        self.leased = True
         self.sim_node = resolve(self.ns, SIM_NODE)
         self.sim_joints = rospy.get_param(f'{self.sim_node}/joints', None) or []
         wanted = [*self.setup.arm.joints, *self.setup.gripper]

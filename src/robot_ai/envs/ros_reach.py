@@ -34,8 +34,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from tf2_msgs.msg import TFMessage
 
-from robot_ai.envs.link import (DEFAULT_TIMEOUT, RosEnvError, claim, ensure_node, lease, master_answers, new_token,
-                                release, resolve)
+from robot_ai.envs.link import (DEFAULT_TIMEOUT, RosEnvError, ensure_node, master_answers, new_token, release,
+                                resolve, take)
 from robot_ai.reach.env import LIMIT_AVOIDANCE, RENDER_FPS, ReachSetup, Recovery
 from robot_ai.reach.task import goal_distance_one
 from robot_ai.srv import SetJointPositions
@@ -164,16 +164,8 @@ class ArmLink:
         return ''
 
     def _connect(self) -> None:
-        if self.ns:
-            self.ns = rospy.resolve_name(self.ns)
-            lease(self.ns, SIM_NODE, self.token, self.timeout, LAUNCH_HINT)
-            self.leased = True
-            reason = self._unusable(self.ns)
-            if reason:
-                raise self._fail(f'the arm_sim {reason}')
-        else:
-            self.ns = claim(SIM_NODE, self.token, self.timeout, LAUNCH_HINT, self._unusable)
-            self.leased = True
+        self.ns = take(self.ns, SIM_NODE, self.token, self.timeout, LAUNCH_HINT, self._unusable, said='the arm_sim ')
+        self.leased = True
         self.sim_node = resolve(self.ns, SIM_NODE)
         self.sim_joints = rospy.get_param(f'{self.sim_node}/joints', None)
         arm = self.setup.arm
