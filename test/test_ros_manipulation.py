@@ -27,7 +27,8 @@ from robot_ai.srv import SetObjectPose
 sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
 from doc_blocks import python_blocks  # noqa: E402
 
-MESHES = os.path.normpath(os.path.join(os.path.dirname(__file__), '..', '..', 'shared', 'robots', 'meshes'))
+MESHES = os.path.normpath(os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', 'shared', 'robots',
+                                      'meshes'))
 
 
 def description(ns: str) -> str:

@@ -42,7 +42,7 @@ from robot_ai.srv import SetJointPositions, SetObjectPose
 from robot_ai.tf_wire import JointStateDecoder, WireError, header_of, raw_message_class
 
 SIM_NODE = 'arm_sim'
-LAUNCH_HINT = 'roslaunch robot_ai manipulation_gym.launch sims:=N task:=push model:=...'
+LAUNCH_HINT = 'roslaunch robot_ai manipulation_gym.launch sims:=N model:=... task_args:=...'
 COMMAND_TOPIC = 'joint_group_position_controller/command'
 KEEP_STAMPS = 16              # object states kept while the matching joint_states is awaited
 _EMPTY_LAYOUT = struct.pack('<II', 0, 0)     # std_msgs/MultiArrayLayout with no dimension, data_offset 0
@@ -96,8 +96,8 @@ class WorldLink:
         if digest != self.digest:
             task, args = rospy.get_param(f'{node}/task', ''), rospy.get_param(f'{node}/task_args', {})
             return (f'has another world than this env\'s ({"no ~task" if not task else f"~task {task}, ~task_args "}'
-                    f'{args if task else ""}): give the env the sim\'s robot and task_args, or start the sim with '
-                    f'this env\'s ({LAUNCH_HINT})')
+                    f'{args if task else ""}): give the env the sim\'s robot, task_args and meshes (the same '
+                    f'ROS_PACKAGE_PATH), or start the sim with this env\'s ({LAUNCH_HINT})')
         rate = rospy.get_param(f'{node}/rate', 100.0)
         steps = max(1, int(round(1.0 / float(rate) / self.setup.physics.model.opt.timestep)))
         if steps != self.setup.substeps:
