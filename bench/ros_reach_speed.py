@@ -17,7 +17,6 @@ to see a loaded machine.
 """
 import argparse
 import os
-import struct
 import subprocess
 import sys
 import threading
@@ -28,7 +27,7 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.realpath(__file__))
 sys.path.insert(0, HERE)
-from ros_env_speed import echo_node, free_port, ping_pong_rate, rate, stop_all  # noqa: E402
+from ros_env_speed import echo_node, ping_pong_rate, rate, start_graph, stop_all  # noqa: E402
 
 
 def bare_exchange_rate(steps: int) -> float:
@@ -36,7 +35,7 @@ def bare_exchange_rate(steps: int) -> float:
     import rospy
     from std_msgs.msg import Float64MultiArray
     from tf2_msgs.msg import TFMessage
-    from robot_ai.tf_wire import raw_message_class
+    from robot_ai.tf_wire import encode_float64_array, raw_message_class
     command_type, frames_type = raw_message_class(Float64MultiArray), raw_message_class(TFMessage)
     got, count = threading.Condition(), [0]
 
@@ -54,7 +53,7 @@ def bare_exchange_rate(steps: int) -> float:
     while (pub.get_num_connections() == 0 or sub.get_num_connections() == 0) and time.time() < deadline:
         time.sleep(0.05)
     time.sleep(1.0)
-    data = command_type(struct.pack('<III', 0, 0, len(joints)) + np.zeros(len(joints)).tobytes())
+    data = command_type(encode_float64_array(np.zeros(len(joints))))
 
     def one():
         with got:
@@ -115,27 +114,15 @@ def main() -> int:
     parser.add_argument('--model', default='', help='the arm (default: the package\'s UR5)')
     parser.add_argument('--seconds', type=float, default=15.0, help='seconds of the controller\'s loop, each load')
     a = parser.parse_args()
-    port = free_port()
-    env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{port}')
-    os.environ['ROS_MASTER_URI'] = env['ROS_MASTER_URI']
-    launch = ['roslaunch', '-p', str(port), 'robot_ai', 'reach_gym.launch', 'sims:=1']
-    if a.model:
-        launch.append(f'model:={os.path.abspath(a.model)}')
-    procs = [subprocess.Popen(launch, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                              preexec_fn=os.setsid),
-             subprocess.Popen([sys.executable, os.path.join(HERE, 'ros_env_speed.py'), '--echo'], env=env,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid)]
+    procs = []
     try:
+        env, port = start_graph(['reach_gym.launch', 'sims:=1'] + ([f'model:={os.path.abspath(a.model)}'] if a.model
+                                                                   else []), 'ros_reach_speed', procs)
         import importlib
         import gymnasium
-        import rosgraph
         import rospy
         for module in ('robot_ai.envs', 'robot_ai.reach'):    # register robot_ai/RosReach-v0 and Reach-v0
             importlib.import_module(module)
-        deadline = time.time() + 60
-        while not rosgraph.Master('/ros_reach_speed').is_online() and time.time() < deadline:
-            time.sleep(0.2)
-        rospy.init_node('ros_reach_speed', disable_signals=True)
         rospy.wait_for_service('/arm_0/arm_sim/lease', 120)
         print(f'reach env speed through ROS, {a.steps} steps a case, {os.cpu_count()} cores (load average '
               f'{os.getloadavg()[0]:.2f})   [bench/ros_reach_speed.py, {time.strftime("%Y-%m-%d")}]')

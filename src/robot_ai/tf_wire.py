@@ -13,6 +13,7 @@ import numpy as np
 _U32 = struct.Struct('<I')
 _HEADER = struct.Struct('<III')  # seq, stamp.secs, stamp.nsecs (then frame_id)
 _STAMP = struct.Struct('<II')
+_EMPTY_LAYOUT = struct.pack('<II', 0, 0)     # std_msgs/MultiArrayLayout with no dimension, data_offset 0
 
 
 class WireError(ValueError):
@@ -99,6 +100,13 @@ class JointStateEncoder:
         return b''.join((_HEADER.pack(seq, secs, nsecs), _U32.pack(0), self._names,
                          self._array, np.ascontiguousarray(positions, '<f8').tobytes(),
                          self._array, np.ascontiguousarray(velocities, '<f8').tobytes(), effort))
+
+
+def encode_float64_array(values) -> bytes:
+    """A serialised std_msgs/Float64MultiArray of values, with no layout (no dimension, data_offset 0): what
+    decode_float64_array reads, as ros_control's group controllers take a command."""
+    data = np.ascontiguousarray(values, '<f8')
+    return _EMPTY_LAYOUT + _U32.pack(len(data)) + data.tobytes()
 
 
 def decode_float64_array(buf) -> np.ndarray:

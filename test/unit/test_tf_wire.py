@@ -5,9 +5,11 @@ import math
 import numpy as np
 import pytest
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
 from tf2_msgs.msg import TFMessage
 
-from robot_ai.tf_wire import JointStateDecoder, TFMessageEncoder, WireError
+from robot_ai.tf_wire import (JointStateDecoder, TFMessageEncoder, WireError, decode_float64_array,
+                              encode_float64_array)
 
 
 def serialise(msg):
@@ -97,3 +99,13 @@ def test_joint_state_encoder_matches_genpy_with_and_without_efforts():
         assert (msg.header.stamp.secs, msg.header.stamp.nsecs, msg.name) == (12, 345, ['a', 'joint_b'])
         assert list(msg.position) == [0.1, -0.2] and list(msg.velocity) == [1.0, 2.0]
         assert list(msg.effort) == ([] if efforts is None else [1.5, -2.25])
+
+
+def test_a_float64_array_is_written_as_rospy_writes_it_and_read_back():
+    """encode_float64_array (the envs' commands) writes the bytes rospy's own serialiser writes for a
+    std_msgs/Float64MultiArray with no layout, and decode_float64_array (arm_sim's reading) gives the values back."""
+    for values in ([0.1, -2.5, 1e-300, float('inf'), 3.0], []):
+        buffer = io.BytesIO()
+        Float64MultiArray(data=values).serialize(buffer)
+        assert encode_float64_array(values) == buffer.getvalue()
+        assert decode_float64_array(encode_float64_array(values)).tolist() == values

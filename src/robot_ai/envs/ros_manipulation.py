@@ -22,7 +22,6 @@ namespace within ``timeout``; after a failure every call raises until the next r
 """
 from __future__ import annotations
 
-import struct
 import threading
 import time
 import warnings
@@ -39,13 +38,12 @@ from robot_ai.msg import ObjectStates
 from robot_ai.physics.env import OBJECT, ManipulationSetup
 from robot_ai.physics.model import model_digest
 from robot_ai.srv import SetJointPositions, SetObjectPose
-from robot_ai.tf_wire import JointStateDecoder, WireError, header_of, raw_message_class
+from robot_ai.tf_wire import JointStateDecoder, WireError, encode_float64_array, header_of, raw_message_class
 
 SIM_NODE = 'arm_sim'
 LAUNCH_HINT = 'roslaunch robot_ai manipulation_gym.launch sims:=N model:=... task_args:=...'
 COMMAND_TOPIC = 'joint_group_position_controller/command'
 KEEP_STAMPS = 16              # object states kept while the matching joint_states is awaited
-_EMPTY_LAYOUT = struct.pack('<II', 0, 0)     # std_msgs/MultiArrayLayout with no dimension, data_offset 0
 RawJointState = raw_message_class(JointState)
 RawCommand = raw_message_class(Float64MultiArray)
 
@@ -214,9 +212,8 @@ class WorldLink:
                                           f'{self.timeout:g} s')
 
     def command(self, positions: list) -> tuple[list, ObjectStates]:
-        n = len(positions)
         try:
-            self.command_pub.publish(RawCommand(_EMPTY_LAYOUT + struct.pack(f'<I{n}d', n, *positions)))
+            self.command_pub.publish(RawCommand(encode_float64_array(positions)))
         except rospy.ROSException as e:
             raise self._fail(f'cannot publish the command: {e}') from None
         return self._answer(self.seq + 1, f'no joint_states on {self.state_topic} within {self.timeout:g} s of the '

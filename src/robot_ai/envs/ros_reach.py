@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import hashlib
 import re
-import struct
 import threading
 import time
 import warnings
@@ -39,14 +38,14 @@ from robot_ai.envs.link import (DEFAULT_TIMEOUT, RosEnvError, ensure_node, maste
 from robot_ai.reach.env import LIMIT_AVOIDANCE, RENDER_FPS, ReachSetup, Recovery
 from robot_ai.reach.task import goal_distance_one
 from robot_ai.srv import SetJointPositions
-from robot_ai.tf_wire import JointStateDecoder, TFDecoder, WireError, decode_tf, header_of, raw_message_class
+from robot_ai.tf_wire import (JointStateDecoder, TFDecoder, WireError, decode_tf, encode_float64_array, header_of,
+                               raw_message_class)
 
 POLL = 0.05
 SIM_NODE = 'arm_sim'
 LAUNCH_HINT = 'roslaunch robot_ai reach_gym.launch sims:=N model:=...'
 COMMAND_TOPIC = 'joint_group_position_controller/command'
 KEEP_STAMPS = 16              # /tf messages kept while the matching joint_states is awaited
-_EMPTY_LAYOUT = struct.pack('<II', 0, 0)     # std_msgs/MultiArrayLayout with no dimension, data_offset 0
 RawJointState = raw_message_class(JointState)
 RawTFMessage = raw_message_class(TFMessage)
 RawCommand = raw_message_class(Float64MultiArray)
@@ -323,9 +322,8 @@ class ArmLink:
 
     def command(self, positions: list, meanwhile=None) -> tuple:
         """Send positions; meanwhile(): work to do while the arm answers (its result is returned last)."""
-        n = len(positions)
         try:
-            self.command_pub.publish(RawCommand(_EMPTY_LAYOUT + struct.pack(f'<I{n}d', n, *positions)))
+            self.command_pub.publish(RawCommand(encode_float64_array(positions)))
         except rospy.ROSException as e:
             raise self._fail(f'cannot publish the command: {e}') from None
         early = meanwhile() if meanwhile is not None else None
