@@ -43,6 +43,26 @@ def stop_all(procs) -> None:
             os.killpg(p.pid, signal.SIGKILL)
 
 
+def start_graph(launch: list, name: str, procs: list) -> tuple[dict, int]:
+    """A master of the benchmark's own on a free port: `roslaunch -p PORT robot_ai <launch>` and the echo node, each a
+    process group of its own appended to procs (stop_all ends them), then this process's node name once the master
+    answers (init_node before it prints a warning into the table); (the environment they share, the port)."""
+    port = free_port()
+    env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{port}')
+    os.environ['ROS_MASTER_URI'] = env['ROS_MASTER_URI']
+    for argv in (['roslaunch', '-p', str(port), 'robot_ai', *launch],
+                 [sys.executable, os.path.realpath(__file__), '--echo']):
+        procs.append(subprocess.Popen(argv, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                      preexec_fn=os.setsid))
+    import rosgraph
+    import rospy
+    deadline = time.time() + 60
+    while not rosgraph.Master(f'/{name}').is_online() and time.time() < deadline:
+        time.sleep(0.2)
+    rospy.init_node(name, disable_signals=True)
+    return env, port
+
+
 def echo_node() -> None:
     """The reference peer: answers every Float64 on /ping with a JointState on /pong, as a lockstep sim does."""
     import rospy
@@ -168,20 +188,10 @@ def main() -> int:
     if a.echo:
         echo_node()
         return 0
-    port = free_port()
-    env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{port}')
-    os.environ['ROS_MASTER_URI'] = env['ROS_MASTER_URI']
-    procs = [subprocess.Popen(['roslaunch', '-p', str(port), 'robot_ai', 'cartpole_gym.launch', f'sims:={a.sims}'],
-                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid)]
+    procs = []
     try:
-        procs.append(subprocess.Popen([sys.executable, os.path.realpath(__file__), '--echo'], env=env,
-                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid))
-        import rosgraph
+        start_graph(['cartpole_gym.launch', f'sims:={a.sims}'], 'ros_env_speed', procs)
         import rospy
-        deadline = time.time() + 60
-        while not rosgraph.Master('/ros_env_speed').is_online() and time.time() < deadline:
-            time.sleep(0.2)     # init_node before the master is up prints a warning into the table
-        rospy.init_node('ros_env_speed', disable_signals=True)
         for i in range(a.sims):
             rospy.wait_for_service(f'/cartpole_{i}/cartpole_sim/set_state', 120)
         print(f'ROS cart-pole env speed, {a.steps} steps a case, {os.cpu_count()} cores '

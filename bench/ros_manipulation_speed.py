@@ -15,7 +15,6 @@ busy loops to see a loaded machine.
 """
 import argparse
 import os
-import subprocess
 import sys
 import time
 
@@ -23,7 +22,7 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.realpath(__file__))
 sys.path.insert(0, HERE)
-from ros_env_speed import echo_node, free_port, ping_pong_rate, stop_all  # noqa: E402
+from ros_env_speed import echo_node, ping_pong_rate, start_graph, stop_all  # noqa: E402
 from ros_reach_speed import env_rate  # noqa: E402  (random actions, resets at the episode's end)
 
 
@@ -51,26 +50,15 @@ def main() -> int:
     parser.add_argument('--steps', type=int, default=2000, help='steps measured in each case')
     parser.add_argument('--model', default='', help='the arm with a gripper (default: the package\'s UR5 + Robotiq)')
     a = parser.parse_args()
-    port = free_port()
-    env = dict(os.environ, ROS_MASTER_URI=f'http://127.0.0.1:{port}')
-    os.environ['ROS_MASTER_URI'] = env['ROS_MASTER_URI']
-    launch = ['roslaunch', '-p', str(port), 'robot_ai', 'manipulation_gym.launch', 'sims:=1']
-    if a.model:
-        launch.append(f'model:={os.path.abspath(a.model)}')
-    procs = [subprocess.Popen(launch, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                              preexec_fn=os.setsid),
-             subprocess.Popen([sys.executable, os.path.join(HERE, 'ros_env_speed.py'), '--echo'], env=env,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=os.setsid)]
+    procs = []
     try:
+        start_graph(['manipulation_gym.launch', 'sims:=1'] + ([f'model:={os.path.abspath(a.model)}'] if a.model
+                                                              else []), 'ros_manipulation_speed', procs)
         import gymnasium
         import rosgraph
         import rospy
         import robot_ai.envs  # noqa: F401  (registers the envs over ROS)
         import robot_ai.physics  # noqa: F401  (registers the envs over MuJoCo)
-        deadline = time.time() + 60
-        while not rosgraph.Master('/ros_manipulation_speed').is_online() and time.time() < deadline:
-            time.sleep(0.2)
-        rospy.init_node('ros_manipulation_speed', disable_signals=True)
         rospy.wait_for_service('/arm_0/arm_sim/set_object_pose', 300)
         urdf = rosgraph.Master('/ros_manipulation_speed').getParam('/arm_0/robot_description')
         print(f'manipulation env speed through ROS, {a.steps} steps a case, {os.cpu_count()} cores (load average '
