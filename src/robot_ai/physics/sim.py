@@ -48,6 +48,11 @@ class ArmPhysics:
         self._grip: dict[int, tuple[float, float]] = {}    # actuator -> the gripper command's target and speed
         self._ramp: dict[int, float] = {}     # actuator -> where its target stands on the way to the command
         self._still = 0.0                     # s of physics the gripper has been still (for gripper_outcome)
+        self._objects = {}                    # object -> (its body, its free joint's qpos and qvel addresses)
+        for name in physics.objects:
+            body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name)
+            joint = self.model.body_jntadr[body]
+            self._objects[name] = (body, int(self.model.jnt_qposadr[joint]), int(self.model.jnt_dofadr[joint]))
 
     @property
     def positions(self) -> np.ndarray:
@@ -158,7 +163,7 @@ class ArmPhysics:
         """{object: (position (3), orientation (4: w, x, y, z, MuJoCo's), velocity (6: linear, angular))}, all in
         the world (the root's frame), as the manipulation envs observe them."""
         out = {}
-        for name, (body, _, dof) in self._objects().items():
+        for name, (body, _, dof) in self._objects.items():
             out[name] = (self.data.xpos[body].copy(), self.data.xquat[body].copy(),
                          free_velocity(self.data, body, dof))
         return out
@@ -167,26 +172,14 @@ class ArmPhysics:
         """The object name at position (3) with orientation (4: w, x, y, z; normalised), at rest, in the world (the
         root's frame); the arm stays as it is. PhysicsError of one line for an unknown object or a pose that is not
         one."""
-        objects = self._objects()
-        if name not in objects:
-            raise PhysicsError(f'no object {name!r} (the objects: {", ".join(objects) or "none"})')
+        if name not in self._objects:
+            raise PhysicsError(f'no object {name!r} (the objects: {", ".join(self._objects) or "none"})')
         p, q = np.asarray(position, dtype=float), np.asarray(orientation, dtype=float)
         norm = float(np.linalg.norm(q)) if q.shape == (4,) else 0.0
         if p.shape != (3,) or not np.isfinite(p).all() or not (np.isfinite(q).all() and abs(norm - 1.0) < 1e-3):
             raise PhysicsError(f'a pose is a finite position and a unit quaternion, got {p.tolist()}, {q.tolist()}')
-        _, address, dof = objects[name]
+        _, address, dof = self._objects[name]
         self.data.qpos[address:address + 7] = [*p, *(q / norm)]
         self.data.qvel[dof:dof + 6] = 0.0
         self.data.qacc_warmstart[:] = 0.0
         self._mj.mj_forward(self.model, self.data)
-
-    def _objects(self) -> dict[str, tuple[int, int, int]]:
-        """{object: (its body, its free joint's qpos and qvel addresses)}."""
-        if not hasattr(self, '_object_ids'):
-            ids = {}
-            for name in self.physics.objects:
-                body = self._mj.mj_name2id(self.model, self._mj.mjtObj.mjOBJ_BODY, name)
-                joint = self.model.body_jntadr[body]
-                ids[name] = (body, int(self.model.jnt_qposadr[joint]), int(self.model.jnt_dofadr[joint]))
-            self._object_ids = ids
-        return self._object_ids
