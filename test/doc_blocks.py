@@ -59,6 +59,15 @@ def python_blocks() -> list[Block]:
     return found
 
 
+def run_as_written(block: Block, arm: str = '', timeout: float = 300) -> str:
+    """The block run as a reader runs it, in a process of its own (their arm file: arm): '' if it ended well, else
+    the block and what it printed, a failure's message."""
+    import subprocess
+    run = subprocess.run([sys.executable, '-c', block.source(arm)], capture_output=True, text=True, timeout=timeout,
+                         stdin=subprocess.DEVNULL)
+    return '' if run.returncode == 0 else f'{block.page}:\n{block.code}\n{run.stdout[-2000:]}{run.stderr[-3000:]}'
+
+
 def _importable(module: str) -> bool:
     try:
         return importlib.util.find_spec(module) is not None

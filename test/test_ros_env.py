@@ -23,7 +23,7 @@ from sensor_msgs.msg import JointState
 from robot_ai.envs import RosCartPoleError, RosCartPoleVectorEnv  # registers robot_ai/RosCartPole-v0, -v1
 
 sys.path.insert(0, os.path.dirname(os.path.realpath(__file__)))
-from doc_blocks import python_blocks  # noqa: E402
+from doc_blocks import python_blocks, run_as_written  # noqa: E402
 
 VECTORISERS = os.path.join(os.path.dirname(os.path.realpath(__file__)), 'ros_env_vectorisers.py')
 GOOD = np.array([0.1, 0.5, 10.0, 2.0])      # a linear policy that balances the pole: episodes end by truncation
@@ -362,10 +362,7 @@ class TestRosEnv(unittest.TestCase):
         self.assertEqual(blocks[0].page, 'README.md')
         self.assertGreaterEqual(len(blocks), 3, 'the test finds too few blocks')
         for block in blocks:
-            run = subprocess.run([sys.executable, '-c', block.source('')], capture_output=True, text=True,
-                                 timeout=120, stdin=subprocess.DEVNULL)
-            self.assertEqual(run.returncode, 0,
-                             f'{block.page}:\n{block.code}\n{run.stdout[-2000:]}{run.stderr[-3000:]}')
+            self.assertEqual(run_as_written(block, timeout=120), '')
 
     def test_every_standard_vectoriser_trains_on_the_sims_bit_for_bit(self):
         """SyncVectorEnv over gymnasium.make (CleanRL), make_vec 'sync' and the package's vector env, in this
