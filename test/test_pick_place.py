@@ -32,15 +32,18 @@ class TestPickPlace(unittest.TestCase):
             time.sleep(0.2)
         assert cls.clicks.get_num_connections(), 'pick_place never subscribed to /clicked_point'
 
-    def click(self, x, y, z):
+    def click(self, x, y, z) -> int:
+        """Publish a click as rviz's Publish Point does; the number of results before it (result's count: an answer
+        can come before the test reads the count after the click, on a loaded machine)."""
+        count = len(self.results)
         msg = PointStamped()
         msg.header.frame_id, msg.header.stamp = ROOT, rospy.Time.now()
         msg.point.x, msg.point.y, msg.point.z = x, y, z
         self.clicks.publish(msg)
+        return count
 
-    def result(self, timeout: float = 180.0, count: int | None = None) -> str:
-        """The first result after the count-th (default: the next one to come)."""
-        count = len(self.results) if count is None else count
+    def result(self, count: int, timeout: float = 180.0) -> str:
+        """The first result after the count-th (count: click's)."""
         deadline = time.monotonic() + timeout
         while len(self.results) == count and time.monotonic() < deadline and not rospy.is_shutdown():
             time.sleep(0.05)
@@ -54,16 +57,15 @@ class TestPickPlace(unittest.TestCase):
     def test_clicked_cubes_placed_where_clicked(self):
         cube = self.position('cube')
         top = cube[2] - 0.02                              # the table's top: under the 4 cm cube's middle
-        self.click(cube[0], cube[1] + 0.3, top)           # nothing there
-        self.assertRegex(self.result(30), r'^not placed: no object within 0\.08 m')
+        count = self.click(cube[0], cube[1] + 0.3, top)   # nothing there
+        self.assertRegex(self.result(count, 30), r'^not placed: no object within 0\.08 m')
         self.click(*(cube + [0, 0, 0.02]))                # the cube's top, as rviz picks a point on what it draws
-        self.click(cube[0], cube[1], top + 0.2)           # in the air: not a place
-        self.assertRegex(self.result(30), r'^not placed: the place .* click on the table')
+        count = self.click(cube[0], cube[1], top + 0.2)   # in the air: not a place
+        self.assertRegex(self.result(count, 30), r'^not placed: the place .* click on the table')
         for name, place in (('cube', (0.45, 0.1)), ('cube_2', (0.5, -0.15))):
             start = self.position(name)
             self.click(*(start + [0, 0, 0.02]))
-            self.click(place[0], place[1], top)
-            said = self.result()
+            said = self.result(self.click(place[0], place[1], top))
             self.assertTrue(said.startswith(f'placed {name} at'), said)
             time.sleep(0.5)
             np.testing.assert_allclose(self.position(name), [place[0], place[1], top + 0.02], atol=0.015)
@@ -72,16 +74,15 @@ class TestPickPlace(unittest.TestCase):
         cancel = rospy.ServiceProxy('/pick_place/cancel', Trigger)
         self.assertFalse(cancel().success)                # nothing under way
         start = self.position('cube')
-        count = len(self.results)
         self.click(*(start + [0, 0, 0.02]))
-        self.click(0.65, 0.15, top)
+        count = self.click(0.65, 0.15, top)
         deadline = time.monotonic() + 60
         answer = cancel()
         while not answer.success and time.monotonic() < deadline:     # as soon as the pick is under way
             time.sleep(0.05)
             answer = cancel()
         self.assertTrue(answer.success, answer.message)
-        self.assertEqual(self.result(30, count), 'not placed: the pick of cube was cancelled (the arm holds)')
+        self.assertEqual(self.result(count, 30), 'not placed: the pick of cube was cancelled (the arm holds)')
 
 
 if __name__ == '__main__':
