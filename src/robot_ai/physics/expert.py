@@ -4,8 +4,9 @@ observation alone (so that it acts in any world, batched, and a learner can imit
     actions = expert_actions(obs['observation'], obs['desired_goal'], task)     # (N, 4) for N observations
 
 Push: the closed fingertips go behind the cube (opposite the goal) above it, down to its middle's height, and push
-it along the line to the goal, stopping when it is there. Pick and place: the open gripper goes over the cube, down
-around it, closes, and carries it to the goal once the fingers hold it (the opening stopped short of closed).
+it along the line to the goal, steered back onto the line as the cube turns aside, stopping when it is there. Pick
+and place: the open gripper goes over the cube, down around it, closes, and carries it to the goal once the fingers
+hold it (the opening stopped short of closed).
 """
 from __future__ import annotations
 
@@ -16,11 +17,21 @@ ABOVE = 0.06                # m: the approach height over the cube
 BEHIND = 0.05               # m: where the push starts, behind the cube's middle
 NEAR = 0.012                # m: near enough to a waypoint to go on
 THERE = 0.015               # m: a pushed cube this near its goal is left alone
+KEEP = 0.03                 # m: a push under way goes on while the grip point is this near the line to the goal
 HELD = 0.04                 # the gripper's opening (0 closed, 1 open) above which its stopped fingers hold the cube
 
 
 def _towards(grip: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """GAIN x the error, each component within [-1, 1]: a far target's step leans toward a diagonal (a cube held low
+    is lifted clear of the table as it is carried, not dragged along it)."""
     return np.clip(GAIN * (target - grip), -1.0, 1.0)
+
+
+def _along(grip: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """GAIN x the error, shortened as a whole where a component passes 1: the grip point moves straight at the
+    target (a push clipped component by component drifts off the line behind the cube)."""
+    step = GAIN * (target - grip)
+    return step / np.maximum(np.max(np.abs(step), axis=-1, keepdims=True), 1.0)
 
 
 def expert_actions(observation, desired_goal, task: str, behind: float = BEHIND,
@@ -46,15 +57,22 @@ def expert_actions(observation, desired_goal, task: str, behind: float = BEHIND,
         # behind the cube (in the plane) and low enough: push; otherwise come over the point behind it, then down
         offset = grip[:, :2] - cube[:, :2]
         along = np.sum(offset * direction, axis=1)
-        across = np.abs(offset[:, 0] * direction[:, 1] - offset[:, 1] * direction[:, 0])
+        lateral = offset - along[:, None] * direction      # the grip point's offset from the line
+        across = np.linalg.norm(lateral, axis=1)
         placed = (along < -0.02) & (across < 0.015)
+        pushing = low & (along < -0.02) & (across < KEEP)  # under way: a cube turned aside a little is steered back
         push = goal.copy()
         push[:, :2] -= direction * (behind - 0.025)       # the fingertips' side, not their middle, at the goal
         push[:, 2] = level
-        target = np.where((placed & low)[:, None], push,
+        # along the line toward the push point, and back onto it (the line from the cube to the goal turns as the
+        # cube is pushed aside)
+        ahead = np.clip(np.sum((push[:, :2] - grip[:, :2]) * direction, axis=1), 0.0, 1.0 / GAIN)
+        steer = push.copy()
+        steer[:, :2] = grip[:, :2] + direction * ahead[:, None] - lateral
+        target = np.where(pushing[:, None], steer,
                           np.where(placed[:, None] | (np.linalg.norm(grip - over, axis=1) < NEAR)[:, None],
                                    start, over))
-        actions[:, :3] = _towards(grip, target)
+        actions[:, :3] = _along(grip, target)
         actions[:, 3] = -1.0
         there = distance[:, 0] < THERE        # pushed home: the fingers leave it where it is
         actions[there, :3] = 0.0
