@@ -102,6 +102,42 @@ def test_the_scripted_expert_solves_the_task(task):
     assert solved >= 9
 
 
+def _claw_urdf() -> str:
+    """The Panda with its hand swapped for a claw of three fingers on independent joints (no mimic), each swinging
+    in toward the axis as it closes, so that closed their tips curl up above the grip point (a Kinova's hand does)."""
+    with open(PANDA) as f:
+        text = f.read()
+    parts = [text[:text.index('    <joint name="panda_hand_joint"')],
+             '<joint name="palm_joint" type="fixed"><parent link="panda_link8"/><child link="palm"/></joint>'
+             '<link name="palm"><inertial><mass value="0.3"/><inertia ixx="1e-4" iyy="1e-4" izz="1e-4" ixy="0" '
+             'ixz="0" iyz="0"/></inertial><collision><origin xyz="0 0 0.015"/><geometry><cylinder radius="0.045" '
+             'length="0.03"/></geometry></collision></link>']
+    for k in range(3):
+        a = 2 * np.pi * k / 3
+        parts.append(f'<joint name="finger_{k}_joint" type="revolute"><parent link="palm"/><child link="finger_{k}"/>'
+                     f'<origin xyz="{0.04 * np.cos(a):.6f} {0.04 * np.sin(a):.6f} 0.03" rpy="0 0 {a:.6f}"/>'
+                     f'<axis xyz="0 -1 0"/><limit lower="0" upper="1.3" effort="10" velocity="2"/></joint>'
+                     f'<link name="finger_{k}"><inertial><origin xyz="0 0 0.03"/><mass value="0.05"/><inertia '
+                     f'ixx="2e-5" iyy="2e-5" izz="2e-6" ixy="0" ixz="0" iyz="0"/></inertial><collision><origin '
+                     f'xyz="0 0 0.03"/><geometry><box size="0.012 0.012 0.06"/></geometry></collision></link>')
+    return '\n'.join(parts) + '\n</robot>\n'
+
+
+def test_a_hand_whose_closed_fingers_curl_up_pushes_with_their_backs():
+    """The hand closed is measured with every finger joint closed (each on its own joint here), and a push with it
+    goes as low as its curled fingers allow, under the cube's middle: 17 of 20 measured (2 of 20 while the push was
+    laid out for the hand as it is open, its fingertips over the cube's top)."""
+    from robot_ai.physics.env import TABLE_MARGIN, ManipulationVectorEnv
+    from robot_ai.physics.learn import FINAL_SEED, evaluate, expert_policy
+    setup = ManipulationSetup('push', urdf=_claw_urdf())
+    grip = setup.space.grip
+    assert len(setup.gripper) == 3 and grip.closed_beyond < 0 < grip.beyond
+    assert setup.low[2] == pytest.approx(setup.space.table_top + TABLE_MARGIN + grip.closed_beyond)
+    assert setup.sink > 0
+    success, _ = evaluate(expert_policy(setup), ManipulationVectorEnv(20, 'push', setup=setup), 20, FINAL_SEED)
+    assert success >= 0.7
+
+
 def test_push_holds_the_gripper_closed_and_bad_input_is_one_line():
     env = gymnasium.make('robot_ai/Push-v0', model=PANDA)
     with pytest.raises(ResetNeeded):

@@ -54,6 +54,7 @@ ANGULAR_WEIGHT = 0.2        # m per rad: the orientation's rows in the least squ
 DAMPING = 0.05
 IK_ITERATIONS = 2
 TABLE_MARGIN = 0.005        # m: the fingertips' lowest target above the table
+PUSH_BELOW = 0.005          # m: a push's closed hand reaches at least this far under the cube's middle (where it can)
 
 
 def rpy_of(m: np.ndarray) -> list[float]:
@@ -142,10 +143,14 @@ class ManipulationSetup:
         self.tip_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, self.arm.tip)
         centre, top = self.space.centre, self.space.table_top
         reach = max(self.obj_range, self.goal_range) / 2 + 0.1
-        self.low = np.array([centre[0] - reach, centre[1] - reach, top + TABLE_MARGIN + self.space.grip.beyond])
+        grip = self.space.grip                  # a push's gripper is closed throughout: its hand as it is then
+        beyond = grip.closed_beyond if self.task == 'push' else grip.beyond
+        self.low = np.array([centre[0] - reach, centre[1] - reach, top + TABLE_MARGIN + beyond])
         self.high = np.array([centre[0] + reach, centre[1] + reach, top + self.goal_height + 0.2])
         half = self.object_size / 2             # where a push starts behind the cube: the hand clear of it
-        self.behind = half + self.space.grip.radius(half + 0.01) + 0.015
+        self.behind = half + grip.radius(half + 0.01) + 0.015
+        # how far under the cube's middle the grip point pushes: the closed hand's lowest point PUSH_BELOW under it
+        self.sink = max(0.0, PUSH_BELOW - grip.closed_beyond)
 
     def table(self) -> dict:
         """The table, as an obstacle (motion.body's YAML): its top table_top, under the whole workspace."""
@@ -166,7 +171,8 @@ class ManipulationSetup:
     def expert(self, observation, desired_goal) -> np.ndarray:
         """The scripted expert's actions (physics.expert) for this arm: its push start and lowest grip point."""
         from robot_ai.physics.expert import expert_actions
-        return expert_actions(observation, desired_goal, self.task, behind=self.behind, lowest=self.low[2])
+        return expert_actions(observation, desired_goal, self.task, behind=self.behind, lowest=self.low[2],
+                              sink=self.sink)
 
     # --------------------------------------------------------------------------------------------- the task
     def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:

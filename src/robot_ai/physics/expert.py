@@ -35,15 +35,18 @@ def _along(grip: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def expert_actions(observation, desired_goal, task: str, behind: float = BEHIND,
-                   lowest: float = -np.inf) -> np.ndarray:
+                   lowest: float = -np.inf, sink: float = 0.0) -> np.ndarray:
     """(N, 4) actions for observations (N, 23) (or one: (23,) -> (4,)) and their goals (N, 3). behind: where a push
-    starts, behind the cube's middle; lowest: the grip point's lowest target (ManipulationSetup.expert passes the
-    arm's own: its hand clear of the cube, its fingertips above the table)."""
+    starts, behind the cube's middle; lowest: the grip point's lowest target; sink: how far under the cube's middle
+    the grip point pushes (ManipulationSetup.expert passes the arm's own: its hand clear of the cube, its fingertips
+    above the table, a hand whose closed fingers curl up above the grip point pushing with their backs)."""
     obs = np.atleast_2d(np.asarray(observation, dtype=float))
     goal = np.atleast_2d(np.asarray(desired_goal, dtype=float))
     grip, cube, opening = obs[:, 0:3], obs[:, 3:6], obs[:, 9]
     actions = np.zeros((len(obs), 4))
     level = np.maximum(cube[:, 2], lowest)          # the height to push or grasp at: the cube's middle, if it can
+    if task == 'push':
+        level = np.maximum(cube[:, 2] - sink, lowest)
     low = grip[:, 2] < level + NEAR
     if task == 'push':
         line = goal[:, :2] - cube[:, :2]

@@ -57,13 +57,16 @@ class Grip:
     """A gripper seen from the tip: offset (the grip point), approach and closing (axes), beyond (how far the
     fingertips reach past the grip point along the approach, m), open_high (whether the first gripper joint opens
     toward its upper limit: the Panda's slide does, a Robotiq's knuckle closes that way), hand (the points of the
-    hand's geometry closed, every link below the tip, in the tip's frame: what a push must keep clear of)."""
+    hand's geometry closed, every link below the tip, in the tip's frame: what a push must keep clear of) and
+    closed_beyond (how far the closed hand reaches past the grip point along the approach, m: below zero for a hand
+    whose closed fingers curl up above it, as a Kinova's three do)."""
     offset: np.ndarray
     approach: np.ndarray
     closing: np.ndarray
     beyond: float
     open_high: bool
     hand: np.ndarray = dataclasses.field(repr=False, default_factory=lambda: np.zeros((0, 3)))
+    closed_beyond: float = 0.0
 
     def radius(self, height: float) -> float:
         """How far the closed hand reaches from the approach axis (m), of its geometry less than height above the
@@ -144,10 +147,12 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
         closing = np.cross(approach, [1.0, 0.0, 0.0] if abs(approach[0]) < 0.9 else [0.0, 1.0, 0.0])
     closing /= np.linalg.norm(closing)
     gaps, hands = [], []
-    k = physics.actuated.index(gripper[0])
-    for end in model.actuator_ctrlrange[k] if model.actuator_ctrllimited[k] else (-0.01, 0.01):
-        data.qpos[physics.qpos_address(gripper[0])] = end
-        physics.follow_mimics(data)           # the mimic joints with it
+    for end in (0, 1):                        # every gripper joint at the low end of its range, then the high
+        for name in gripper:
+            k = physics.actuated.index(name)
+            ends = model.actuator_ctrlrange[k] if model.actuator_ctrllimited[k] else (-0.01, 0.01)
+            data.qpos[physics.qpos_address(name)] = ends[end]
+        physics.follow_mimics(data)           # the mimic joints with them
         mujoco.mj_kinematics(model, data)
         finger = np.concatenate(_finger_points(arm, physics, data, first) or [middle[None]]).mean(axis=0)
         gaps.append(float(np.linalg.norm(finger - approach * (finger @ approach))))
@@ -155,8 +160,9 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     grip = (float(middle @ approach) + far) / 2.0
     open_high = gaps[1] >= gaps[0]
     fixed = lambda v: np.round(v, READY_DECIMALS)      # noqa: E731  the same in every process (see workspace())
+    closed = hands[0 if open_high else 1]
     return Grip(fixed(approach * grip), fixed(approach), fixed(closing), float(fixed(far - grip)), open_high,
-                hands[0 if open_high else 1])
+                closed, float(fixed((closed @ approach).max() - grip)))
 
 
 def _shoulder(arm: Arm, q: np.ndarray) -> np.ndarray:
