@@ -18,6 +18,8 @@ BEHIND = 0.05               # m: where the push starts, behind the cube's middle
 NEAR = 0.012                # m: near enough to a waypoint to go on
 THERE = 0.015               # m: a pushed cube this near its goal is left alone
 KEEP = 0.03                 # m: a push under way goes on while the grip point is this near the line to the goal
+HOLD_RADIUS = 0.03          # m: a cube held this near the grip point (in the plane) is carried (three fingers hold it
+                            # off the point between their tips)
 HELD = 0.04                 # the gripper's opening (0 closed, 1 open) above which its stopped fingers hold the cube
 
 
@@ -86,7 +88,7 @@ def expert_actions(observation, desired_goal, task: str, behind: float = BEHIND,
         down[:, 2] = level
         horizontal = np.linalg.norm(grip[:, :2] - cube[:, :2], axis=1)
         still = np.abs(obs[:, 22]) < 0.5          # the fingers stopped: on the cube, or closed on nothing
-        held = (horizontal < 0.02) & (np.abs(grip[:, 2] - cube[:, 2]) < 0.06) & (opening > HELD) & \
+        held = (horizontal < HOLD_RADIUS) & (np.abs(grip[:, 2] - cube[:, 2]) < 0.06) & (opening > HELD) & \
             (opening < 0.9) & still
         around = (horizontal < 0.01) & low
         target = np.where(held[:, None], goal, np.where((horizontal < 0.01)[:, None], down, over))
