@@ -11,7 +11,7 @@
   and the same wall-clock budget (--minutes), where --sb3-python names a Python that has them (bench/sb3_panda_gym.py:
   torch is never the package's dependency).
 
-    python bench/manipulation.py [--minutes 30] [--quick] [--sb3-python ~/sb3/bin/python]
+    python bench/manipulation.py [--minutes 30] [--quick] [--sb3-python ~/sb3/bin/python] [--skip-sb3]
 """
 import argparse
 import importlib.util
@@ -95,6 +95,9 @@ def main() -> None:
     p.add_argument('--quick', action='store_true', help='the env speeds and the Panda\'s learning only, 5 minutes')
     p.add_argument('--sb3-python', default=os.environ.get('SB3_PYTHON', ''),
                    help='a Python with stable-baselines3, sb3-contrib and panda-gym (bench/sb3_panda_gym.py)')
+    p.add_argument('--skip-sb3', action='store_true',
+                   help='panda-gym\'s speed only, not SB3\'s learning (2 x --minutes; its figures do not depend on '
+                        'this package)')
     a = p.parse_args()
     print('== Push-v0 and PickAndPlace-v0 (MuJoCo) beside panda-gym (PyBullet) and SB3 ==')
     with threadpool_limits(limits=1):
@@ -116,9 +119,11 @@ def main() -> None:
     for name, model in arms:
         for task in ('push', 'pick_and_place'):
             learning(name, model, task, minutes)
-    if a.sb3_python and not a.quick:
+    if a.sb3_python and not (a.quick or a.skip_sb3):
         for task in ('push', 'pick_and_place'):
             sb3(a.sb3_python, task, minutes)
+    elif a.skip_sb3:
+        print('SB3 TQC+HER: not run (--skip-sb3)')
     elif not a.quick:
         print('SB3 TQC+HER: not run (give --sb3-python: a Python with stable-baselines3, sb3-contrib and panda-gym)')
 
