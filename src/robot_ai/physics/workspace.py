@@ -8,6 +8,8 @@ the robot itself, so that an arm the package has never seen gets a task without 
 - The grip point: the fingers' collision geometry (every link below a gripper joint), seen from the tip at home; it
   lies along the approach axis (from the tip toward the fingers' middle), halfway between their middle and their far
   end, where the pads of a parallel gripper are.
+- The hand closed: every gripper joint at its closing end (each finger on its own joint, as a Kinova's three, closes
+  too), what a push keeps clear of the cube and how far it reaches past the grip point (curled fingers stop above).
 - The ready configuration: the grip point READY_REACH of the arm's length (less a torso's lift; nearer, down to
   0.6 of that, where the arm falls short) in front of its shoulder (the first joint of the chain whose axis is
   level), at the shoulder's height, the approach axis straight down and the fingers closing along y; found by damped
