@@ -137,3 +137,25 @@ def test_a_can_and_a_brick_are_set_down_at_their_own_height():
         assert run.outcome.startswith(f'placed {spec["name"]}'), run
         np.testing.assert_allclose(arm.object_poses()[spec['name']][:3, 3], [c[0] - 0.1, c[1] + 0.1, top + half],
                                    atol=0.015)
+
+
+def test_a_ready_configuration_that_touches_gives_way_to_the_nearest_clear_one(monkeypatch):
+    """Where the layer's body finds the task's ready configuration touching (the Fetch's upper arm by its head), the
+    other configurations with the gripper there are compared and the nearest the task's taken, which the policy
+    learned from (the first found had the Fetch's wrist roll 0.4 rad from the end of its range, and its picks
+    wandered off)."""
+    from robot_ai.motion.body import CollisionModel
+    from robot_ai.physics import workspace
+    setup = setup_of(ROBOTIQ)
+    ready = setup.space.ready
+    found = iter([ready + 1.0, ready - 0.7, ready + 0.2, ready + 1.5] * 20)
+    monkeypatch.setattr(workspace, 'ready_pose', lambda *args: (np.clip(next(found), setup.arm.lower,
+                                                                        setup.arm.upper), 0.0, 0.0))
+    monkeypatch.setattr(CollisionModel, 'in_collision',      # within the layer's margin only (reach's home check
+                        lambda self, q, padding=0.0:            # is without: the task's ready is its home)
+                        np.all(np.isclose(np.atleast_2d(q), ready), axis=1) & (padding > 0))
+    monkeypatch.setattr(CollisionModel, 'contacts',
+                        lambda self, q, padding=0.0: ['forearm_link - table'] if padding > 0 else [])
+    picking = PickPlace(setup, obstacles=[setup.table()])
+    np.testing.assert_allclose(picking.ready, np.clip(ready + 0.2, setup.arm.lower, setup.arm.upper))
+    assert 'touches (forearm_link - table)' in picking.ready_note and 'the nearest it of 8 found' in picking.ready_note

@@ -31,6 +31,7 @@ SELECT_RADIUS = 0.08        # m: a click this near an object's middle chooses it
 PLACE_HEIGHT = 0.02         # m: a place is a click on the table: this near its top
 AT_READY = 0.02             # rad (or m): the arm at the ready configuration, the policy takes over
 READY_TRIES = 64            # other ready configurations tried where the task's touches the layer's body
+READY_CHOICES = 8           # of which the clear ones found first: the nearest the task's is taken
 TASK_TIME = 60.0            # s: the policy's longest time to bring the object to the place
 STALL_TIME = 6.0            # s: ... and without progress (the hand nearer the object, or the object nearer the place)
 PROGRESS = 0.005            # m: what counts as progress
@@ -124,13 +125,19 @@ class PickPlace:
             return ready, ''
         touching = ', '.join(body.contacts(ready, self.margin)[:2])
         grip, rng = s.space.grip, np.random.default_rng(0)
+        clear = []
         for _ in range(READY_TRIES):
             q, miss, angle = ready_pose(s.arm, grip.offset, grip.approach, grip.closing, s.ready_grip,
                                         rng.uniform(s.arm.lower, s.arm.upper))
             if miss <= READY_TOLERANCE[0] and angle <= READY_TOLERANCE[1] and \
                     not body.in_collision(q[None], self.margin)[0]:
-                return q, (f'the task\'s ready configuration touches ({touching}) within {self.margin:g} m: '
-                           f'another with the gripper there is used')
+                clear.append(q)
+                if len(clear) == READY_CHOICES:
+                    break
+        if clear:       # the nearest the task's own, which the policy learned from (the first found had the Fetch's
+            nearest = min(clear, key=lambda q: float(np.abs(q - ready).max()))     # wrist roll by its limit)
+            return nearest, (f'the task\'s ready configuration touches ({touching}) within {self.margin:g} m: '
+                             f'another with the gripper there is used, the nearest it of {len(clear)} found')
         raise PickError(f'{s.robot.tree.name}: the task\'s ready configuration touches ({touching}) within '
                         f'{self.margin:g} m, and no other with the gripper there is clear')
 
