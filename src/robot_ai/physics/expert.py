@@ -46,9 +46,8 @@ def expert_actions(observation, desired_goal, task: str, behind: float = BEHIND,
     goal = np.atleast_2d(np.asarray(desired_goal, dtype=float))
     grip, cube, opening = obs[:, 0:3], obs[:, 3:6], obs[:, 9]
     actions = np.zeros((len(obs), 4))
-    level = np.maximum(cube[:, 2], lowest)          # the height to push or grasp at: the cube's middle, if it can
-    if task == 'push':
-        level = np.maximum(cube[:, 2] - sink, lowest)
+    # the height to grasp at: the cube's middle, if it can; to push at: sink under it
+    level = np.maximum(cube[:, 2] - (sink if task == 'push' else 0.0), lowest)
     low = grip[:, 2] < level + NEAR
     if task == 'push':
         line = goal[:, :2] - cube[:, :2]
