@@ -137,9 +137,7 @@ class ManipulationSetup:
         self.grip_q = np.array([physics.qpos_address(n) for n in self.gripper])
         self.finger_q = int(self.grip_q[0])
         self.actuated_q = np.array([physics.qpos_address(n) for n in physics.actuated])
-        joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, OBJECT)
-        self.object_q, self.object_v = int(model.jnt_qposadr[joint]), int(model.jnt_dofadr[joint])
-        self.object_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, OBJECT)
+        self.object_body, self.object_q, self.object_v = physics.object_addresses(OBJECT)
         self.tip_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, self.arm.tip)
         centre, top = self.space.centre, self.space.table_top
         reach = max(self.obj_range, self.goal_range) / 2 + 0.1

@@ -184,12 +184,18 @@ class Physics:
             raise PhysicsError(f'the model has no joint {joint!r}')
         return int(self.model.jnt_qposadr[j])
 
+    def object_addresses(self, name: str) -> tuple[int, int, int]:
+        """(its body, its free joint's qpos and qvel addresses) of a loose object; PhysicsError for an unknown one."""
+        import mujoco
+        body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name)
+        if body < 0 or name not in self.objects:
+            raise PhysicsError(f'no object {name!r} (the objects: {", ".join(self.objects) or "none"})')
+        joint = self.model.body_jntadr[body]
+        return body, int(self.model.jnt_qposadr[joint]), int(self.model.jnt_dofadr[joint])
+
     def object_pose(self, data, name: str) -> np.ndarray:
         """4x4: a loose object's pose in the world (the root's frame) in data."""
-        import mujoco
-        b = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name)
-        if b < 0 or name not in self.objects:
-            raise PhysicsError(f'no object {name!r} (the objects: {", ".join(self.objects) or "none"})')
+        b = self.object_addresses(name)[0]
         out = np.identity(4)
         out[:3, :3], out[:3, 3] = data.xmat[b].reshape(3, 3), data.xpos[b]
         return out

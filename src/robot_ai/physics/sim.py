@@ -48,11 +48,8 @@ class ArmPhysics:
         self._grip: dict[int, tuple[float, float]] = {}    # actuator -> the gripper command's target and speed
         self._ramp: dict[int, float] = {}     # actuator -> where its target stands on the way to the command
         self._still = 0.0                     # s of physics the gripper has been still (for gripper_outcome)
-        self._objects = {}                    # object -> (its body, its free joint's qpos and qvel addresses)
-        for name in physics.objects:
-            body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name)
-            joint = self.model.body_jntadr[body]
-            self._objects[name] = (body, int(self.model.jnt_qposadr[joint]), int(self.model.jnt_dofadr[joint]))
+        # object -> (its body, its free joint's qpos and qvel addresses)
+        self._objects = {name: physics.object_addresses(name) for name in physics.objects}
 
     @property
     def positions(self) -> np.ndarray:
