@@ -231,7 +231,8 @@ class TestReachRos(unittest.TestCase):
             velocities.clear()
             pub.publish(Float64MultiArray(data=target.tolist()))
             deadline = time.monotonic() + 30
-            while len(states) < 12 and time.monotonic() < deadline:     # ticks, however slow a loaded machine is
+            # ticks, however slow a loaded machine is: 11 steps between stamps take 13 states (the last dropped)
+            while len(states) < 14 and time.monotonic() < deadline:
                 time.sleep(0.05)
             moving, said = list(states)[:-1], [np.abs(v).max() for v in list(velocities)[1:len(states) - 1] if len(v)]
             limit = float(np.max(ReachSetup().arm.velocity))        # the UR5's URDF velocity limits (3.2 rad/s)
