@@ -6,7 +6,8 @@ observation alone (so that it acts in any world, batched, and a learner can imit
 Push: the closed fingertips go behind the cube (opposite the goal) above it, down to its middle's height, and push
 it along the line to the goal, steered back onto the line as the cube turns aside, stopping when it is there. Pick
 and place: the open gripper goes over the cube, down around it, closes, and carries it to the goal once the fingers
-hold it (the opening stopped short of closed).
+hold it (the opening stopped short of closed), the cube (not the grip point) to the goal; fingers that have begun to
+close go on closing, however the hand has moved since, until they stop.
 """
 from __future__ import annotations
 
@@ -21,12 +22,22 @@ KEEP = 0.03                 # m: a push under way goes on while the grip point i
 HOLD_RADIUS = 0.03          # m: a cube held this near the grip point (in the plane) is carried (three fingers hold it
                             # off the point between their tips)
 HELD = 0.04                 # the gripper's opening (0 closed, 1 open) above which its stopped fingers hold the cube
+LEAD = 0.6                  # the least action toward a waypoint farther than SETTLED (3 cm of target ahead): a servo
+                            # sagging under gravity, or a joint near its limit, stalls short of it with less (the
+                            # Fetch's hand stayed 7-16 mm off the cube's middle)
+SETTLED = 0.003             # m: a waypoint this near is reached
 
 
-def _towards(grip: np.ndarray, target: np.ndarray) -> np.ndarray:
+def _towards(grip: np.ndarray, target: np.ndarray, lead: np.ndarray | bool = False) -> np.ndarray:
     """GAIN x the error, each component within [-1, 1]: a far target's step leans toward a diagonal (a cube held low
-    is lifted clear of the table as it is carried, not dragged along it)."""
-    return np.clip(GAIN * (target - grip), -1.0, 1.0)
+    is lifted clear of the table as it is carried, not dragged along it). Where lead (N,), the step is first
+    lengthened to LEAD short of SETTLED: a near target is reached, not stalled short of (a cube being carried is not:
+    it would swing past the goal)."""
+    error = target - grip
+    step = GAIN * error
+    size = np.linalg.norm(step, axis=-1, keepdims=True)
+    longer = np.asarray(lead)[..., None] & (np.linalg.norm(error, axis=-1, keepdims=True) > SETTLED)
+    return np.clip(np.where(longer, step * np.maximum(LEAD / np.maximum(size, 1e-9), 1.0), step), -1.0, 1.0)
 
 
 def _along(grip: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -89,9 +100,10 @@ def expert_actions(observation, desired_goal, task: str, behind: float = BEHIND,
         still = np.abs(obs[:, 22]) < 0.5          # the fingers stopped: on the cube, or closed on nothing
         held = (horizontal < HOLD_RADIUS) & (np.abs(grip[:, 2] - cube[:, 2]) < 0.06) & (opening > HELD) & \
             (opening < 0.9) & still
-        around = (horizontal < 0.01) & low
-        target = np.where(held[:, None], goal, np.where((horizontal < 0.01)[:, None], down, over))
-        actions[:, :3] = _towards(grip, target)
+        closing = (horizontal < HOLD_RADIUS) & low & (obs[:, 22] < -0.5)    # under way: not given up half-closed
+        around = ((horizontal < 0.01) & low) | closing
+        target = np.where(held[:, None], goal + grip - cube, np.where((horizontal < 0.01)[:, None], down, over))
+        actions[:, :3] = _towards(grip, target, lead=~held)
         actions[:, 3] = np.where(held | around, -1.0, 1.0)
         actions[~held & around, :3] = 0.0                  # closing: the arm waits
     return actions[0] if np.ndim(observation) == 1 else actions
