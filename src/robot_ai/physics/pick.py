@@ -206,7 +206,6 @@ class PickPlace:
         self.last: tuple | None = None          # (now, grip, object position, object rotation, finger)
         self.held_since: float | None = None
         self.rise_to = None
-        self.in_hand = np.zeros(2)          # the object's middle from the grip point, horizontally, as it is held
         self.layer.margin = self.margin         # on the way to the task: clear of every contact by the margin
         return (f'picking {name} at {_point(position)} to place it at {_point(self.place)}: to the ready '
                 f'configuration first')
@@ -285,14 +284,10 @@ class PickPlace:
                     f'after {TASK_TIME:g} s'
                 return self._end(f'not placed: {self.name} is {distance:.3f} m from the place, {took} of the policy '
                                  f'({self._where(obs)})')
-            # the goal the policy is given: where the grip point must go for the object, as it sits in the hand,
-            # to be at the place (an object held off its middle was set down that far off)
-            # (measured while the object is lifted clear of the table, kept while it is set down)
+            # the goal the policy is given: the place, for the object (as the env's reward), above it until the
+            # object is over it
             o = obs['observation']
-            if cube[2] > s.space.table_top + self.half_height(self.name) + 0.01 and np.linalg.norm(o[6:8]) < 0.03:
-                self.in_hand = o[6:8].copy()
             goal = self.place.copy()
-            goal[:2] -= self.in_hand
             if np.linalg.norm(cube[:2] - self.place[:2]) > PLACED_WITHIN / 2:     # carried over it first, then down
                 goal[2] += CARRY
             flat = flatten({'achieved_goal': cube[None], 'desired_goal': goal[None], 'observation': o[None]})
