@@ -138,6 +138,32 @@ def test_a_hand_whose_closed_fingers_curl_up_pushes_with_their_backs():
     assert success >= 0.7
 
 
+def test_a_gripper_with_a_placeholder_effort_squeezes_within_the_cap_and_picks():
+    """kortex_description's Robotiq 2F-85 gives its finger 1000 N m (9,500 N at the tips): built as it stands the
+    servo flung the cube up out of the fingers (the expert picked 2 of 100). The package's UR5 with its Robotiq, the
+    finger's effort made 1000 as there: held to 250 N at the tips and said, and the expert picks (none of these 20
+    without the cap); the package's own 10 N m (95 N) is left as it is."""
+    from robot_ai.physics.env import ManipulationVectorEnv
+    from robot_ai.physics.learn import FINAL_SEED, evaluate, expert_policy
+    from robot_ai.physics.model import GRIP_FORCE
+    from robot_ai.reach.model import load_model
+    robotiq = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', 'urdf',
+                           'ur5_robotiq_2f85.urdf.xacro')
+    own = ManipulationSetup('pick_and_place', model=robotiq)
+    k = own.physics.actuated.index('finger_joint')
+    assert own.physics.model.actuator_forcerange[k, 1] == 10.0
+    assert not any('capped' in n for n in own.physics.notes)
+    text = load_model(robotiq).urdf.replace('effort="10"', 'effort="1000"')
+    setup = ManipulationSetup('pick_and_place', urdf=text)
+    most = setup.physics.model.actuator_forcerange[k, 1]
+    assert 10.0 < most < 1000.0 and 0.08 < most / GRIP_FORCE < 0.13       # the finger's lever: about 0.1 m
+    assert any(n.startswith(f'gripper effort limits past {GRIP_FORCE:g} N at the fingertips, capped there: '
+                            'finger_joint: 1000 -> ') for n in setup.physics.notes), setup.physics.notes
+    env = ManipulationVectorEnv(20, 'pick_and_place', setup=setup)
+    success, _ = evaluate(expert_policy(setup), env, 20, FINAL_SEED)
+    assert success >= 0.9
+
+
 def test_push_holds_the_gripper_closed_and_bad_input_is_one_line():
     env = gymnasium.make('robot_ai/Push-v0', model=PANDA)
     with pytest.raises(ResetNeeded):

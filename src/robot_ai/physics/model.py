@@ -22,7 +22,8 @@ have none) and cannot read ``package://`` meshes. No rospy.
   objects (boxes, spheres and cylinders with a mass and a friction, the same file's ``objects`` key: parse_objects),
   each a body with a free joint of its name. Contacts are as stiff as MuJoCo keeps stable at its step.
 - The gripper: the actuated joints of hands and grippers (kinematics.finger_joints: the Panda's hand is one servo,
-  its second finger following by the mimic constraint).
+  its second finger following by the mimic constraint); an effort limit that would squeeze with more than
+  GRIP_FORCE at the fingertips (a vendor's placeholder) is held to it, and said.
 
     physics = build_physics(load_model('ur5.urdf'), obstacles='world.yaml', objects='world.yaml')
     data = physics.data()                   # at home, at rest
@@ -52,6 +53,9 @@ TIMESTEP = 0.002            # s: MuJoCo's step (its default), the implicit-fast 
 POSITION_HZ = 5.0           # a position servo's natural frequency at home, critically damped
 GRIP_SQUEEZE = 0.1          # a gripper servo exerts its effort limit this share of its range short of its target
 GRIPPER_HZ = 10.0           # a gripper servo's natural frequency, critically damped (its rotor's inertia made enough)
+GRIP_FORCE = 250.0          # N: the most a gripper joint squeezes with at its fingertips (a Robotiq 2F-85's own most
+                            # is 235 N); a vendor's placeholder effort, 1000 N m on kortex's 2F-85 (9,500 N at the
+                            # tips), made a servo whose stiffness and rotor flung the cube up out of the fingers
 DENSITY = 1000.0            # kg/m^3: a link's mass where the URDF gives none, from its collision geometry's volume
 CONTACT_TIME = 2 * TIMESTEP  # s: contacts' time constant (solref), the stiffest MuJoCo keeps stable at TIMESTEP: an
                             # arm driven down onto a table went 5.6 cm into it at the impact with the default 0.02 s,
@@ -495,6 +499,10 @@ def _build(robot: Model, root, urdf_dir: str, world: tuple[Obstacle, ...], loose
     gripper = tuple(n for n in actuated if n in fingers)
     physics = Physics(model, tuple(actuated), start, tuple(notes), gripper, tuple(o.name for o in loose),
                       tuple(joint_velocity(tree.joints[n]) for n in gripper))
+    capped = _cap_grip(physics)
+    if capped:
+        physics = dataclasses.replace(physics, notes=physics.notes + (
+            f'gripper effort limits past {GRIP_FORCE:g} N at the fingertips, capped there: {"; ".join(capped)}',))
     _set_gains(physics, hz)
     touching = _touching(physics)
     if touching:
@@ -520,6 +528,57 @@ def robot_contacts(model, data) -> list[str]:
                 other_name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, other) or f'geom {other}'
                 names.append(f'{link} - {other_name}')
     return sorted(set(names))
+
+
+def _cap_grip(physics: Physics) -> list[str]:
+    """Each gripper servo's effort limit (and its joint's) held to GRIP_FORCE at its fingertips: a slide's force, a
+    hinge's torque over its lever (the farthest point of the collision geometry it moves, from its axis, at home);
+    what was capped, 'joint: from -> to'."""
+    import mujoco
+    model, data = physics.model, physics.data()
+    mujoco.mj_kinematics(model, data)
+    capped = []
+    for name in physics.gripper:
+        k = physics.actuated.index(name)
+        if not model.actuator_forcelimited[k]:
+            continue
+        joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        effort, unit = float(model.actuator_forcerange[k, 1]), 'N'
+        lever = 1.0
+        if model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_HINGE:
+            lever, unit = _lever(model, data, joint), 'N m'
+        most = GRIP_FORCE * lever
+        if lever > 0 and effort > most:
+            model.actuator_forcerange[k] = (-most, most)
+            if model.jnt_actfrclimited[joint]:
+                model.jnt_actfrcrange[joint] = (-most, most)
+            capped.append(f'{name}: {effort:g} -> {most:.3g} {unit}')
+    return capped
+
+
+def _lever(model, data, joint: int) -> float:
+    """m: the farthest point of the collision geometry joint (a hinge) moves, from its axis (data: kinematics)."""
+    import mujoco
+    below = {int(model.jnt_bodyid[joint])}
+    for b in range(int(model.jnt_bodyid[joint]) + 1, model.nbody):     # MuJoCo numbers a body after its parent
+        if int(model.body_parentid[b]) in below:
+            below.add(b)
+    anchor, axis, lever = data.xanchor[joint], data.xaxis[joint], 0.0
+    for g in range(model.ngeom):
+        if int(model.geom_bodyid[g]) not in below:
+            continue
+        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
+            mesh = model.geom_dataid[g]
+            start = model.mesh_vertadr[mesh]
+            points = data.geom_xpos[g] + model.mesh_vert[start:start + model.mesh_vertnum[mesh]] @ \
+                data.geom_xmat[g].reshape(3, 3).T
+        else:
+            points = data.geom_xpos[g][None]
+        arm = points - anchor
+        reach = np.linalg.norm(arm - np.outer(arm @ axis, axis), axis=1).max()
+        lever = max(lever, float(reach) + (0.0 if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH
+                                           else float(model.geom_rbound[g])))
+    return lever
 
 
 def _set_gains(physics: Physics, hz: float) -> None:
