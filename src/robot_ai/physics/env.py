@@ -167,10 +167,11 @@ class ManipulationSetup:
         return float(self.grip_closed[0] + opening * (self.grip_open[0] - self.grip_closed[0]))
 
     def expert(self, observation, desired_goal) -> np.ndarray:
-        """The scripted expert's actions (physics.expert) for this arm: its push start and lowest grip point."""
+        """The scripted expert's actions (physics.expert) for this arm: its push start, lowest grip point and
+        fingers' reach."""
         from robot_ai.physics.expert import expert_actions
         return expert_actions(observation, desired_goal, self.task, behind=self.behind, lowest=self.low[2],
-                              sink=self.sink)
+                              sink=self.sink, reach=self.space.grip.beyond)
 
     # --------------------------------------------------------------------------------------------- the task
     def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:

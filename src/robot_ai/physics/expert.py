@@ -22,6 +22,9 @@ KEEP = 0.03                 # m: a push under way goes on while the grip point i
 HOLD_RADIUS = 0.03          # m: a cube held this near the grip point (in the plane) is carried (three fingers hold it
                             # off the point between their tips)
 HELD = 0.04                 # the gripper's opening (0 closed, 1 open) above which its stopped fingers hold the cube
+HOLD_HEIGHT = 0.06          # m: a cube held no farther below (or above) the grip point than this, or than the fingers
+                            # reach past it and 2 cm (a long gripper holds it at its tips: the Robotiq 2F-140 6 cm
+                            # below)
 LEAD = 0.6                  # the least action toward a waypoint farther than SETTLED (3 cm of target ahead): a servo
                             # sagging under gravity, or a joint near its limit, stalls short of it with less (the
                             # Fetch's hand stayed 7-16 mm off the cube's middle)
@@ -48,11 +51,12 @@ def _along(grip: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def expert_actions(observation, desired_goal, task: str, behind: float = BEHIND,
-                   lowest: float = -np.inf, sink: float = 0.0) -> np.ndarray:
+                   lowest: float = -np.inf, sink: float = 0.0, reach: float = 0.0) -> np.ndarray:
     """(N, 4) actions for observations (N, 23) (or one: (23,) -> (4,)) and their goals (N, 3). behind: where a push
     starts, behind the cube's middle; lowest: the grip point's lowest target; sink: how far under the cube's middle
-    the grip point pushes (ManipulationSetup.expert passes the arm's own: its hand clear of the cube, its fingertips
-    above the table, a hand whose closed fingers curl up above the grip point pushing with their backs)."""
+    the grip point pushes; reach: how far the fingers reach past the grip point (ManipulationSetup.expert passes the
+    arm's own: its hand clear of the cube, its fingertips above the table, a hand whose closed fingers curl up above
+    the grip point pushing with their backs, a long gripper holding the cube at its tips)."""
     obs = np.atleast_2d(np.asarray(observation, dtype=float))
     goal = np.atleast_2d(np.asarray(desired_goal, dtype=float))
     grip, cube, opening = obs[:, 0:3], obs[:, 3:6], obs[:, 9]
@@ -98,8 +102,8 @@ def expert_actions(observation, desired_goal, task: str, behind: float = BEHIND,
         down[:, 2] = level
         horizontal = np.linalg.norm(grip[:, :2] - cube[:, :2], axis=1)
         still = np.abs(obs[:, 22]) < 0.5          # the fingers stopped: on the cube, or closed on nothing
-        held = (horizontal < HOLD_RADIUS) & (np.abs(grip[:, 2] - cube[:, 2]) < 0.06) & (opening > HELD) & \
-            (opening < 0.9) & still
+        held = (horizontal < HOLD_RADIUS) & (np.abs(grip[:, 2] - cube[:, 2]) < max(HOLD_HEIGHT, reach + 0.02)) & \
+            (opening > HELD) & (opening < 0.9) & still
         closing = (horizontal < HOLD_RADIUS) & low & (obs[:, 22] < -0.5)    # under way: not given up half-closed
         around = ((horizontal < 0.01) & low) | closing
         target = np.where(held[:, None], goal + grip - cube, np.where((horizontal < 0.01)[:, None], down, over))
