@@ -114,6 +114,28 @@ def without_debians_tracebacks(text):
     return '\n'.join(out)
 
 
+def without_catkin_relay(text):
+    """text less a Ctrl-C's traceback whose only frames of the package are catkin's relay in the devel space
+    (devel/lib/robot_ai/<node>: it reads the node's script and execs it), with its KeyboardInterrupt line: a Ctrl-C
+    0.5 s after roslaunch started cartpole_search, on a loaded machine, came while the relay still read the script,
+    before any line of the node's ran, and no code of the package's can catch that one."""
+    out, lines, i = [], text.splitlines(), 0
+    while i < len(lines):
+        if lines[i].startswith('Traceback (most recent call last):'):
+            j = i + 1
+            while j < len(lines) and lines[j].startswith(' '):
+                j += 1
+            files = [line for line in lines[i + 1:j] if line.lstrip().startswith('File "')]
+            ours = [line for line in files if '/robot_ai/' in line]
+            if ours and all('/devel/lib/robot_ai/' in line for line in ours) and j < len(lines) and \
+                    lines[j].startswith('KeyboardInterrupt'):
+                i = j + 1                    # its frames and its exception line
+                continue
+        out.append(lines[i])
+        i += 1
+    return '\n'.join(out)
+
+
 def tracebacks(text):
     """The tracebacks in a launch's output, each as its frame lines (up to the first line that is not indented)."""
     found, lines = [], text.splitlines()
@@ -346,7 +368,7 @@ class TestLaunch(unittest.TestCase):
             text = early.decode(errors='replace') + ended_output(proc)
             print(f'{launch_file} {wait} s: nodes started {started - t0:.1f} s after the launch, ended '
                   f'{time.time() - started - wait:.1f} s after the Ctrl-C', flush=True)
-            ours = without_debians_tracebacks(without_interpreter_startup(text))
+            ours = without_catkin_relay(without_debians_tracebacks(without_interpreter_startup(text)))
             self.assertEqual(tracebacks(ours), [], f'{launch_file} {wait} s after its nodes started:\n{text[-3000:]}')
             self.assertNotIn('KeyboardInterrupt', ours, launch_file)
 
