@@ -30,6 +30,16 @@ def workers_of(pid: int) -> list[int]:
             if (stat := process_stat(int(e))) is not None and stat.ppid == pid]
 
 
+def executing(pid: int) -> bool:
+    """pid runs its own program (python -m <a worker module>): past the fork and the exec, whose window between
+    holds the parent's descriptors (a loaded CI run looked into a worker there and found the parent's socket)."""
+    try:
+        with open(f'/proc/{pid}/cmdline', 'rb') as f:
+            return b'\0-m\0' in f.read()
+    except OSError:
+        return False
+
+
 def alive(pid: int) -> bool:
     stat = process_stat(pid)
     return stat is not None and stat.state != 'Z'
@@ -223,7 +233,8 @@ def test_workers_end_with_their_parent_however_it_ends(signum):
         ql.train(ql.resolve(episodes=5000, components=200, learners=2), 0, workers=2)
     ''')
     try:
-        workers = wait_for(lambda: len(workers_of(parent.pid)) == 2 and workers_of(parent.pid), 30, 'two workers')
+        workers = wait_for(lambda: len(ws := workers_of(parent.pid)) == 2 and all(map(executing, ws)) and ws, 30,
+                           'two workers past their exec')
         for w in workers:   # nothing of the parent's but the pipes to it: no socket, no other child's pipe
             links = []
             for fd in os.listdir(f'/proc/{w}/fd'):
