@@ -558,27 +558,32 @@ def _cap_grip(physics: Physics) -> list[str]:
 
 def _lever(model, data, joint: int) -> float:
     """m: the farthest point of the collision geometry joint (a hinge) moves, from its axis (data: kinematics)."""
-    import mujoco
     below = {int(model.jnt_bodyid[joint])}
     for b in range(int(model.jnt_bodyid[joint]) + 1, model.nbody):     # MuJoCo numbers a body after its parent
         if int(model.body_parentid[b]) in below:
             below.add(b)
     anchor, axis, lever = data.xanchor[joint], data.xaxis[joint], 0.0
     for g in range(model.ngeom):
-        if int(model.geom_bodyid[g]) not in below:
-            continue
-        if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
-            mesh = model.geom_dataid[g]
-            start = model.mesh_vertadr[mesh]
-            points = data.geom_xpos[g] + model.mesh_vert[start:start + model.mesh_vertnum[mesh]] @ \
-                data.geom_xmat[g].reshape(3, 3).T
-        else:
-            points = data.geom_xpos[g][None]
-        arm = points - anchor
-        reach = np.linalg.norm(arm - np.outer(arm @ axis, axis), axis=1).max()
-        lever = max(lever, float(reach) + (0.0 if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH
-                                           else float(model.geom_rbound[g])))
+        if int(model.geom_bodyid[g]) in below:
+            arm = geom_points(model, data, g) - anchor
+            lever = max(lever, float(np.linalg.norm(arm - np.outer(arm @ axis, axis), axis=1).max()))
     return lever
+
+
+_CORNERS = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+
+
+def geom_points(model, data, g: int) -> np.ndarray:
+    """(k, 3): geom g's collision geometry as points in the world, as data's kinematics place it: a mesh's own
+    vertices (its box in its frame can reach far beyond it), a primitive's box's corners."""
+    import mujoco
+    if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH and model.geom_dataid[g] >= 0:
+        mesh = model.geom_dataid[g]
+        start = model.mesh_vertadr[mesh]
+        local = model.mesh_vert[start:start + model.mesh_vertnum[mesh]]
+    else:
+        local = model.geom_aabb[g, :3] + _CORNERS * model.geom_aabb[g, 3:]
+    return data.geom_xpos[g] + local @ data.geom_xmat[g].reshape(3, 3).T
 
 
 def _set_gains(physics: Physics, hz: float) -> None:

@@ -23,7 +23,7 @@ import dataclasses
 
 import numpy as np
 
-from robot_ai.physics.model import Physics, PhysicsError
+from robot_ai.physics.model import Physics, PhysicsError, geom_points
 from robot_ai.reach.arm import Arm
 
 READY_REACH = 0.55          # the ready grip point's distance in front of the shoulder, a share of the arm's length
@@ -86,20 +86,12 @@ def _finger_points(arm: Arm, physics: Physics, data, links: list[str]) -> list[n
     import mujoco
     model = physics.model
     tip = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, arm.tip)
-    signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
     out = []
     for link in links:
         body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, link)
         geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body] if body >= 0 else []
         for g in geoms:
-            mesh = model.geom_dataid[g] if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH else -1
-            if mesh >= 0:           # a mesh's own vertices (its box in its frame can reach far beyond it)
-                start = model.mesh_vertadr[mesh]
-                local = model.mesh_vert[start:start + model.mesh_vertnum[mesh]]
-            else:
-                local = model.geom_aabb[g, :3] + signs * model.geom_aabb[g, 3:]
-            world = data.geom_xpos[g] + local @ data.geom_xmat[g].reshape(3, 3).T
-            out.append((world - data.xpos[tip]) @ data.xmat[tip].reshape(3, 3))
+            out.append((geom_points(model, data, g) - data.xpos[tip]) @ data.xmat[tip].reshape(3, 3))
     return out
 
 
