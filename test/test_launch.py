@@ -96,22 +96,28 @@ def without_interpreter_startup(text):
     return '\n'.join(out)
 
 
-def without_debians_tracebacks(text):
-    """text less the tracebacks none of whose frames is the package's (no '/robot_ai/' in them), each with its
-    exception line: Debian's rosmaster, interrupted while it still imported numpy at a load of 28, printed its own
-    KeyboardInterrupt. A node of the package's shows its script among the frames, whatever raised."""
+def without_tracebacks(text, dropped):
+    """text less each traceback (its frame lines and its exception line) for which dropped(frames, exception line)
+    is true."""
     out, lines, i = [], text.splitlines(), 0
     while i < len(lines):
         if lines[i].startswith('Traceback (most recent call last):'):
             j = i + 1
             while j < len(lines) and lines[j].startswith(' '):
                 j += 1
-            if not any('/robot_ai/' in line for line in lines[i + 1:j]):
+            if dropped(lines[i + 1:j], lines[j] if j < len(lines) else ''):
                 i = j + 1                    # its frames and its exception line
                 continue
         out.append(lines[i])
         i += 1
     return '\n'.join(out)
+
+
+def without_debians_tracebacks(text):
+    """text less the tracebacks none of whose frames is the package's (no '/robot_ai/' in them), each with its
+    exception line: Debian's rosmaster, interrupted while it still imported numpy at a load of 28, printed its own
+    KeyboardInterrupt. A node of the package's shows its script among the frames, whatever raised."""
+    return without_tracebacks(text, lambda frames, _: not any('/robot_ai/' in line for line in frames))
 
 
 def without_catkin_relay(text):
@@ -119,21 +125,11 @@ def without_catkin_relay(text):
     (devel/lib/robot_ai/<node>: it reads the node's script and execs it), with its KeyboardInterrupt line: a Ctrl-C
     0.5 s after roslaunch started cartpole_search, on a loaded machine, came while the relay still read the script,
     before any line of the node's ran, and no code of the package's can catch that one."""
-    out, lines, i = [], text.splitlines(), 0
-    while i < len(lines):
-        if lines[i].startswith('Traceback (most recent call last):'):
-            j = i + 1
-            while j < len(lines) and lines[j].startswith(' '):
-                j += 1
-            files = [line for line in lines[i + 1:j] if line.lstrip().startswith('File "')]
-            ours = [line for line in files if '/robot_ai/' in line]
-            if ours and all('/devel/lib/robot_ai/' in line for line in ours) and j < len(lines) and \
-                    lines[j].startswith('KeyboardInterrupt'):
-                i = j + 1                    # its frames and its exception line
-                continue
-        out.append(lines[i])
-        i += 1
-    return '\n'.join(out)
+    def relay_only(frames, exception):
+        ours = [line for line in frames if line.lstrip().startswith('File "') and '/robot_ai/' in line]
+        return bool(ours) and all('/devel/lib/robot_ai/' in line for line in ours) and \
+            exception.startswith('KeyboardInterrupt')
+    return without_tracebacks(text, relay_only)
 
 
 def tracebacks(text):
