@@ -36,7 +36,10 @@ TASK_TIME = 60.0            # s: the policy's longest time to bring the object t
 STALL_TIME = 6.0            # s: ... and without progress (the hand nearer the object, or the object nearer the place)
 PROGRESS = 0.005            # m: what counts as progress
 PLACED_WITHIN = 0.02        # m: the object this near the place (and resting on what is under it), the gripper opens
-CARRY = 0.08               # m: the object is carried this high over the place, then set down
+CARRY = 0.08                # m: the object is carried this high over the place, then set down
+OVER_PLACE = 0.01           # m: ... once this near it in the plane
+LOWERING = 0.04             # m: and set down while it stays this near (an arm that sways as it lowers the object was
+                            # sent back up by a centimetre's sway, over and over: the Gen3 with a brick)
 RELEASE_TIME = 1.5          # s: the gripper's time to open
 RISE = 0.1                  # m: the grip point rises this far above the place once the gripper is open
 RISE_TIME = 3.0             # s
@@ -206,6 +209,7 @@ class PickPlace:
         self.last: tuple | None = None          # (now, grip, object position, object rotation, finger)
         self.held_since: float | None = None
         self.rise_to = None
+        self.lowering = False
         self.layer.margin = self.margin         # on the way to the task: clear of every contact by the margin
         return (f'picking {name} at {_point(position)} to place it at {_point(self.place)}: to the ready '
                 f'configuration first')
@@ -288,7 +292,9 @@ class PickPlace:
             # object is over it
             o = obs['observation']
             goal = self.place.copy()
-            if np.linalg.norm(cube[:2] - self.place[:2]) > PLACED_WITHIN / 2:     # carried over it first, then down
+            off = float(np.linalg.norm(cube[:2] - self.place[:2]))
+            self.lowering = off <= (LOWERING if self.lowering else OVER_PLACE)
+            if not self.lowering:               # carried over it first, then down
                 goal[2] += CARRY
             flat = flatten({'achieved_goal': cube[None], 'desired_goal': goal[None], 'observation': o[None]})
             action = np.asarray(self.policy(flat), dtype=float).reshape(-1)
