@@ -124,14 +124,17 @@ def _claw_urdf() -> str:
 
 
 def test_a_hand_whose_closed_fingers_curl_up_pushes_with_their_backs():
-    """The hand closed is measured with every finger joint closed (each on its own joint here), and a push with it
-    goes as low as its curled fingers allow, under the cube's middle: 17 of 20 measured (2 of 20 while the push was
+    """The hand closed is measured with every finger joint closed (each on its own joint here; how deep an object
+    goes between the fingers, to the palm's face, with the hand as it is), and a push with it goes as low as its
+    curled fingers allow, under the cube's middle: 17 of 20 measured (2 of 20 while the push was
     laid out for the hand as it is open, its fingertips over the cube's top)."""
     from robot_ai.physics.env import TABLE_MARGIN, ManipulationVectorEnv
     from robot_ai.physics.learn import FINAL_SEED, evaluate, expert_policy
     setup = ManipulationSetup('push', urdf=_claw_urdf())
     grip = setup.space.grip
     assert len(setup.gripper) == 3 and grip.closed_beyond < 0 < grip.beyond
+    np.testing.assert_allclose(grip.approach, [0, 0, 1], atol=1e-6)     # the palm's face 3 cm down the tip's z
+    assert grip.depth == pytest.approx(float(np.linalg.norm(grip.offset)) - 0.03, abs=1e-6)
     assert setup.low[2] == pytest.approx(setup.space.table_top + TABLE_MARGIN + grip.closed_beyond)
     assert setup.sink > 0
     success, _ = evaluate(expert_policy(setup), ManipulationVectorEnv(20, 'push', setup=setup), 20, FINAL_SEED)

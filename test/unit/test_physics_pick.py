@@ -139,6 +139,24 @@ def test_a_can_and_a_brick_are_set_down_at_their_own_height():
                                    atol=0.015)
 
 
+def test_a_can_taller_than_the_fingers_are_deep_is_gripped_below_the_palm():
+    """An object that stands taller than the hand's fingers are deep (the Robotiq's palm 6 cm above its grip point)
+    is gripped above its middle, its top below the palm, and placed: gripped at its middle, the palm stood on the
+    top of a 16 cm can and the fingers, closing on it there, toppled it (the Gen3's 2F-85 stalled on a 10 cm can)."""
+    setup = setup_of(ROBOTIQ)
+    c, top = setup.space.centre, setup.space.table_top
+    can = {'cylinder': [0.025, 0.16], 'name': 'can', 'position': [c[0] + 0.05, c[1] - 0.05, top + 0.08]}
+    made = {'obstacles': [setup.table()], 'objects': [can], 'home': dict(zip(setup.arm.joints, setup.space.ready))}
+    picking, arm = picking_in(setup, made, objects=made['objects'])
+    assert picking.grasp_above('cube') == 0.0
+    assert picking.grasp_above('can') == pytest.approx(0.08 + 0.01 - setup.space.grip.depth)
+    assert 0.02 < picking.grasp_above('can') < 0.08
+    run = run_in_physics(picking, arm, 'can', [c[0] - 0.1, c[1] + 0.1, top])
+    assert run.outcome.startswith('placed can'), run
+    np.testing.assert_allclose(arm.object_poses()['can'][:3, 3], [c[0] - 0.1, c[1] + 0.1, top + 0.08], atol=0.015)
+    assert run.fastest < 1.0 and run.within_limits, run
+
+
 def test_an_object_that_sways_as_it_is_set_down_is_not_carried_up_again():
     """The policy is given the place CARRY above it until the object is over it (within a centimetre in the plane),
     then the place itself, kept while the object sways within 4 cm (the Gen3 swayed a centimetre as it lowered a

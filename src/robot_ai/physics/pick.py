@@ -40,6 +40,8 @@ CARRY = 0.08                # m: the object is carried this high over the place,
 OVER_PLACE = 0.01           # m: ... once this near it in the plane
 LOWERING = 0.04             # m: and set down while it stays this near (an arm that sways as it lowers the object was
                             # sent back up by a centimetre's sway, over and over: the Gen3 with a brick)
+PALM_CLEARANCE = 0.01       # m: a tall object is gripped this far below the palm (above its middle: the palm would
+                            # stand on its top; the Gen3's Robotiq 2F-85 stalled on a 10 cm can's)
 RELEASE_TIME = 1.5          # s: the gripper's time to open
 RISE = 0.1                  # m: the grip point rises this far above the place once the gripper is open
 RISE_TIME = 3.0             # s
@@ -165,6 +167,11 @@ class PickPlace:
             return self.setup.object_size / 2
         return {'box': o.size[-1] / 2, 'sphere': o.size[0], 'cylinder': o.size[-1] / 2}.get(o.kind, o.size[0])
 
+    def grasp_above(self, name: str) -> float:
+        """How far above its middle the object name is gripped: 0, or where it stands taller than the fingers are
+        deep, so far that its top stays PALM_CLEARANCE below the palm."""
+        return max(0.0, self.half_height(name) + PALM_CLEARANCE - self.setup.space.grip.depth)
+
     def place_of(self, clicked, others: dict[str, np.ndarray] | None = None, name: str = '') -> np.ndarray:
         """Where the middle of the object name goes for a click on the table (the object set down on it there),
         within the workspace and clear of the others (objects: {name: position}, the one picked left out);
@@ -210,6 +217,7 @@ class PickPlace:
         self.held_since: float | None = None
         self.rise_to = None
         self.lowering = False
+        self.above = np.array([0.0, 0.0, self.grasp_above(name)])
         self.layer.margin = self.margin         # on the way to the task: clear of every contact by the margin
         return (f'picking {name} at {_point(position)} to place it at {_point(self.place)}: to the ready '
                 f'configuration first')
@@ -289,14 +297,17 @@ class PickPlace:
                 return self._end(f'not placed: {self.name} is {distance:.3f} m from the place, {took} of the policy '
                                  f'({self._where(obs)})')
             # the goal the policy is given: the place, for the object (as the env's reward), above it until the
-            # object is over it
-            o = obs['observation']
-            goal = self.place.copy()
+            # object is over it; a tall object as the point it is gripped at (the policy learned to grip a cube's
+            # middle)
+            o = obs['observation'].copy()
+            o[3:6] += self.above
+            o[6:9] += self.above
+            goal = self.place + self.above
             off = float(np.linalg.norm(cube[:2] - self.place[:2]))
             self.lowering = off <= (LOWERING if self.lowering else OVER_PLACE)
             if not self.lowering:               # carried over it first, then down
                 goal[2] += CARRY
-            flat = flatten({'achieved_goal': cube[None], 'desired_goal': goal[None], 'observation': o[None]})
+            flat = flatten({'achieved_goal': o[None, 3:6], 'desired_goal': goal[None], 'observation': o[None]})
             action = np.asarray(self.policy(flat), dtype=float).reshape(-1)
             if action.shape != (4,) or not np.isfinite(action).all():
                 return self._end(f'not placed: the policy answered {action.tolist()}, not 4 finite numbers')

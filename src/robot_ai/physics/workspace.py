@@ -9,7 +9,8 @@ the robot itself, so that an arm the package has never seen gets a task without 
   lies along the approach axis (from the tip toward the fingers' middle), halfway between their middle and their far
   end, where the pads of a parallel gripper are.
 - The hand closed: every gripper joint at its closing end (each finger on its own joint, as a Kinova's three, closes
-  too), what a push keeps clear of the cube and how far it reaches past the grip point (curled fingers stop above).
+  too), what a push keeps clear of the cube and how far it reaches past the grip point (curled fingers stop above);
+  and how deep an object goes between the fingers: to the palm (the hand's geometry that is not a finger).
 - The ready configuration: the grip point READY_REACH of the arm's length (less a torso's lift; nearer, down to
   0.6 of that, where the arm falls short) in front of its shoulder (the first joint of the chain whose axis is
   level), at the shoulder's height, the approach axis straight down and the fingers closing along y; found by damped
@@ -61,7 +62,8 @@ class Grip:
     toward its upper limit: the Panda's slide does, a Robotiq's knuckle closes that way), hand (the points of the
     hand's geometry closed, every link below the tip, in the tip's frame: what a push must keep clear of) and
     closed_beyond (how far the closed hand reaches past the grip point along the approach, m: below zero for a hand
-    whose closed fingers curl up above it, as a Kinova's three do)."""
+    whose closed fingers curl up above it, as a Kinova's three do), depth (how far above the grip point an object
+    between the fingers reaches before it meets the palm, the hand's geometry that is not a finger, m)."""
     offset: np.ndarray
     approach: np.ndarray
     closing: np.ndarray
@@ -69,6 +71,7 @@ class Grip:
     open_high: bool
     hand: np.ndarray = dataclasses.field(repr=False, default_factory=lambda: np.zeros((0, 3)))
     closed_beyond: float = 0.0
+    depth: float = np.inf
 
     def radius(self, height: float) -> float:
         """How far the closed hand reaches from the approach axis (m), of its geometry less than height above the
@@ -155,8 +158,10 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     open_high = gaps[1] >= gaps[0]
     fixed = lambda v: np.round(v, READY_DECIMALS)      # noqa: E731  the same in every process (see workspace())
     closed = hands[0 if open_high else 1]
+    palm = _finger_points(arm, physics, data, [link for link in hand if link not in fingers])
+    depth = grip - float(np.concatenate(palm).dot(approach).max()) if palm else np.inf
     return Grip(fixed(approach * grip), fixed(approach), fixed(closing), float(fixed(far - grip)), open_high,
-                closed, float(fixed((closed @ approach).max() - grip)))
+                closed, float(fixed((closed @ approach).max() - grip)), float(fixed(depth)))
 
 
 def _shoulder(arm: Arm, q: np.ndarray) -> np.ndarray:
