@@ -152,6 +152,28 @@ def test_a_gripper_command_overrides_the_arm_targets_until_set_state_and_bad_one
         ur5.grip(0.0)
 
 
+def test_a_gripper_command_takes_every_finger_joint_to_the_same_share_of_its_own_range():
+    """A hand of independent finger joints with different ranges (a Kinova JACO2: its fingers close to 1.51 rad,
+    their tips to 2): the command is the first joint's position, and every other joint goes to the same share of its
+    own range (each clipped to its range, the tips closed only to 1.51 with the fingers, where the envs, which command
+    each joint, close them to 2: a grasp the policy never learned)."""
+    link = ('<link name="{0}"><inertial><origin xyz="0 0 0.03"/><mass value="0.05"/><inertia ixx="2e-5" iyy="2e-5" '
+            'izz="2e-6" ixy="0" ixz="0" iyz="0"/></inertial><collision><origin xyz="0 0 0.03"/><geometry><box '
+            'size="0.01 0.01 0.06"/></geometry></collision></link>')
+    joint = ('<joint name="{0}" type="revolute"><parent link="{1}"/><child link="{2}"/><origin xyz="0 0 {3}"/>'
+             '<axis xyz="0 1 0"/><limit lower="0" upper="{4}" effort="5" velocity="2"/></joint>')
+    xml = ('<robot name="hand"><link name="palm"/>' + link.format('finger') + link.format('tip') +
+           joint.format('finger_joint', 'palm', 'finger', 0.0, 1.51) +
+           joint.format('finger_tip_joint', 'finger', 'tip', 0.06, 2.0) + '</robot>')
+    physics = build_physics(load_model(urdf=xml))
+    assert physics.gripper == ('finger_joint', 'finger_tip_joint')
+    arm = ArmPhysics(physics, [])
+    for position, tip in ((1.51, 2.0), (0.755, 1.0), (0.0, 0.0), (5.0, 2.0)):
+        assert arm.grip(position) == pytest.approx(min(position, 1.51))
+        arm.step([], 1.5)
+        k = [physics.actuated.index(n) for n in physics.gripper]
+        np.testing.assert_allclose(arm.data.ctrl[k], [min(position, 1.51), tip], atol=1e-9)
+
 def test_a_joint_the_urdf_damps_heavily_still_follows_its_target():
     """The Fetch's wrist roll: damping 5 N m s/rad on a link of grams. Its servo, tuned for the inertia alone, lagged
     its target by seconds; with the damping counted it goes at what its effort limit can drive through the damping

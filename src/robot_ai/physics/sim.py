@@ -109,16 +109,22 @@ class ArmPhysics:
         return self.physics.gripper
 
     def grip(self, position: float, max_effort: float = 0.0) -> float:
-        """The gripper command of ros_control's gripper_action_controller: every actuated gripper joint's servo
-        toward position (m or rad, clipped to each joint's range) with at most max_effort (N or N m; 0 or less: the
-        URDF's effort limit), the targets moving there at the joints' velocity limits over the following steps and
-        held, whatever those steps' targets give these joints, until set_state places them; the target taken (the
-        first joint's). PhysicsError for an arm without a gripper or a position or effort that is not a number."""
+        """The gripper command of ros_control's gripper_action_controller: the first actuated gripper joint's servo
+        toward position (m or rad, clipped to its range), every other's toward the same share of its own range (a
+        Kinova JACO2's fingertips close to 2 rad as its fingers to 1.51), with at most max_effort (N or N m; 0 or
+        less: the URDF's effort limit), the targets moving there at the joints' velocity limits over the following
+        steps and held, whatever those steps' targets give these joints, until set_state places them; the target
+        taken (the first joint's). PhysicsError for an arm without a gripper or a position or effort that is not a
+        number."""
         if not self.gripper:
             raise PhysicsError('the arm has no gripper (no actuated finger joints)')
         if not (np.isfinite(position) and np.isfinite(max_effort)):
             raise PhysicsError(f'a gripper command is a finite position and effort, got {position!r}, {max_effort!r}')
-        targets = np.clip(float(position), self._gripper_range[:, 0], self._gripper_range[:, 1])
+        low, high = self._gripper_range[:, 0], self._gripper_range[:, 1]
+        targets = np.clip(float(position), low, high)
+        if np.isfinite(self._gripper_range).all() and high[0] > low[0]:
+            share = (targets[0] - low[0]) / (high[0] - low[0])
+            targets = np.where((low == low[0]) & (high == high[0]), targets[0], low + share * (high - low))
         for k, value, speed in zip(self._gripper, targets, self.physics.gripper_speed):
             if int(k) not in self._grip:
                 self._ramp[int(k)] = float(self.data.ctrl[k])
