@@ -7,7 +7,10 @@ driver in PickAndPlace-v0 without the layer (50 steps, the env's own episodes), 
   expert, --picks picks each (a cube from the world command's draws, a place on the table drawn in the workspace);
 - placed (within the env's 5 cm once at rest, the gripper open and the arm risen), the distance to the click, the
   pick's duration (simulated seconds), the fastest joint as a share of its URDF velocity limit, the servos' largest
-  lag behind the plans, the contacts of the robot with anything but the cube it picks (the layer's promise: none).
+  lag behind the plans, the contacts of the robot with anything but the cube it picks (the layer's promise: none);
+- objects other than the task's cube (OBJECTS: cans short and tall, a brick either way round, a flat box, cubes of 3
+  and 6 cm, one of 0.5 kg, one of friction 0.3, a pen, a ball), one pick each from the same start to the same place,
+  each alone on the table: placed or why not.
 
     python bench/pick_place.py [--picks 20]
 """
@@ -27,6 +30,12 @@ from robot_ai.physics.pick import PickPlace, run_in_physics, world  # noqa: E402
 from robot_ai.physics.sim import ArmPhysics  # noqa: E402
 
 ROBOTS = os.path.join(HERE, '..', '..', 'shared', 'robots')
+OBJECTS = [{'cylinder': [0.02, 0.06], 'name': 'can'}, {'cylinder': [0.025, 0.16], 'name': 'tall_can'},
+           {'box': [0.03, 0.05, 0.05], 'name': 'brick'}, {'box': [0.05, 0.03, 0.05], 'name': 'brick_turned'},
+           {'box': [0.05, 0.05, 0.02], 'name': 'flat_box'}, {'box': [0.03] * 3, 'name': 'cube_3cm'},
+           {'box': [0.06] * 3, 'name': 'cube_6cm'}, {'box': [0.04] * 3, 'mass': 0.5, 'name': 'heavy_cube'},
+           {'box': [0.04] * 3, 'friction': 0.3, 'name': 'slippery_cube'}, {'cylinder': [0.015, 0.08], 'name': 'pen'},
+           {'sphere': 0.022, 'name': 'ball'}]
 ARMS = {'panda (its meshes)': os.path.join(ROBOTS, 'panda.urdf'),
         'ur5 + robotiq 2f-85': os.path.join(HERE, '..', 'urdf', 'ur5_robotiq_2f85.urdf.xacro')}
 
@@ -51,6 +60,25 @@ def picks(setup: ManipulationSetup, count: int) -> dict:
                 fastest=fastest, lag=lag, others=sorted(others))
 
 
+def objects(setup: ManipulationSetup) -> list[tuple[str, str]]:
+    """(name, outcome) of one pick of each of OBJECTS, standing on the table 5 cm on from the workspace's middle in x
+    and back in y, to a click 10 cm back in x and on in y."""
+    c, top = setup.space.centre, setup.space.table_top
+    ready = PickPlace(setup, obstacles=[setup.table()]).ready
+    out = []
+    for spec in OBJECTS:
+        kind = next(k for k in ('box', 'cylinder', 'sphere') if k in spec)
+        half = {'box': lambda v: v[2] / 2, 'cylinder': lambda v: v[1] / 2, 'sphere': lambda v: v}[kind](spec[kind])
+        thing = {'mass': 0.1, **spec, 'position': [c[0] + 0.05, c[1] - 0.05, top + half]}
+        physics = build_physics(setup.robot, obstacles=[setup.table()], objects=[thing],
+                                home=dict(zip(setup.arm.joints, ready)))
+        picking = PickPlace(setup, obstacles=[setup.table()], objects=[thing])
+        arm = ArmPhysics(physics, setup.arm.joints)
+        run = run_in_physics(picking, arm, spec['name'], [c[0] - 0.1, c[1] + 0.1, top])
+        out.append((spec['name'], run.outcome))
+    return out
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument('--picks', type=int, default=20)
@@ -72,6 +100,14 @@ def main() -> None:
             print(f'    contact: {c}')
     print('(fastest: the largest joint speed over its URDF velocity limit, the layer allowing 0.5; lag: the servos\' '
           'largest distance from the plans, rad; env, no layer: the expert\'s success in the env, 50 steps)')
+    print('\n== objects other than the task\'s cube, one pick each, the scripted expert ==')
+    for name, model in ARMS.items():
+        done = objects(ManipulationSetup('pick_and_place', model=model))
+        placed = [n for n, outcome in done if outcome.startswith('placed')]
+        print(f'{name:<22}{len(placed):>4} / {len(done):<2} placed: {", ".join(placed) or "none"}')
+        for n, outcome in done:
+            if not outcome.startswith('placed'):
+                print(f'    {n}: {outcome}')
 
 
 if __name__ == '__main__':
