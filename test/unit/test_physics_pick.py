@@ -100,6 +100,15 @@ def test_clicks_that_cannot_be_picks_say_why():
         picking.choose(cube + [0, 0.3, 0], {'cube': cube})
     with pytest.raises(PickError, match='no objects to pick'):
         picking.choose(cube, {})
+    tall = PickPlace(setup, obstacles=made['obstacles'], objects=[     # a click on a 16 cm can's top: 8 cm over its
+        {'cylinder': [0.025, 0.16], 'position': [0.5, 0.0, 0.0], 'name': 'can'}])    # middle, as rviz gives it
+    assert tall.choose(cube + [0, 0, 0.085], {'can': cube, 'cube_2': cube + [0, 0.09, 0]}) == 'can'
+    with pytest.raises(PickError, match='the nearest, can, is 0.090 m away'):
+        tall.choose(cube + [0, 0, 0.17], {'can': cube})
+    top = setup.space.table_top                 # 10 cm from another object is free: the can's 5 cm width counts
+    assert tall.place_of([cube[0], cube[1], top], {'cube_2': cube + [0.1, 0, 0]}, 'can')[2] == pytest.approx(top + 0.08)
+    with pytest.raises(PickError, match=r'is taken: cube_2 stands 0.070 m from it'):
+        tall.place_of([cube[0], cube[1], top], {'cube_2': cube + [0.07, 0, 0]}, 'can')
     top = setup.space.table_top
     with pytest.raises(PickError, match=r'\+0.100 m from the table\'s top .* click on the table'):
         picking.place_of([cube[0], cube[1], top + 0.1])

@@ -148,12 +148,20 @@ class PickPlace:
 
     # ------------------------------------------------------------------------------------------- what to pick
     def choose(self, clicked, objects: dict[str, np.ndarray]) -> str:
-        """The object (of objects: {name: position}) nearest the clicked point, within SELECT_RADIUS; PickError."""
+        """The object (of objects: {name: position}) nearest the clicked point, within SELECT_RADIUS of the line up
+        its middle, as high as it stands (rviz gives a point on what it draws: a tall can's top is farther than that
+        from its middle); PickError."""
         clicked = np.asarray(clicked, dtype=float)
         if not objects:
             raise PickError('there are no objects to pick (give arm_sim and pick_place ~objects)')
-        name, where = min(objects.items(), key=lambda item: np.linalg.norm(np.asarray(item[1]) - clicked))
-        d = float(np.linalg.norm(np.asarray(where) - clicked))
+
+        def gap(name: str) -> float:
+            middle = np.asarray(objects[name], dtype=float)
+            half = self.half_height(name)
+            nearest = np.array([middle[0], middle[1], np.clip(clicked[2], middle[2] - half, middle[2] + half)])
+            return float(np.linalg.norm(nearest - clicked))
+        name = min(objects, key=gap)
+        d = gap(name)
         if d > SELECT_RADIUS:
             raise PickError(f'no object within {SELECT_RADIUS:g} m of {_point(clicked)}: the nearest, {name}, is '
                             f'{d:.3f} m away (click on an object first)')
@@ -166,6 +174,14 @@ class PickPlace:
         if o is None:
             return self.setup.object_size / 2
         return {'box': o.size[-1] / 2, 'sphere': o.size[0], 'cylinder': o.size[-1] / 2}.get(o.kind, o.size[0])
+
+    def width(self, name: str) -> float:
+        """The object's widest across the table, upright (a box's longer side, a cylinder's or a sphere's diameter;
+        the task's cube where it is not one of the objects given)."""
+        o = self.objects.get(name)
+        if o is None:
+            return self.setup.object_size
+        return max(o.size[0], o.size[1]) if o.kind == 'box' else 2 * o.size[0]
 
     def grasp_above(self, name: str) -> float:
         """How far above its middle the object name is gripped: 0, or where it stands taller than the fingers are
@@ -190,7 +206,7 @@ class PickPlace:
                             f'at z {s.space.table_top:+.3f} up to {high[2]:+.3f}, in the robot\'s root frame)')
         for other, where in (others or {}).items():
             gap = float(np.linalg.norm(np.asarray(where, dtype=float)[:2] - goal[:2]))
-            if gap < 1.5 * max(s.object_size, 2 * self.half_height(name), 2 * self.half_height(other)):
+            if gap < 1.5 * max(s.object_size, self.width(name), self.width(other)):
                 raise PickError(f'the place {_point(clicked)} is taken: {other} stands {gap:.3f} m from it (click '
                                 f'where the table is clear)')
         return goal
