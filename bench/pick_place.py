@@ -9,7 +9,8 @@ driver in PickAndPlace-v0 without the layer (50 steps, the env's own episodes), 
   pick's duration (simulated seconds), the fastest joint as a share of its URDF velocity limit, the servos' largest
   lag behind the plans, the contacts of the robot with anything but the cube it picks (the layer's promise: none);
 - objects other than the task's cube (OBJECTS: cans short and tall, a brick either way round, a flat box, cubes of 3
-  and 6 cm, one of 0.5 kg, one of friction 0.3, a pen, a ball), one pick each from the same start to the same place,
+  and 6 cm, one of 0.5 kg, one of friction 0.3, a pen, a 3x8x3 cm bar along the fingers' closing axis, a ball), one
+  pick each from the same start to the same place,
   each alone on the table: placed or why not.
 
     python bench/pick_place.py [--picks 20]
@@ -35,7 +36,7 @@ OBJECTS = [{'cylinder': [0.02, 0.06], 'name': 'can'}, {'cylinder': [0.025, 0.16]
            {'box': [0.05, 0.05, 0.02], 'name': 'flat_box'}, {'box': [0.03] * 3, 'name': 'cube_3cm'},
            {'box': [0.06] * 3, 'name': 'cube_6cm'}, {'box': [0.04] * 3, 'mass': 0.5, 'name': 'heavy_cube'},
            {'box': [0.04] * 3, 'friction': 0.3, 'name': 'slippery_cube'}, {'cylinder': [0.015, 0.08], 'name': 'pen'},
-           {'sphere': 0.022, 'name': 'ball'}]
+           {'box': [0.03, 0.08, 0.03], 'name': 'bar'}, {'sphere': 0.022, 'name': 'ball'}]
 ARMS = {'panda (its meshes)': os.path.join(ROBOTS, 'panda.urdf'),
         'ur5 + robotiq 2f-85': os.path.join(HERE, '..', 'urdf', 'ur5_robotiq_2f85.urdf.xacro')}
 

@@ -166,6 +166,31 @@ def test_a_can_taller_than_the_fingers_are_deep_is_gripped_below_the_palm():
     assert run.fastest < 1.0 and run.within_limits, run
 
 
+def test_a_bar_along_the_fingers_is_gripped_across_its_narrow_side():
+    """A box longer one way than the other across the table (a 3x8x3 cm bar lying along the Panda's closing axis, as
+    long as its fingers open wide) is gripped across its narrow side, the gripper turned about the vertical by the
+    least angle (90 degrees here), and placed; unturned, the fingers closed on its ends and the pick stalled. A cube's
+    grip is not turned."""
+    import math
+    setup = setup_of(PANDA)
+    c, top = setup.space.centre, setup.space.table_top
+    closing = setup.space.rotation @ setup.space.grip.closing
+    yaw = math.atan2(closing[1], closing[0]) - math.pi / 2         # the bar's long side (its y) along the closing axis
+    bar = {'box': [0.03, 0.08, 0.03], 'rpy': [0, 0, yaw], 'name': 'bar', 'position': [c[0] + 0.05, c[1] - 0.05,
+                                                                                       top + 0.015]}
+    made = {'obstacles': [setup.table()], 'objects': [bar], 'home': dict(zip(setup.arm.joints, setup.space.ready))}
+    picking, arm = picking_in(setup, made, objects=made['objects'])
+    pose = arm.object_poses()['bar']
+    held = picking.grip_rotation('bar', pose)
+    assert abs((held @ setup.space.grip.closing) @ pose[:3, 0]) == pytest.approx(1.0, abs=1e-5)    # across its 3 cm
+    down = setup.space.rotation @ setup.space.grip.approach                   # turned about the vertical: still down
+    assert (held @ setup.space.grip.approach)[2] == pytest.approx(down[2], abs=1e-12) and down[2] < -0.999
+    assert abs(np.trace(held.T @ setup.space.rotation) - 1.0) < 1e-9                         # a quarter turn
+    np.testing.assert_allclose(picking.grip_rotation('cube', pose), setup.space.rotation)
+    run = run_in_physics(picking, arm, 'bar', [c[0] - 0.1, c[1] + 0.1, top])
+    assert run.outcome.startswith('placed bar'), run
+    assert run.fastest < 1.0 and run.within_limits, run
+
 def test_an_object_that_sways_as_it_is_set_down_is_not_carried_up_again():
     """The policy is given the place CARRY above it until the object is over it (within a centimetre in the plane),
     then the place itself, kept while the object sways within 4 cm (the Gen3 swayed a centimetre as it lowered a

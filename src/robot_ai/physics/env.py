@@ -223,10 +223,10 @@ class ManipulationSetup:
         grip = tip + rotation[:, 0] * offset[0] + rotation[:, 1] * offset[1] + rotation[:, 2] * offset[2]
         return grip, rotation, axes, origins
 
-    def joint_targets(self, q_t: np.ndarray, target_t: np.ndarray) -> np.ndarray:
+    def joint_targets(self, q_t: np.ndarray, target_t: np.ndarray, held: np.ndarray | None = None) -> np.ndarray:
         """Joint targets (n, N) that put the grip points at target_t (3, N), the gripper as it was at the ready
-        configuration: IK_ITERATIONS of damped least squares from q_t."""
-        held = self.space.rotation
+        configuration (or as held, a 3x3 rotation of the tip): IK_ITERATIONS of damped least squares from q_t."""
+        held = self.space.rotation if held is None else held
         for _ in range(IK_ITERATIONS):
             grip, rotation, axes, origins = self.grip_points(q_t)
             turn = sum(np.cross(rotation[:, k].T, held[:, k]).T for k in range(3)) / 2.0

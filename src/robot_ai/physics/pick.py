@@ -13,10 +13,15 @@ The layer keeps `margin` from every contact on the way to the ready configuratio
 arm it refuses only motions that would touch (the hand must come within millimetres of the table to grasp), and the
 object picked is the one thing the hand may touch (it is not in the layer's world). Other loose objects are not in
 the layer's world either: the arm may push them.
+
+The policy learned the task's 4 cm cube; other objects are handed to it as that: a tall one as the point it is
+gripped at (below the palm), and an elongated box gripped across its narrow side (the gripper turned about the
+vertical, the policy's actions still the grip point's moves).
 """
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Callable
 
 import numpy as np
@@ -40,6 +45,9 @@ CARRY = 0.08                # m: the object is carried this high over the place,
 OVER_PLACE = 0.01           # m: ... once this near it in the plane
 LOWERING = 0.04             # m: and set down while it stays this near (an arm that sways as it lowers the object was
                             # sent back up by a centimetre's sway, over and over: the Gen3 with a brick)
+ELONGATED = 1.25            # a box this much longer one way than the other across the table is gripped across its
+                            # narrow side, the gripper turned about the vertical (a 3x8 cm bar along the Panda's
+                            # fingers, as wide as they open, could not be gripped)
 PALM_CLEARANCE = 0.01       # m: a tall object is gripped this far below the palm (above its middle: the palm would
                             # stand on its top; the Gen3's Robotiq 2F-85 stalled on a 10 cm can's)
 RELEASE_TIME = 1.5          # s: the gripper's time to open
@@ -183,6 +191,24 @@ class PickPlace:
             return self.setup.object_size
         return max(o.size[0], o.size[1]) if o.kind == 'box' else 2 * o.size[0]
 
+    def grip_rotation(self, name: str, pose: np.ndarray) -> np.ndarray:
+        """The tip's rotation to hold while the policy has the arm (3x3, the root frame): the ready configuration's,
+        or, for an upright box ELONGATED one way across the table (pose: its 4x4), that turned about the vertical
+        by the least angle that puts the fingers' closing axis across its narrow side."""
+        s = self.setup
+        ready = s.space.rotation
+        o = self.objects.get(name)
+        if o is None or o.kind != 'box' or max(o.size[:2]) < ELONGATED * min(o.size[:2]):
+            return ready
+        x = np.asarray(pose, dtype=float)[:3, :3] @ ([1.0, 0.0, 0.0] if o.size[0] <= o.size[1] else [0.0, 1.0, 0.0])
+        if abs(x[2]) > 0.5:                     # lying on a side: its footprint is not the one described
+            return ready
+        closing = ready @ s.space.grip.closing
+        turn = math.atan2(x[1], x[0]) - math.atan2(closing[1], closing[0])
+        turn = (turn + math.pi / 2) % math.pi - math.pi / 2             # the least turn: the axis has no sign
+        c, t = math.cos(turn), math.sin(turn)
+        return np.array([[c, -t, 0.0], [t, c, 0.0], [0.0, 0.0, 1.0]]) @ ready
+
     def grasp_above(self, name: str) -> float:
         """How far above its middle the object name is gripped: 0, or where it stands taller than the fingers are
         deep, so far that its top stays PALM_CLEARANCE below the palm."""
@@ -234,6 +260,8 @@ class PickPlace:
         self.rise_to = None
         self.lowering = False
         self.above = np.array([0.0, 0.0, self.grasp_above(name)])
+        self.held = self.setup.space.rotation    # the gripper as at the ready configuration, until the task begins
+        self.turned = False
         self.layer.margin = self.margin         # on the way to the task: clear of every contact by the margin
         return (f'picking {name} at {_point(position)} to place it at {_point(self.place)}: to the ready '
                 f'configuration first')
@@ -281,7 +309,7 @@ class PickPlace:
         d = float(np.linalg.norm(step))
         if d > EE_STEP:
             step *= EE_STEP / d
-        return s.joint_targets(q[:, None], (grip + step)[:, None])[:, 0]
+        return s.joint_targets(q[:, None], (grip + step)[:, None], self.held)[:, 0]
 
     def step(self, now: float, q, finger: float, pose: np.ndarray) -> PickStep:
         """One control step at time now: the arm's joints q (Arm.joints order), the gripper's first joint (m or rad)
@@ -299,6 +327,8 @@ class PickPlace:
         if self.phase == 'ready':
             return self._ready(now, q)
         if self.phase == 'task':
+            if not self.turned:                 # the gripper turned across an elongated box's narrow side
+                self.held, self.turned = self.grip_rotation(self.name, pose), True
             distance = float(np.linalg.norm(cube - self.place))
             if distance <= PLACED_WITHIN:
                 self._enter('release', now)
@@ -329,7 +359,7 @@ class PickPlace:
                 return self._end(f'not placed: the policy answered {action.tolist()}, not 4 finite numbers')
             action = np.clip(action, -1.0, 1.0)
             target = np.clip(obs['observation'][:3] + EE_STEP * action[:3], s.low, s.high)
-            plan = self._send(now, s.joint_targets(q[:, None], target[:, None])[:, 0], q)
+            plan = self._send(now, s.joint_targets(q[:, None], target[:, None], self.held)[:, 0], q)
             return self._checked(now, plan, PickStep(plan=plan, opening=(action[3] + 1.0) / 2.0))
         grip = obs['observation'][:3]
         if self.phase == 'release':
