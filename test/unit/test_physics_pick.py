@@ -167,12 +167,13 @@ def test_a_can_taller_than_the_fingers_are_deep_is_gripped_below_the_palm():
 
 
 def test_a_bar_along_the_fingers_is_gripped_across_its_narrow_side():
-    """A box longer one way than the other across the table (a 3x8x3 cm bar lying along the Panda's closing axis, as
-    long as its fingers open wide) is gripped across its narrow side, the gripper turned about the vertical by the
+    """A box wider across the fingers than they open, near enough (a 3x8x3 cm bar lying along the Panda's closing
+    axis; its fingers open 4 cm each), is gripped across its narrow side, the gripper turned about the vertical by the
     least angle (90 degrees here), and placed; unturned, the fingers closed on its ends and the pick stalled. A cube's
     grip is not turned."""
     import math
     setup = setup_of(PANDA)
+    assert setup.space.grip.opening == pytest.approx(0.08, abs=0.001)        # the URDF's two 0.04 m finger slides
     c, top = setup.space.centre, setup.space.table_top
     closing = setup.space.rotation @ setup.space.grip.closing
     yaw = math.atan2(closing[1], closing[0]) - math.pi / 2         # the bar's long side (its y) along the closing axis

@@ -15,8 +15,8 @@ object picked is the one thing the hand may touch (it is not in the layer's worl
 the layer's world either: the arm may push them.
 
 The policy learned the task's 4 cm cube; other objects are handed to it as that: a tall one as the point it is
-gripped at (below the palm), and an elongated box gripped across its narrow side (the gripper turned about the
-vertical, the policy's actions still the grip point's moves).
+gripped at (below the palm), and a box too wide across the fingers gripped across its narrow side (the gripper
+turned about the vertical, the policy's actions still the grip point's moves).
 """
 from __future__ import annotations
 
@@ -45,9 +45,10 @@ CARRY = 0.08                # m: the object is carried this high over the place,
 OVER_PLACE = 0.01           # m: ... once this near it in the plane
 LOWERING = 0.04             # m: and set down while it stays this near (an arm that sways as it lowers the object was
                             # sent back up by a centimetre's sway, over and over: the Gen3 with a brick)
-ELONGATED = 1.25            # a box this much longer one way than the other across the table is gripped across its
+FITS = 0.8                  # a box wider across the fingers than this share of their opening is gripped across its
                             # narrow side, the gripper turned about the vertical (a 3x8 cm bar along the Panda's
-                            # fingers, as wide as they open, could not be gripped)
+                            # fingers, as wide as they open, could not be gripped; turned when it need not be, a
+                            # 3x5 cm brick held the Gen3 lite's six joints short of the pose)
 PALM_CLEARANCE = 0.01       # m: a tall object is gripped this far below the palm (above its middle: the palm would
                             # stand on its top; the Gen3's Robotiq 2F-85 stalled on a 10 cm can's)
 RELEASE_TIME = 1.5          # s: the gripper's time to open
@@ -193,17 +194,19 @@ class PickPlace:
 
     def grip_rotation(self, name: str, pose: np.ndarray) -> np.ndarray:
         """The tip's rotation to hold while the policy has the arm (3x3, the root frame): the ready configuration's,
-        or, for an upright box ELONGATED one way across the table (pose: its 4x4), that turned about the vertical
-        by the least angle that puts the fingers' closing axis across its narrow side."""
+        or, for an upright box (pose: its 4x4) wider across the fingers than FITS of their opening, that turned
+        about the vertical by the least angle that puts the fingers' closing axis across its narrow side."""
         s = self.setup
         ready = s.space.rotation
         o = self.objects.get(name)
-        if o is None or o.kind != 'box' or max(o.size[:2]) < ELONGATED * min(o.size[:2]):
+        if o is None or o.kind != 'box':
             return ready
-        x = np.asarray(pose, dtype=float)[:3, :3] @ ([1.0, 0.0, 0.0] if o.size[0] <= o.size[1] else [0.0, 1.0, 0.0])
-        if abs(x[2]) > 0.5:                     # lying on a side: its footprint is not the one described
-            return ready
+        rotation = np.asarray(pose, dtype=float)[:3, :3]
         closing = ready @ s.space.grip.closing
+        across = abs(rotation[:, 0] @ closing) * o.size[0] + abs(rotation[:, 1] @ closing) * o.size[1]
+        x = rotation @ ([1.0, 0.0, 0.0] if o.size[0] <= o.size[1] else [0.0, 1.0, 0.0])
+        if across <= FITS * s.space.grip.opening or abs(x[2]) > 0.5:    # it fits; or lying on a side: its footprint
+            return ready                                                # is not the one described
         turn = math.atan2(x[1], x[0]) - math.atan2(closing[1], closing[0])
         turn = (turn + math.pi / 2) % math.pi - math.pi / 2             # the least turn: the axis has no sign
         c, t = math.cos(turn), math.sin(turn)
@@ -327,7 +330,7 @@ class PickPlace:
         if self.phase == 'ready':
             return self._ready(now, q)
         if self.phase == 'task':
-            if not self.turned:                 # the gripper turned across an elongated box's narrow side
+            if not self.turned:                 # the gripper turned across a wide box's narrow side
                 self.held, self.turned = self.grip_rotation(self.name, pose), True
             distance = float(np.linalg.norm(cube - self.place))
             if distance <= PLACED_WITHIN:

@@ -63,7 +63,8 @@ class Grip:
     hand's geometry closed, every link below the tip, in the tip's frame: what a push must keep clear of) and
     closed_beyond (how far the closed hand reaches past the grip point along the approach, m: below zero for a hand
     whose closed fingers curl up above it, as a Kinova's three do), depth (how far above the grip point an object
-    between the fingers reaches before it meets the palm, the hand's geometry that is not a finger, m)."""
+    between the fingers reaches before it meets the palm, the hand's geometry that is not a finger, m) and opening
+    (how far apart the open fingers stand across the closing axis, from the grip point to their tips, m)."""
     offset: np.ndarray
     approach: np.ndarray
     closing: np.ndarray
@@ -72,6 +73,7 @@ class Grip:
     hand: np.ndarray = dataclasses.field(repr=False, default_factory=lambda: np.zeros((0, 3)))
     closed_beyond: float = 0.0
     depth: float = np.inf
+    opening: float = np.inf
 
     def radius(self, height: float) -> float:
         """How far the closed hand reaches from the approach axis (m), of its geometry less than height above the
@@ -143,7 +145,7 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     if np.linalg.norm(closing) < 1e-6:          # one finger, or fingers around the axis: any axis square to it
         closing = np.cross(approach, [1.0, 0.0, 0.0] if abs(approach[0]) < 0.9 else [0.0, 1.0, 0.0])
     closing /= np.linalg.norm(closing)
-    gaps, hands = [], []
+    gaps, hands, spread = [], [], []
     for end in (0, 1):                        # every gripper joint at the low end of its range, then the high
         for name in gripper:
             k = physics.actuated.index(name)
@@ -154,14 +156,19 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
         finger = np.concatenate(_finger_points(arm, physics, data, first) or [middle[None]]).mean(axis=0)
         gaps.append(float(np.linalg.norm(finger - approach * (finger @ approach))))
         hands.append(np.concatenate(_finger_points(arm, physics, data, hand)))
+        spread.append(np.concatenate(_finger_points(arm, physics, data, fingers)))
     grip = (float(middle @ approach) + far) / 2.0
     open_high = gaps[1] >= gaps[0]
     fixed = lambda v: np.round(v, READY_DECIMALS)      # noqa: E731  the same in every process (see workspace())
     closed = hands[0 if open_high else 1]
     palm = _finger_points(arm, physics, data, [link for link in hand if link not in fingers])
     depth = grip - float(np.concatenate(palm).dot(approach).max()) if palm else np.inf
+    tips = spread[1 if open_high else 0]      # open: the fingers from the grip point down, across the closing axis
+    across = tips[tips @ approach >= grip] @ closing
+    opening = float(across[across > 0].min() - across[across < 0].max()) \
+        if (across > 0).any() and (across < 0).any() else np.inf
     return Grip(fixed(approach * grip), fixed(approach), fixed(closing), float(fixed(far - grip)), open_high,
-                closed, float(fixed((closed @ approach).max() - grip)), float(fixed(depth)))
+                closed, float(fixed((closed @ approach).max() - grip)), float(fixed(depth)), float(fixed(opening)))
 
 
 def _shoulder(arm: Arm, q: np.ndarray) -> np.ndarray:
