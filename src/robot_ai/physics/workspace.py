@@ -145,6 +145,8 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     if np.linalg.norm(closing) < 1e-6:          # one finger, or fingers around the axis: any axis square to it
         closing = np.cross(approach, [1.0, 0.0, 0.0] if abs(approach[0]) < 0.9 else [0.0, 1.0, 0.0])
     closing /= np.linalg.norm(closing)
+    # the palm: the hand's geometry that is not a finger, which the gripper's joints do not move
+    palm = _finger_points(arm, physics, data, [link for link in hand if link not in fingers])
     gaps, hands, spread = [], [], []
     for end in (0, 1):                        # every gripper joint at the low end of its range, then the high
         for name in gripper:
@@ -155,13 +157,12 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
         mujoco.mj_kinematics(model, data)
         finger = np.concatenate(_finger_points(arm, physics, data, first) or [middle[None]]).mean(axis=0)
         gaps.append(float(np.linalg.norm(finger - approach * (finger @ approach))))
-        hands.append(np.concatenate(_finger_points(arm, physics, data, hand)))
         spread.append(np.concatenate(_finger_points(arm, physics, data, fingers)))
+        hands.append(np.concatenate([spread[-1], *palm]))
     grip = (float(middle @ approach) + far) / 2.0
     open_high = gaps[1] >= gaps[0]
     fixed = lambda v: np.round(v, READY_DECIMALS)      # noqa: E731  the same in every process (see workspace())
     closed = hands[0 if open_high else 1]
-    palm = _finger_points(arm, physics, data, [link for link in hand if link not in fingers])
     depth = grip - float(np.concatenate(palm).dot(approach).max()) if palm else np.inf
     tips = spread[1 if open_high else 0]      # open: the fingers from the grip point down, across the closing axis
     across = tips[tips @ approach >= grip] @ closing
