@@ -263,8 +263,7 @@ class PickPlace:
         self.rise_to = None
         self.lowering = False
         self.above = np.array([0.0, 0.0, self.grasp_above(name)])
-        self.held = self.setup.space.rotation    # the gripper as at the ready configuration, until the task begins
-        self.turned = False
+        self.held = None                        # the tip's rotation while the policy has the arm: set as it begins
         self.layer.margin = self.margin         # on the way to the task: clear of every contact by the margin
         return (f'picking {name} at {_point(position)} to place it at {_point(self.place)}: to the ready '
                 f'configuration first')
@@ -330,8 +329,8 @@ class PickPlace:
         if self.phase == 'ready':
             return self._ready(now, q)
         if self.phase == 'task':
-            if not self.turned:                 # the gripper turned across a wide box's narrow side
-                self.held, self.turned = self.grip_rotation(self.name, pose), True
+            if self.held is None:               # the gripper turned across a wide box's narrow side
+                self.held = self.grip_rotation(self.name, pose)
             distance = float(np.linalg.norm(cube - self.place))
             if distance <= PLACED_WITHIN:
                 self._enter('release', now)
