@@ -65,15 +65,13 @@ def objects(setup: ManipulationSetup) -> list[tuple[str, str]]:
     """(name, outcome) of one pick of each of OBJECTS, standing on the table 5 cm on from the workspace's middle in x
     and back in y, to a click 10 cm back in x and on in y."""
     c, top = setup.space.centre, setup.space.table_top
-    ready = PickPlace(setup, obstacles=[setup.table()]).ready
     out = []
     for spec in OBJECTS:
-        kind = next(k for k in ('box', 'cylinder', 'sphere') if k in spec)
-        half = {'box': lambda v: v[2] / 2, 'cylinder': lambda v: v[1] / 2, 'sphere': lambda v: v}[kind](spec[kind])
-        thing = {'mass': 0.1, **spec, 'position': [c[0] + 0.05, c[1] - 0.05, top + half]}
+        thing = {'mass': 0.1, **spec, 'position': [c[0] + 0.05, c[1] - 0.05, top]}
+        picking = PickPlace(setup, obstacles=[setup.table()], objects=[thing])      # its size: how high it stands
+        thing['position'][2] += picking.half_height(spec['name'])
         physics = build_physics(setup.robot, obstacles=[setup.table()], objects=[thing],
-                                home=dict(zip(setup.arm.joints, ready)))
-        picking = PickPlace(setup, obstacles=[setup.table()], objects=[thing])
+                                home=dict(zip(setup.arm.joints, picking.ready)))
         arm = ArmPhysics(physics, setup.arm.joints)
         run = run_in_physics(picking, arm, spec['name'], [c[0] - 0.1, c[1] + 0.1, top])
         out.append((spec['name'], run.outcome))
