@@ -150,13 +150,11 @@ def test_a_gripper_with_a_placeholder_effort_squeezes_within_the_cap_and_picks()
     from robot_ai.physics.learn import FINAL_SEED, evaluate, expert_policy
     from robot_ai.physics.model import GRIP_FORCE
     from robot_ai.reach.model import load_model
-    robotiq = os.path.join(os.path.dirname(os.path.realpath(__file__)), '..', '..', 'urdf',
-                           'ur5_robotiq_2f85.urdf.xacro')
-    own = ManipulationSetup('pick_and_place', model=robotiq)
+    own = ManipulationSetup('pick_and_place', model=UR5_ROBOTIQ)
     k = own.physics.actuated.index('finger_joint')
     assert own.physics.model.actuator_forcerange[k, 1] == 10.0
     assert not any('capped' in n for n in own.physics.notes)
-    text = load_model(robotiq).urdf.replace('effort="10"', 'effort="1000"')
+    text = load_model(UR5_ROBOTIQ).urdf.replace('effort="10"', 'effort="1000"')
     setup = ManipulationSetup('pick_and_place', urdf=text)
     most = setup.physics.model.actuator_forcerange[k, 1]
     assert 10.0 < most < 1000.0 and 0.08 < most / GRIP_FORCE < 0.13       # the finger's lever: about 0.1 m
