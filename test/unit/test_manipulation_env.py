@@ -181,6 +181,53 @@ def test_a_long_gripper_holds_the_cube_at_its_tips_and_carries_it():
     assert dropped[3] == 1.0                                        # opened: not held
 
 
+def test_a_wide_slow_gripper_opens_no_wider_than_the_cube_needs():
+    """The Panda's fingers made to open 13 cm at 35 mm/s (a Gen3 lite's opens 12.6 cm and took half the episode to
+    close from wide open: its expert picked 64 % of 400): the fingers' gap is measured at every tenth of the opening
+    (two fingers on slides: twice the joint), the expert opens them only 1.5 cm wider than the cube on either side,
+    and picks where, opened wide, it runs out of time (20 of 20 measured against 9 of 20). The Panda as it is closes
+    on the cube in 0.1 s: wide open, as before."""
+    from robot_ai.physics.env import AJAR, ManipulationVectorEnv
+    from robot_ai.physics.learn import FINAL_SEED, evaluate, expert_policy
+    fast = ManipulationSetup('pick_and_place', model=PANDA)
+    assert not fast.slow_gripper and fast.ajar == 1.0
+    with open(PANDA) as f:
+        text = f.read().replace('upper="0.04" velocity="0.2"', 'upper="0.065" velocity="0.035"')
+    setup = ManipulationSetup('pick_and_place', urdf=text)
+    grip = setup.space.grip
+    assert setup.slow_gripper
+    np.testing.assert_allclose(grip.gaps(setup.object_size / 2), 2 * 0.065 * np.linspace(0, 1, 11), atol=1e-3)
+    assert setup.ajar == pytest.approx((setup.object_size + 2 * AJAR) / grip.opening, abs=0.01)
+    env = ManipulationVectorEnv(20, 'pick_and_place', setup=setup)
+    ajar, _ = evaluate(expert_policy(setup), env, 20, FINAL_SEED)
+    setup.ajar = 1.0
+    wide, _ = evaluate(expert_policy(setup), env, 20, FINAL_SEED)
+    assert ajar >= 0.85 and wide <= 0.7
+
+
+def test_the_expert_opens_the_gripper_ajar_and_does_not_take_it_for_holding_the_cube():
+    """Open to ajar is the action's opening 2 ajar - 1; fingers stopped there beside the cube hold nothing (the
+    arm goes down and closes), fingers stopped well short of it hold the cube (carried); a long gripper comes over
+    the cube high enough that its fingertips clear it (the 2F-140's swept it aside from 6 cm over its middle)."""
+    from robot_ai.physics.expert import TIPS_ABOVE, expert_actions
+    obs = np.zeros(23)
+    obs[0:3], obs[3:6], obs[9] = [0.4, 0.0, 0.2], [0.4, 0.0, 0.02], 0.6     # high over the cube, stopped at 0.6
+    obs[6:9] = obs[3:6] - obs[0:3]
+    goal = np.array([0.5, 0.1, 0.3])
+    over = expert_actions(obs, goal, 'pick_and_place', ajar=0.6)
+    assert over[3] == pytest.approx(0.2) and over[2] < 0               # ajar, and down to the cube
+    obs[2], obs[8] = 0.02, 0.0                                        # around it, stopped ajar: not held, closes
+    assert expert_actions(obs, goal, 'pick_and_place', ajar=0.6)[3] == -1.0
+    obs[9] = 0.45                                                     # stopped on it: held, carried up
+    held = expert_actions(obs, goal, 'pick_and_place', ajar=0.6)
+    assert held[3] == -1.0 and held[2] > 0
+    obs[0:3], obs[9] = [0.38, 0.0, 0.1], 1.0            # 2 cm aside, 8 cm over the middle: over it first
+    obs[6:9] = obs[3:6] - obs[0:3]
+    assert 0.02 + 0.062 + TIPS_ABOVE > 0.1 > 0.02 + 0.06
+    assert expert_actions(obs, goal, 'pick_and_place', reach=0.062)[2] > 0      # the long fingers: up
+    assert expert_actions(obs, goal, 'pick_and_place', reach=0.01)[2] < 0       # short ones: down
+
+
 def test_push_holds_the_gripper_closed_and_bad_input_is_one_line():
     env = gymnasium.make('robot_ai/Push-v0', model=PANDA)
     with pytest.raises(ResetNeeded):

@@ -55,6 +55,9 @@ DAMPING = 0.05
 IK_ITERATIONS = 2
 TABLE_MARGIN = 0.005        # m: the fingertips' lowest target above the table
 PUSH_BELOW = 0.005          # m: a push's closed hand reaches at least this far under the cube's middle (where it can)
+AJAR = 0.015                # m: a slow gripper's open fingers clear the cube by this on either side, no wider
+SLOW_GRIPPER = 0.25         # s: a gripper slower than this to close onto the cube from wide open is slow (the Gen3
+                            # lite's took 1.1 s, half the episode; the Fetch's 0.6; the Panda's 0.1)
 
 
 def rpy_of(m: np.ndarray) -> list[float]:
@@ -149,6 +152,10 @@ class ManipulationSetup:
         self.behind = half + grip.radius(half + 0.01) + 0.015
         # how far under the cube's middle the grip point pushes: the closed hand's lowest point PUSH_BELOW under it
         self.sink = max(0.0, PUSH_BELOW - grip.closed_beyond)
+        rate = float(np.min(self.grip_speed / np.maximum(np.abs(self.grip_open - self.grip_closed), 1e-9)))
+        closing = (1.0 - grip.ajar(self.object_size, half)) / rate if rate > 0 else np.inf
+        self.slow_gripper = bool(closing > SLOW_GRIPPER)
+        self.ajar = self.ajar_for(self.object_size, half)        # the cube gripped at its middle
 
     def table(self) -> dict:
         """The table, as an obstacle (motion.body's YAML): its top table_top, under the whole workspace."""
@@ -166,12 +173,18 @@ class ManipulationSetup:
         """The gripper's first joint (a gripper command's position, m or rad) at opening (0 closed, 1 open)."""
         return float(self.grip_closed[0] + opening * (self.grip_open[0] - self.grip_closed[0]))
 
-    def expert(self, observation, desired_goal) -> np.ndarray:
-        """The scripted expert's actions (physics.expert) for this arm: its push start, lowest grip point and
-        fingers' reach."""
+    def ajar_for(self, width: float, above: float) -> float:
+        """How far the scripted expert opens the gripper (0 closed, 1 open) for an object width across whose top
+        stands above over the grip point: a slow gripper AJAR wider than the object on either side, another fully."""
+        return self.space.grip.ajar(width + 2 * AJAR, above) if self.slow_gripper else 1.0
+
+    def expert(self, observation, desired_goal, ajar: float | None = None) -> np.ndarray:
+        """The scripted expert's actions (physics.expert) for this arm: its push start, lowest grip point, fingers'
+        reach, and how far it opens them (0 closed, 1 open; None: ajar_for the cube)."""
         from robot_ai.physics.expert import expert_actions
         return expert_actions(observation, desired_goal, self.task, behind=self.behind, lowest=self.low[2],
-                              sink=self.sink, reach=self.space.grip.beyond)
+                              sink=self.sink, reach=self.space.grip.beyond,
+                              ajar=self.ajar if ajar is None else ajar)
 
     # --------------------------------------------------------------------------------------------- the task
     def compute_reward(self, achieved_goal, desired_goal, info=None) -> np.ndarray:

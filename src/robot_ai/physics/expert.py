@@ -5,9 +5,9 @@ observation alone (so that it acts in any world, batched, and a learner can imit
 
 Push: the closed fingertips go behind the cube (opposite the goal) above it, down to its middle's height, and push
 it along the line to the goal, steered back onto the line as the cube turns aside, stopping when it is there. Pick
-and place: the open gripper goes over the cube, down around it, closes, and carries it to the goal once the fingers
-hold it (the opening stopped short of closed), the cube (not the grip point) to the goal; fingers that have begun to
-close go on closing, however the hand has moved since, until they stop.
+and place: the open gripper (wide enough for the cube, no wider) goes over the cube, down around it, closes, and
+carries it to the goal once the fingers hold it (the opening stopped short of closed), the cube (not the grip point)
+to the goal; fingers that have begun to close go on closing, however the hand has moved since, until they stop.
 """
 from __future__ import annotations
 
@@ -15,6 +15,8 @@ import numpy as np
 
 GAIN = 10.0                 # action per metre of error (saturates at 1 beyond 0.1 m: EE_STEP x 2)
 ABOVE = 0.06                # m: the approach height over the cube
+TIPS_ABOVE = 0.035          # m: and the fingertips at least this above its middle there (a long gripper's tips
+                            # reach past the grip point: the Robotiq 2F-140's 6 cm swept the cube aside)
 BEHIND = 0.05               # m: where the push starts, behind the cube's middle
 NEAR = 0.012                # m: near enough to a waypoint to go on
 THERE = 0.015               # m: a pushed cube this near its goal is left alone
@@ -22,6 +24,7 @@ KEEP = 0.03                 # m: a push under way goes on while the grip point i
 HOLD_RADIUS = 0.03          # m: a cube held this near the grip point (in the plane) is carried (three fingers hold it
                             # off the point between their tips)
 HELD = 0.04                 # the gripper's opening (0 closed, 1 open) above which its stopped fingers hold the cube
+HELD_BELOW = 0.1            # ... and below which, short of where they stand open (ajar, or 0.9 fully open)
 HOLD_HEIGHT = 0.06          # m: a cube held no farther below (or above) the grip point than this, or than the fingers
                             # reach past it and 2 cm (a long gripper holds it at its tips: the Robotiq 2F-140 6 cm
                             # below)
@@ -51,12 +54,13 @@ def _along(grip: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def expert_actions(observation, desired_goal, task: str, behind: float = BEHIND,
-                   lowest: float = -np.inf, sink: float = 0.0, reach: float = 0.0) -> np.ndarray:
+                   lowest: float = -np.inf, sink: float = 0.0, reach: float = 0.0, ajar: float = 1.0) -> np.ndarray:
     """(N, 4) actions for observations (N, 23) (or one: (23,) -> (4,)) and their goals (N, 3). behind: where a push
     starts, behind the cube's middle; lowest: the grip point's lowest target; sink: how far under the cube's middle
     the grip point pushes; reach: how far the fingers reach past the grip point (ManipulationSetup.expert passes the
     arm's own: its hand clear of the cube, its fingertips above the table, a hand whose closed fingers curl up above
-    the grip point pushing with their backs, a long gripper holding the cube at its tips)."""
+    the grip point pushing with their backs, a long gripper holding the cube at its tips); ajar: how far the open
+    gripper opens (0 closed, 1 open: wide enough for the cube, no wider, so that it closes on it sooner)."""
     obs = np.atleast_2d(np.asarray(observation, dtype=float))
     goal = np.atleast_2d(np.asarray(desired_goal, dtype=float))
     grip, cube, opening = obs[:, 0:3], obs[:, 3:6], obs[:, 9]
@@ -97,17 +101,17 @@ def expert_actions(observation, desired_goal, task: str, behind: float = BEHIND,
         actions[there, :3] = 0.0
     else:
         over = cube.copy()
-        over[:, 2] += ABOVE
+        over[:, 2] += max(ABOVE, reach + TIPS_ABOVE)
         down = cube.copy()
         down[:, 2] = level
         horizontal = np.linalg.norm(grip[:, :2] - cube[:, :2], axis=1)
         still = np.abs(obs[:, 22]) < 0.5          # the fingers stopped: on the cube, or closed on nothing
         held = (horizontal < HOLD_RADIUS) & (np.abs(grip[:, 2] - cube[:, 2]) < max(HOLD_HEIGHT, reach + 0.02)) & \
-            (opening > HELD) & (opening < 0.9) & still
+            (opening > HELD) & (opening < min(0.9, ajar - HELD_BELOW)) & still
         closing = (horizontal < HOLD_RADIUS) & low & (obs[:, 22] < -0.5)    # under way: not given up half-closed
         around = ((horizontal < 0.01) & low) | closing
         target = np.where(held[:, None], goal + grip - cube, np.where((horizontal < 0.01)[:, None], down, over))
         actions[:, :3] = _towards(grip, target, lead=~held)
-        actions[:, 3] = np.where(held | around, -1.0, 1.0)
+        actions[:, 3] = np.where(held | around, -1.0, 2.0 * ajar - 1.0)
         actions[~held & around, :3] = 0.0                  # closing: the arm waits
     return actions[0] if np.ndim(observation) == 1 else actions

@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 
 from robot_ai.physics.env import EE_STEP, ManipulationSetup, rpy_of
-from robot_ai.physics.learn import expert_policy, flatten
+from robot_ai.physics.learn import flatten
 from robot_ai.physics.model import parse_objects
 from robot_ai.reach.env import ReachSetup
 from robot_ai.reach.safety import DEFAULT_MARGIN, Limits, Plan, SafetyLayer
@@ -115,7 +115,9 @@ class PickPlace:
         if setup.task != 'pick_and_place':
             raise PickError(f'a pick needs the pick_and_place task\'s setup, not {setup.task}\'s')
         self.setup, self.period = setup, setup.step_time
-        self.policy = policy if policy is not None else expert_policy(setup)
+        # the scripted expert opens the fingers wide enough for the object being picked, not the task's cube
+        self.policy = policy if policy is not None else \
+            (lambda x: setup.expert(x[:, 6:], x[:, 3:6], ajar=self.ajar))
         self.reach = ReachSetup(urdf=setup.robot.urdf, tip=setup.arm.tip, obstacles=obstacles or None,
                                 collision=True)
         self.limits = Limits.of(self.reach.arm, joint_limits, velocity_scale)
@@ -126,6 +128,7 @@ class PickPlace:
         self.objects = {o.name: o for o in parse_objects(objects)}      # their sizes: how high each is set down
         self.ready, self.ready_note = self._clear_ready()
         self.name = ''
+        self.ajar = setup.ajar
         self.phase = ''
 
     def _clear_ready(self) -> tuple[np.ndarray, str]:
@@ -191,6 +194,14 @@ class PickPlace:
         if o is None:
             return self.setup.object_size
         return max(o.size[0], o.size[1]) if o.kind == 'box' else 2 * o.size[0]
+
+    def across(self, name: str) -> float:
+        """The most the object can measure across the fingers, upright, however it is turned (a box's footprint's
+        diagonal, a cylinder's or a sphere's diameter; the task's cube where it is not one of the objects given)."""
+        o = self.objects.get(name)
+        if o is not None and o.kind == 'box':
+            return float(math.hypot(o.size[0], o.size[1]))
+        return self.width(name)
 
     def grip_rotation(self, name: str, pose: np.ndarray) -> np.ndarray:
         """The tip's rotation to hold while the policy has the arm (3x3, the root frame): the ready configuration's,
@@ -263,6 +274,7 @@ class PickPlace:
         self.rise_to = None
         self.lowering = False
         self.above = np.array([0.0, 0.0, self.grasp_above(name)])
+        self.ajar = self.setup.ajar_for(self.across(name), self.half_height(name) - self.above[2])
         self.held = None                        # the tip's rotation while the policy has the arm: set as it begins
         self.layer.margin = self.margin         # on the way to the task: clear of every contact by the margin
         return (f'picking {name} at {_point(position)} to place it at {_point(self.place)}: to the ready '

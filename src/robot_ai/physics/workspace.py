@@ -34,6 +34,7 @@ READY_TOLERANCE = (0.005, 0.02)     # m and rad: how near the ready pose must co
 CORNER = 0.17               # m: the workspace's corners from its centre, along x and y (the envs' 0.3 m square of
                             # objects and goals, and a grasp's reach round it)
 READY_DECIMALS = 9          # rad or m: the ready configuration's last digit
+GAP_SAMPLES = 10            # the fingers' gap is measured at openings 0, 0.1, ... 1
 READY_STARTS = 16           # damped least squares from the middle of every range, then from random configurations
 DOWN = np.array([0.0, 0.0, -1.0])
 
@@ -64,7 +65,9 @@ class Grip:
     closed_beyond (how far the closed hand reaches past the grip point along the approach, m: below zero for a hand
     whose closed fingers curl up above it, as a Kinova's three do), depth (how far above the grip point an object
     between the fingers reaches before it meets the palm, the hand's geometry that is not a finger, m) and opening
-    (how far apart the open fingers stand across the closing axis, from the grip point to their tips, m)."""
+    (how far apart the open fingers stand across the closing axis, from the grip point to their tips, m) and spans
+    (the fingers' points in the tip's frame at openings 0, 1 / GAP_SAMPLES, ... 1: every gripper joint at that share
+    of its range; gaps and ajar read them)."""
     offset: np.ndarray
     approach: np.ndarray
     closing: np.ndarray
@@ -74,6 +77,25 @@ class Grip:
     closed_beyond: float = 0.0
     depth: float = np.inf
     opening: float = np.inf
+    spans: tuple[np.ndarray, ...] = dataclasses.field(repr=False, default=())
+
+    def gaps(self, above: float = 0.0) -> np.ndarray:
+        """How far apart the fingers stand across the closing axis, from above over the grip point to their tips, at
+        openings 0, 1 / GAP_SAMPLES, ... 1 (m; 0 where they meet, inf where none stands on one side)."""
+        top = float(self.offset @ self.approach) - above
+        return np.array([_gap(points, self.approach, self.closing, top) for points in self.spans])
+
+    def ajar(self, width: float, above: float = 0.0) -> float:
+        """The least opening (0 closed, 1 open) at which the fingers, from above over the grip point to their tips,
+        stand at least width apart (read between the gaps' samples); 1 where they never do, or cannot be measured."""
+        gaps = self.gaps(above)
+        if len(gaps) < 2 or not np.isfinite(gaps).all() or gaps[-1] <= width:
+            return 1.0
+        k = int(np.flatnonzero(gaps >= width)[0])
+        if k == 0:
+            return 0.0
+        share = (width - gaps[k - 1]) / (gaps[k] - gaps[k - 1])
+        return float((k - 1 + share) / (len(gaps) - 1))
 
     def radius(self, height: float) -> float:
         """How far the closed hand reaches from the approach axis (m), of its geometry less than height above the
@@ -147,29 +169,43 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     closing /= np.linalg.norm(closing)
     # the palm: the hand's geometry that is not a finger, which the gripper's joints do not move
     palm = _finger_points(arm, physics, data, [link for link in hand if link not in fingers])
-    gaps, hands, spread = [], [], []
-    for end in (0, 1):                        # every gripper joint at the low end of its range, then the high
-        for name in gripper:
-            k = physics.actuated.index(name)
-            ends = model.actuator_ctrlrange[k] if model.actuator_ctrllimited[k] else (-0.01, 0.01)
-            data.qpos[physics.qpos_address(name)] = ends[end]
-        physics.follow_mimics(data)           # the mimic joints with them
+    ranges = [model.actuator_ctrlrange[k] if model.actuator_ctrllimited[k] else (-0.01, 0.01)
+              for k in (physics.actuated.index(name) for name in gripper)]
+
+    def fingers_at(share: float) -> np.ndarray:
+        """The fingers' points with every gripper joint at share of its range from its low end (the mimic joints
+        with them)."""
+        for name, (low, high) in zip(gripper, ranges):
+            data.qpos[physics.qpos_address(name)] = low + share * (high - low)
+        physics.follow_mimics(data)
         mujoco.mj_kinematics(model, data)
+        return np.concatenate(_finger_points(arm, physics, data, fingers))
+
+    distances, hands = [], []
+    for end in (0, 1):                        # every gripper joint at the low end of its range, then the high
+        hands.append(np.concatenate([fingers_at(end), *palm]))
         finger = np.concatenate(_finger_points(arm, physics, data, first) or [middle[None]]).mean(axis=0)
-        gaps.append(float(np.linalg.norm(finger - approach * (finger @ approach))))
-        spread.append(np.concatenate(_finger_points(arm, physics, data, fingers)))
-        hands.append(np.concatenate([spread[-1], *palm]))
+        distances.append(float(np.linalg.norm(finger - approach * (finger @ approach))))
     grip = (float(middle @ approach) + far) / 2.0
-    open_high = gaps[1] >= gaps[0]
+    open_high = distances[1] >= distances[0]
     fixed = lambda v: np.round(v, READY_DECIMALS)      # noqa: E731  the same in every process (see workspace())
     closed = hands[0 if open_high else 1]
     depth = grip - float(np.concatenate(palm).dot(approach).max()) if palm else np.inf
-    tips = spread[1 if open_high else 0]      # open: the fingers from the grip point down, across the closing axis
-    across = tips[tips @ approach >= grip] @ closing
-    opening = float(across[across > 0].min() - across[across < 0].max()) \
-        if (across > 0).any() and (across < 0).any() else np.inf
+
+    shares = [k / GAP_SAMPLES if open_high else 1.0 - k / GAP_SAMPLES for k in range(GAP_SAMPLES + 1)]
+    spans = tuple(fixed(fingers_at(share)) for share in shares)       # from closed to open
     return Grip(fixed(approach * grip), fixed(approach), fixed(closing), float(fixed(far - grip)), open_high,
-                closed, float(fixed((closed @ approach).max() - grip)), float(fixed(depth)), float(fixed(opening)))
+                closed, float(fixed((closed @ approach).max() - grip)), float(fixed(depth)),
+                float(fixed(_gap(spans[-1], approach, closing, grip))), spans)
+
+
+def _gap(points: np.ndarray, approach: np.ndarray, closing: np.ndarray, top: float) -> float:
+    """How far apart fingers (points in the tip's frame) stand across the closing axis, from top (along the
+    approach) to their tips (m; 0 where they meet, inf where none stands on one side)."""
+    across = points[points @ approach >= top] @ closing
+    if not (across > 0).any() or not (across < 0).any():
+        return np.inf
+    return max(0.0, float(across[across > 0].min() - across[across < 0].max()))
 
 
 def _shoulder(arm: Arm, q: np.ndarray) -> np.ndarray:
