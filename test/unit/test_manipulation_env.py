@@ -228,6 +228,53 @@ def test_the_expert_opens_the_gripper_ajar_and_does_not_take_it_for_holding_the_
     assert expert_actions(obs, goal, 'pick_and_place', reach=0.01)[2] < 0       # short ones: down
 
 
+def test_a_tip_among_the_fingers_approaches_from_the_wrist():
+    """Interbotix's arms end in fingers_link, among their fingers (their middle 1 mm behind it): the approach seen
+    from the tip pointed backwards and no ready configuration was found (vx300s). The Panda's fingers hung from a
+    frame at their middle: the approach is the hand's z, from the wrist, the grip point where the Panda's own is, and
+    the expert picks as with the Panda's own hand (10 of 10 measured)."""
+    from robot_ai.physics.env import ManipulationVectorEnv
+    from robot_ai.physics.learn import FINAL_SEED, evaluate, expert_policy
+    with open(PANDA) as f:
+        text = f.read()
+    text = text.replace('<parent link="panda_hand" />\n        <child link="panda_leftfinger" />\n'
+                        '        <origin rpy="0 0 0" xyz="0 0 0.0584" />',
+                        '<parent link="panda_fingers" />\n        <child link="panda_leftfinger" />\n'
+                        '        <origin rpy="0 0 0" xyz="0 0 -0.0336" />')
+    text = text.replace('<parent link="panda_hand" />\n        <child link="panda_rightfinger" />\n'
+                        '        <origin rpy="0 0 0" xyz="0 0 0.0584" />',
+                        '<parent link="panda_fingers" />\n        <child link="panda_rightfinger" />\n'
+                        '        <origin rpy="0 0 0" xyz="0 0 -0.0336" />')
+    assert text.count('"panda_fingers"') == 2
+    text = text.replace('</robot>', '<link name="panda_fingers"/><joint name="panda_fingers_joint" type="fixed">'
+                        '<parent link="panda_hand"/><child link="panda_fingers"/><origin xyz="0 0 0.092"/></joint>'
+                        '</robot>')
+    own = ManipulationSetup('pick_and_place', model=PANDA).space.grip
+    setup = ManipulationSetup('pick_and_place', urdf=text, tip='panda_fingers')
+    grip = setup.space.grip
+    np.testing.assert_allclose(grip.approach, [0, 0, 1], atol=1e-6)
+    np.testing.assert_allclose(grip.offset, own.offset - [0, 0, 0.092], atol=1e-6)
+    success, _ = evaluate(expert_policy(setup), ManipulationVectorEnv(10, 'pick_and_place', setup=setup), 10,
+                          FINAL_SEED)
+    assert success >= 0.9
+
+
+def test_an_arm_that_cannot_reach_the_workspace_says_so():
+    """The Panda's first, third and fifth joints held within 0.05 rad of their middle (the arm moves in its plane):
+    pointing down, the gripper reaches none of the workspace's corners (0.17 m either side) and the setup says so, as
+    a warning (Interbotix's px100, 30 cm long,
+    picked 1 of 100 without a word); the Panda as it is reaches all four and says nothing."""
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        assert ManipulationSetup('push', model=PANDA).space.note == ''
+    with open(PANDA) as f:
+        text = f.read().replace('lower="-2.9671" upper="2.9671"', 'lower="-0.05" upper="0.05"', 3)
+    with pytest.warns(UserWarning, match=r"panda: pointing down, the gripper reaches 0 of the workspace's 4 corners"):
+        setup = ManipulationSetup('push', urdf=text)
+    assert setup.space.note.endswith('out of its reach')
+
+
 def test_push_holds_the_gripper_closed_and_bad_input_is_one_line():
     env = gymnasium.make('robot_ai/Push-v0', model=PANDA)
     with pytest.raises(ResetNeeded):

@@ -33,6 +33,8 @@ drawn from the env's np_random.
 from __future__ import annotations
 
 import math
+import warnings
+
 import gymnasium
 import numpy as np
 from gymnasium import spaces
@@ -108,6 +110,8 @@ class ManipulationSetup:
         self.arm = _gripping_arm(self.robot.tree, tip)
         bare = build_physics(self.robot)
         self.space: Workspace = workspace(self.arm, bare)
+        if self.space.note:
+            warnings.warn(self.space.note, stacklevel=2)
         centre, top = self.space.centre, self.space.table_top
         self.object_mass = float(object_mass)
         cube = self.cube([centre[0], centre[1], top + object_size / 2])

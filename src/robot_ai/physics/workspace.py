@@ -43,12 +43,13 @@ DOWN = np.array([0.0, 0.0, -1.0])
 class Workspace:
     """ready (the arm's joints, Arm.joints order, at each episode's start), rotation (3x3: the tip's orientation
     there, held through the task), grip (the gripper seen from the tip), centre (the ready grip point in the base
-    frame), table_top (z of the table's top)."""
+    frame), table_top (z of the table's top), note (what of the workspace the arm cannot reach; '' where all)."""
     ready: np.ndarray
     rotation: np.ndarray
     grip: Grip
     centre: np.ndarray
     table_top: float
+    note: str = ''
 
 
 def finger_links(tree, joints) -> list[str]:
@@ -153,9 +154,15 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
                            f'to grip with')
     points = np.concatenate(corners)
     middle = points.mean(axis=0)
-    if np.linalg.norm(middle) < 1e-6:
-        raise PhysicsError(f'{tree.name}: the fingers lie around the tip {arm.tip!r}: give a tip above the hand')
-    approach = middle / np.linalg.norm(middle)
+    # the approach: from the wrist (the arm's last joint) toward the fingers' middle, not from the tip, which may
+    # stand among the fingers (Interbotix's fingers_link does, its fingers' middle 1 mm behind it)
+    tip = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, arm.tip)
+    wrist = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, arm.joints[-1])
+    toward = middle - (data.xanchor[wrist] - data.xpos[tip]) @ data.xmat[tip].reshape(3, 3)
+    if np.linalg.norm(toward) < 1e-6:
+        raise PhysicsError(f'{tree.name}: the fingers lie around the wrist ({arm.joints[-1]}): no way to approach with '
+                           f'them')
+    approach = toward / np.linalg.norm(toward)
     far = float((points @ approach).max())
     closing = np.concatenate(_finger_points(arm, physics, data, first) or [middle[None]]).mean(axis=0) - middle
     joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, gripper[0])
@@ -245,17 +252,17 @@ def ready_pose(arm: Arm, offset: np.ndarray, approach: np.ndarray, closing: np.n
     return q[:, 0].copy(), float(np.linalg.norm(target - grip)), angle
 
 
-def _corners_reached(arm: Arm, grip: Grip, ready: np.ndarray, centre: np.ndarray, height: float) -> bool:
-    """Whether the gripper, pointing down as at ready, reaches the workspace's corners (CORNER from the centre)
-    low, at a grasp's height over the table (the Fetch pointing down could not reach its far side)."""
+def _corners_reached(arm: Arm, grip: Grip, ready: np.ndarray, centre: np.ndarray, height: float) -> int:
+    """How many of the workspace's four corners (CORNER from the centre) the gripper reaches pointing down as at
+    ready, low, at a grasp's height over the table (the Fetch pointing down could not reach its far side)."""
     low = centre[2] - height + grip.beyond + 0.02
+    reached = 0
     for dx in (CORNER, -CORNER):
         for dy in (CORNER, -CORNER):
             q, miss, angle = ready_pose(arm, grip.offset, grip.approach, grip.closing,
                                         np.array([centre[0] + dx, centre[1] + dy, low]), ready)
-            if miss > READY_TOLERANCE[0] or angle > READY_TOLERANCE[1]:
-                return False
-    return True
+            reached += miss <= READY_TOLERANCE[0] and angle <= READY_TOLERANCE[1]
+    return reached
 
 
 def workspace(arm: Arm, physics: Physics, reach: float = READY_REACH, height: float = READY_HEIGHT) -> Workspace:
@@ -280,13 +287,18 @@ def workspace(arm: Arm, physics: Physics, reach: float = READY_REACH, height: fl
             if miss <= READY_TOLERANCE[0] and angle <= READY_TOLERANCE[1]:
                 break
         if best[2] <= READY_TOLERANCE[0] and best[3] <= READY_TOLERANCE[1]:
-            if _corners_reached(arm, grip, best[1], target, height):
+            corners = _corners_reached(arm, grip, best[1], target, height)
+            if corners == 4:
                 break
-            if fallback is None:
-                fallback = best
+            if fallback is None or corners > fallback[0]:
+                fallback = (corners, best)
             best = None
-    if best is None:            # no share reaches every corner: the first ready pose found, its far side short
-        best = fallback
+    note = ''
+    if best is None:            # no share reaches every corner: the ready pose that reaches the most
+        corners, best = fallback
+        note = (f'{arm.tree.name}: pointing down, the gripper reaches {corners} of the workspace\'s 4 corners '
+                f'({CORNER:g} m either way of its middle, low over the table): objects and goals out there are out '
+                f'of its reach')
     _, q, miss, angle, target = best
     if miss > READY_TOLERANCE[0] or angle > READY_TOLERANCE[1]:
         raise PhysicsError(f'{arm.tree.name}: no configuration points the gripper down in front of the shoulder, '
@@ -295,4 +307,4 @@ def workspace(arm: Arm, physics: Physics, reach: float = READY_REACH, height: fl
     q = np.round(q, READY_DECIMALS)     # two processes lay out the same task (BLAS's sums differ in their last bit
     tip, rotation, _, _ = arm.pose_t(q[:, None])     # with memory alignment): an env over ROS and its sim agree
     return Workspace(ready=q, rotation=rotation[:, :, 0].copy(), grip=grip, centre=target,
-                     table_top=float(target[2] - height))
+                     table_top=float(target[2] - height), note=note)
