@@ -24,7 +24,7 @@ KEEP = 0.03                 # m: a push under way goes on while the grip point i
 HOLD_RADIUS = 0.03          # m: a cube held this near the grip point (in the plane) is carried (three fingers hold it
                             # off the point between their tips)
 HELD = 0.04                 # the gripper's opening (0 closed, 1 open) above which its stopped fingers hold the cube
-HELD_BELOW = 0.1            # ... and below which, short of where they stand open (ajar, or 0.9 fully open)
+HELD_BELOW = 0.1            # ... and below which: this short of how far the expert opens it (ajar), 0.9 at most
 HOLD_HEIGHT = 0.06          # m: a cube held no farther below (or above) the grip point than this, or than the fingers
                             # reach past it and 2 cm (a long gripper holds it at its tips: the Robotiq 2F-140 6 cm
                             # below)

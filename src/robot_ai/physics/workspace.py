@@ -6,16 +6,17 @@ the robot itself, so that an arm the package has never seen gets a task without 
     space.ready, space.rotation, space.grip_offset, space.centre, space.table_top
 
 - The grip point: the fingers' collision geometry (every link below a gripper joint), seen from the tip at home; it
-  lies along the approach axis (from the tip toward the fingers' middle), halfway between their middle and their far
+  lies along the approach axis (from the wrist toward the fingers' middle), halfway between their middle and their far
   end, where the pads of a parallel gripper are.
 - The hand closed: every gripper joint at its closing end (each finger on its own joint, as a Kinova's three, closes
   too), what a push keeps clear of the cube and how far it reaches past the grip point (curled fingers stop above);
   and how deep an object goes between the fingers: to the palm (the hand's geometry that is not a finger).
 - The ready configuration: the grip point READY_REACH of the arm's length (less a torso's lift; nearer, down to
-  0.6 of that, where the arm falls short) in front of its shoulder (the first joint of the chain whose axis is
-  level), at the shoulder's height, the approach axis straight down and the fingers closing along y; found by damped
-  least squares (Arm.move_t on the grip point's 6-row Jacobian) from the middle of every range, or where that ends
-  short, from random configurations.
+  0.6 of that, where the arm, pointing down, falls short of the workspace's corners) in front of its shoulder (the
+  first joint of the chain whose axis is level), at the shoulder's height, the approach axis straight down and the
+  fingers closing along y; found by damped least squares (Arm.move_t on the grip point's 6-row Jacobian) from the
+  middle of every range, or where that ends short, from random configurations. Where none reaches all four corners,
+  the one that reaches the most, said in Workspace.note.
 - The table: its top READY_HEIGHT below the ready grip point, under the whole workspace, clear of the arm's base.
 """
 from __future__ import annotations
@@ -167,9 +168,8 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     closing = np.concatenate(_finger_points(arm, physics, data, first) or [middle[None]]).mean(axis=0) - middle
     joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, gripper[0])
     if model.jnt_type[joint] == mujoco.mjtJoint.mjJNT_SLIDE:     # a slide closes along its axis (a mesh's middle
-        tip = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, arm.tip)            # is a little off it)
         axis = data.xaxis[joint] @ data.xmat[tip].reshape(3, 3)
-        closing = axis if axis @ closing >= 0 else -axis
+        closing = axis if axis @ closing >= 0 else -axis         # is a little off it)
     closing -= approach * (closing @ approach)
     if np.linalg.norm(closing) < 1e-6:          # one finger, or fingers around the axis: any axis square to it
         closing = np.cross(approach, [1.0, 0.0, 0.0] if abs(approach[0]) < 0.9 else [0.0, 1.0, 0.0])
