@@ -112,6 +112,11 @@ class ManipulationSetup:
         self.space: Workspace = workspace(self.arm, bare)
         if self.space.note:
             warnings.warn(self.space.note, stacklevel=2)
+        if self.space.grip.between:
+            warnings.warn(f'{self.robot.tree.name}: the hand\'s own geometry ({", ".join(self.space.grip.between)}) '
+                          f'stands between the open fingers past the grip point, where an object meets it (franka_'
+                          f'description\'s *_sc links are self-collision capsules: gazebo:=true leaves them out)',
+                          stacklevel=2)
         centre, top = self.space.centre, self.space.table_top
         self.object_mass = float(object_mass)
         cube = self.cube([centre[0], centre[1], top + object_size / 2])

@@ -35,6 +35,7 @@ READY_TOLERANCE = (0.005, 0.02)     # m and rad: how near the ready pose must co
 CORNER = 0.17               # m: the workspace's corners from its centre, along x and y (the envs' 0.3 m square of
                             # objects and goals, and a grasp's reach round it)
 READY_DECIMALS = 9          # rad or m: the ready configuration's last digit
+BETWEEN_TOLERANCE = 0.001   # m: the hand's geometry this far past the grip point, between the fingers, is in the way
 GAP_SAMPLES = 10            # the fingers' gap is measured at openings 0, 0.1, ... 1
 READY_STARTS = 16           # damped least squares from the middle of every range, then from random configurations
 DOWN = np.array([0.0, 0.0, -1.0])
@@ -69,7 +70,8 @@ class Grip:
     between the fingers reaches before it meets the palm, the hand's geometry that is not a finger, m) and opening
     (how far apart the open fingers stand across the closing axis, from the grip point to their tips, m) and spans
     (the fingers' points in the tip's frame at openings 0, 1 / GAP_SAMPLES, ... 1: every gripper joint at that share
-    of its range; gaps and ajar read them)."""
+    of its range; gaps and ajar read them) and between (the hand's links, not fingers, whose geometry stands past the
+    grip point between the open fingers: what an object there would meet)."""
     offset: np.ndarray
     approach: np.ndarray
     closing: np.ndarray
@@ -80,6 +82,7 @@ class Grip:
     depth: float = np.inf
     opening: float = np.inf
     spans: tuple[np.ndarray, ...] = dataclasses.field(repr=False, default=())
+    between: tuple[str, ...] = ()
 
     def gaps(self, above: float = 0.0) -> np.ndarray:
         """How far apart the fingers stand across the closing axis, from above over the grip point to their tips, at
@@ -175,7 +178,8 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
         closing = np.cross(approach, [1.0, 0.0, 0.0] if abs(approach[0]) < 0.9 else [0.0, 1.0, 0.0])
     closing /= np.linalg.norm(closing)
     # the palm: the hand's geometry that is not a finger, which the gripper's joints do not move
-    palm = _finger_points(arm, physics, data, [link for link in hand if link not in fingers])
+    palm_of = {link: _finger_points(arm, physics, data, [link]) for link in hand if link not in fingers}
+    palm = [points for link in palm_of.values() for points in link]
     ranges = [model.actuator_ctrlrange[k] if model.actuator_ctrllimited[k] else (-0.01, 0.01)
               for k in (physics.actuated.index(name) for name in gripper)]
 
@@ -201,9 +205,19 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
 
     shares = [k / GAP_SAMPLES if open_high else 1.0 - k / GAP_SAMPLES for k in range(GAP_SAMPLES + 1)]
     spans = tuple(fixed(fingers_at(share)) for share in shares)       # from closed to open
+    opening = float(fixed(_gap(spans[-1], approach, closing, grip)))
+    # the hand's own geometry past the grip point, between the open fingers: what an object there meets
+    between = tuple(link for link, pieces in palm_of.items()
+                    if any(_between(piece, approach, closing, grip, opening) for piece in pieces))
     return Grip(fixed(approach * grip), fixed(approach), fixed(closing), float(fixed(far - grip)), open_high,
-                closed, float(fixed((closed @ approach).max() - grip)), float(fixed(depth)),
-                float(fixed(_gap(spans[-1], approach, closing, grip))), spans)
+                closed, float(fixed((closed @ approach).max() - grip)), float(fixed(depth)), opening, spans, between)
+
+
+def _between(piece: np.ndarray, approach: np.ndarray, closing: np.ndarray, grip: float, opening: float) -> bool:
+    """Whether a convex piece of geometry (its points in the tip's frame) reaches past the grip point along the
+    approach and spans some of the gap between fingers opening apart across the closing axis."""
+    past = piece[piece @ approach > grip + BETWEEN_TOLERANCE] @ closing
+    return bool(len(past)) and past.min() < opening / 2 and past.max() > -opening / 2
 
 
 def _gap(points: np.ndarray, approach: np.ndarray, closing: np.ndarray, top: float) -> float:
