@@ -267,7 +267,7 @@ def test_an_arm_that_cannot_reach_the_workspace_says_so():
     import warnings
     with warnings.catch_warnings():
         warnings.simplefilter('error')
-        assert ManipulationSetup('push', model=PANDA).space.note == ''
+        assert ManipulationSetup('push', model=PANDA).notes == ()
     with open(PANDA) as f:
         text = f.read().replace('lower="-2.9671" upper="2.9671"', 'lower="-0.05" upper="0.05"', 3)
     with pytest.warns(UserWarning, match=r"panda: pointing down, the gripper reaches 0 of the workspace's 4 corners"):
@@ -287,7 +287,7 @@ def test_a_hand_whose_own_geometry_stands_between_its_fingers_says_so():
     with pytest.warns(UserWarning, match=r"panda: the hand's own geometry \(panda_hand_sc\) stands between the open "
                                          r"fingers past the grip point"):
         setup = ManipulationSetup('pick_and_place', urdf=text)
-    assert setup.space.grip.between == ('panda_hand_sc',)
+    assert setup.space.grip.between == ('panda_hand_sc',) and len(setup.notes) == 1     # pick_place logs them
 
 
 def test_push_holds_the_gripper_closed_and_bad_input_is_one_line():

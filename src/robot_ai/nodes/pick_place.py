@@ -141,6 +141,8 @@ class PickPlaceNode:
                       f'(Publish Point), then the place')
         if self.picking.ready_note:
             rospy.loginfo(f'pick_place: {self.picking.ready_note}')
+        for note in setup.notes:
+            rospy.logwarn(f'pick_place: {note}')
 
     # ---------------------------------------------------------------------------------------------- inputs
     def _on_joints(self, msg: JointState) -> None:

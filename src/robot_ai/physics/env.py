@@ -110,13 +110,14 @@ class ManipulationSetup:
         self.arm = _gripping_arm(self.robot.tree, tip)
         bare = build_physics(self.robot)
         self.space: Workspace = workspace(self.arm, bare)
-        if self.space.note:
-            warnings.warn(self.space.note, stacklevel=2)
-        if self.space.grip.between:
-            warnings.warn(f'{self.robot.tree.name}: the hand\'s own geometry ({", ".join(self.space.grip.between)}) '
-                          f'stands between the open fingers past the grip point, where an object meets it (franka_'
-                          f'description\'s *_sc links are self-collision capsules: gazebo:=true leaves them out)',
-                          stacklevel=2)
+        between = self.space.grip.between
+        # what the layout says of the task on this arm (pick_place logs them; here, warnings)
+        self.notes: tuple[str, ...] = tuple(n for n in (self.space.note, between and (
+            f'{self.robot.tree.name}: the hand\'s own geometry ({", ".join(between)}) stands between the open fingers '
+            f'past the grip point, where an object meets it (franka_description\'s *_sc links are self-collision '
+            f'capsules: gazebo:=true leaves them out)')) if n)
+        for note in self.notes:
+            warnings.warn(note, stacklevel=2)
         centre, top = self.space.centre, self.space.table_top
         self.object_mass = float(object_mass)
         cube = self.cube([centre[0], centre[1], top + object_size / 2])
