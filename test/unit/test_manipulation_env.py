@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import os
+import re
 
 import gymnasium
 import numpy as np
@@ -275,19 +276,25 @@ def test_an_arm_that_cannot_reach_the_workspace_says_so():
     assert setup.space.note.endswith('out of its reach')
 
 
-def test_a_hand_whose_own_geometry_stands_between_its_fingers_says_so():
+def test_a_hand_whose_own_geometry_stands_between_its_fingers_says_so(tmp_path, capsys):
     """franka_description's Panda (hand:=true, not gazebo:=true) gives its hand a link of self-collision capsules, one
     of them between the fingers 5 cm past the grip point: the expert picked none of 100 without a word. The same
-    capsule on the package's Panda: the setup names the link, as a warning."""
+    capsule on the package's Panda: the setup names the link, as a warning; the command line as a note."""
+    from robot_ai.physics.__main__ import main
     with open(PANDA) as f:
         text = f.read().replace('</robot>', (
             '<link name="panda_hand_sc"><collision><origin xyz="0 0 0.10" rpy="1.5708 0 0"/><geometry><cylinder '
             'radius="0.02" length="0.1"/></geometry></collision></link><joint name="panda_hand_sc_joint" '
             'type="fixed"><parent link="panda_hand"/><child link="panda_hand_sc"/></joint></robot>'))
-    with pytest.warns(UserWarning, match=r"panda: the hand's own geometry \(panda_hand_sc\) stands between the open "
-                                         r"fingers past the grip point"):
+    says = "panda: the hand's own geometry (panda_hand_sc) stands between the open fingers past the grip point"
+    with pytest.warns(UserWarning, match=re.escape(says)):
         setup = ManipulationSetup('pick_and_place', urdf=text)
     assert setup.space.grip.between == ('panda_hand_sc',) and len(setup.notes) == 1     # pick_place logs them
+    path = tmp_path / 'panda_sc.urdf'
+    path.write_text(text)
+    assert main(['train', '--task', 'push', '--model', str(path), '--minutes', '0.01', '--worlds', '2',
+                 '--output-dir', str(tmp_path)]) == 0
+    assert f'note: {says}' in capsys.readouterr().err
 
 
 def test_push_holds_the_gripper_closed_and_bad_input_is_one_line():

@@ -15,6 +15,7 @@ import argparse
 import re
 import signal
 import sys
+import warnings
 
 from robot_ai import artifacts
 from robot_ai.cli import (command_parser, output_folder, positive_number, refuse, run_command, show_policy,
@@ -55,9 +56,23 @@ def train_parser(sub) -> None:
     p.set_defaults(run=run_train)
 
 
+def noted(build):
+    """build()'s result, the warnings it gave (a setup's notes: what of the task the arm cannot do) printed to
+    stderr as 'note: ...' lines, without the warning's source line."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always', UserWarning)
+        made = build()
+    for w in caught:
+        if issubclass(w.category, UserWarning):
+            print(f'note: {w.message}', file=sys.stderr)
+        else:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+    return made
+
+
 def run_train(a, parser) -> int:
     try:
-        setup = ManipulationSetup(a.task, model=a.model, xacro_args=a.xacro_args or None, tip=a.tip)
+        setup = noted(lambda: ManipulationSetup(a.task, model=a.model, xacro_args=a.xacro_args or None, tip=a.tip))
     except (ReachError, PhysicsError, ValueError) as e:
         refuse(parser, str(e))
     folder = output_folder(a, parser)
@@ -119,7 +134,7 @@ def evaluate_parser(sub) -> None:
 
 def run_evaluate(a, parser) -> int:
     try:
-        policy, setup = policy_files.load(a.policy, model=a.model)
+        policy, setup = noted(lambda: policy_files.load(a.policy, model=a.model))
     except PolicyError as e:
         refuse(parser, str(e))
     if policy.note:
@@ -160,7 +175,8 @@ def run_world(a, parser) -> int:
     import yaml
     from robot_ai.physics.pick import PickError, PickPlace, world
     try:
-        setup = ManipulationSetup('pick_and_place', model=a.model, xacro_args=a.xacro_args or None, tip=a.tip)
+        setup = noted(lambda: ManipulationSetup('pick_and_place', model=a.model, xacro_args=a.xacro_args or None,
+                                                tip=a.tip))
         ready = PickPlace(setup, obstacles=[setup.table()]).ready      # clear of the safety layer's body
         made = world(setup, a.cubes, a.seed, ready)
     except (ReachError, PhysicsError, PickError) as e:
