@@ -3,6 +3,7 @@
 
 - env steps per second on one core (BLAS held to one thread): one Push-v0 env made by gymnasium.make, and
   ManipulationVectorEnv at 32 and 128 worlds, random actions, on the Panda of ../shared/robots with its real meshes;
+  MuJoCo alone on the same 128 worlds (their physics stepped, no Python between: the env's ceiling);
   panda-gym's PandaPush-v3 (PyBullet) the same way, where panda-gym is installed here or in --sb3-python;
 - learning (robot_ai.physics.learn: DAgger of the scripted expert): on the Panda and on the package's UR5 with a
   Robotiq 2F-85, push and pick and place, the wall time until the held-out success first reaches 90 % (push) and
@@ -49,6 +50,26 @@ def vector_rate(n: int, seconds: float) -> float:
         env.step(actions[steps % 16])
         steps += 1
     return n * steps / (time.perf_counter() - t0)
+
+
+def physics_rate(n: int, seconds: float) -> tuple[float, float, int]:
+    """(env steps per second of MuJoCo alone: n worlds, 20 random steps in, stepped an env step's substeps each with
+    the commands they last had, no Python between; microseconds a MuJoCo step; substeps an env step): the ceiling of
+    the env's rate at MuJoCo's step."""
+    import mujoco
+    env = ManipulationVectorEnv(n, 'push', model=PANDA)
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(-1, 1, (20, n, 4))
+    for a in actions:
+        env.step(a)
+    model, substeps = env.setup.physics.model, env.setup.substeps
+    steps, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for data in env.datas:
+            mujoco.mj_step(model, data, nstep=substeps)
+        steps += 1
+    elapsed = time.perf_counter() - t0
+    return n * steps / elapsed, elapsed / (n * steps * substeps) * 1e6, substeps
 
 
 def panda_gym_rate(sb3_python: str) -> tuple[float | None, str]:
@@ -103,12 +124,16 @@ def main() -> None:
     with threadpool_limits(limits=1):
         single = speed(5.0, 'robot_ai/Push-v0', model=PANDA)     # the loop that times PandaPush-v3
         vectors = {n: vector_rate(n, 5.0) for n in (32, 128)}
+        ceiling, step_us, substeps = physics_rate(128, 5.0)
         reference, where = panda_gym_rate(a.sb3_python)
     print('env steps per second, one core (random actions, the Panda with its meshes):')
     print(f'  Push-v0, one env (gymnasium.make)     {single:9,.0f}')
     for n, rate in vectors.items():
         print(f'  ManipulationVectorEnv, {n:3d} worlds     {rate:9,.0f}' +
               (f'   {rate / reference:5.1f} x PandaPush-v3' if reference else ''))
+    print(f'  MuJoCo alone, 128 worlds (no Python)  {ceiling:9,.0f}' +
+          (f'   {ceiling / reference:5.1f} x PandaPush-v3' if reference else '') +
+          f'   ({step_us:.1f} us a MuJoCo step, {substeps} an env step: the ceiling at MuJoCo\'s 2 ms)')
     print(f'  PandaPush-v3 (panda-gym), one env      {reference:9,.0f}' if reference else
           f'  PandaPush-v3: {where}')
     minutes = 5.0 if a.quick else a.minutes
