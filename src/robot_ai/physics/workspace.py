@@ -67,11 +67,10 @@ class Grip:
     hand's geometry closed, every link below the tip, in the tip's frame: what a push must keep clear of) and
     closed_beyond (how far the closed hand reaches past the grip point along the approach, m: below zero for a hand
     whose closed fingers curl up above it, as a Kinova's three do), depth (how far above the grip point an object
-    between the fingers reaches before it meets the palm, the hand's geometry that is not a finger, m) and opening
-    (how far apart the open fingers stand across the closing axis, from the grip point to their tips, m) and spans
+    between the fingers reaches before it meets the palm, the hand's geometry that is not a finger, m) and spans
     (the fingers' points in the tip's frame at openings 0, 1 / GAP_SAMPLES, ... 1: every gripper joint at that share
-    of its range; gaps and ajar read them) and between (the hand's links, not fingers, whose geometry stands past the
-    grip point between the open fingers: what an object there would meet)."""
+    of its range; opening, gaps and ajar read them) and between (the hand's links, not fingers, whose geometry
+    stands past the grip point between the open fingers: what an object there would meet)."""
     offset: np.ndarray
     approach: np.ndarray
     closing: np.ndarray
@@ -80,9 +79,14 @@ class Grip:
     hand: np.ndarray = dataclasses.field(repr=False, default_factory=lambda: np.zeros((0, 3)))
     closed_beyond: float = 0.0
     depth: float = np.inf
-    opening: float = np.inf
     spans: tuple[np.ndarray, ...] = dataclasses.field(repr=False, default=())
     between: tuple[str, ...] = ()
+
+    @property
+    def opening(self) -> float:
+        """How far apart the open fingers stand across the closing axis, from the grip point to their tips (m; inf
+        where that cannot be measured)."""
+        return float(self.gaps()[-1]) if self.spans else np.inf
 
     def gaps(self, above: float = 0.0) -> np.ndarray:
         """How far apart the fingers stand across the closing axis, from above over the grip point to their tips, at
@@ -179,7 +183,7 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
     closing /= np.linalg.norm(closing)
     # the palm: the hand's geometry that is not a finger, which the gripper's joints do not move
     palm_of = {link: _finger_points(arm, physics, data, [link]) for link in hand if link not in fingers}
-    palm = [points for link in palm_of.values() for points in link]
+    palm = [piece for pieces in palm_of.values() for piece in pieces]
     ranges = [model.actuator_ctrlrange[k] if model.actuator_ctrllimited[k] else (-0.01, 0.01)
               for k in (physics.actuated.index(name) for name in gripper)]
 
@@ -205,12 +209,12 @@ def grip_geometry(arm: Arm, physics: Physics) -> Grip:
 
     shares = [k / GAP_SAMPLES if open_high else 1.0 - k / GAP_SAMPLES for k in range(GAP_SAMPLES + 1)]
     spans = tuple(fixed(fingers_at(share)) for share in shares)       # from closed to open
-    opening = float(fixed(_gap(spans[-1], approach, closing, grip)))
+    made = Grip(fixed(approach * grip), fixed(approach), fixed(closing), float(fixed(far - grip)), open_high, closed,
+                float(fixed((closed @ approach).max() - grip)), float(fixed(depth)), spans)
     # the hand's own geometry past the grip point, between the open fingers: what an object there meets
     between = tuple(link for link, pieces in palm_of.items()
-                    if any(_between(piece, approach, closing, grip, opening) for piece in pieces))
-    return Grip(fixed(approach * grip), fixed(approach), fixed(closing), float(fixed(far - grip)), open_high,
-                closed, float(fixed((closed @ approach).max() - grip)), float(fixed(depth)), opening, spans, between)
+                    if any(_between(piece, approach, closing, grip, made.opening) for piece in pieces))
+    return dataclasses.replace(made, between=between)
 
 
 def _between(piece: np.ndarray, approach: np.ndarray, closing: np.ndarray, grip: float, opening: float) -> bool:
