@@ -110,12 +110,14 @@ class ManipulationSetup:
         self.arm = _gripping_arm(self.robot.tree, tip)
         bare = build_physics(self.robot)
         self.space: Workspace = workspace(self.arm, bare)
-        between = self.space.grip.between
         # what the layout says of the task on this arm (pick_place logs them; here, warnings)
-        self.notes: tuple[str, ...] = tuple(n for n in (self.space.note, between and (
-            f'{self.robot.tree.name}: the hand\'s own geometry ({", ".join(between)}) stands between the open fingers '
-            f'past the grip point, where an object meets it (franka_description\'s *_sc links are self-collision '
-            f'capsules: gazebo:=true leaves them out)')) if n)
+        notes = [self.space.note] if self.space.note else []
+        if self.space.grip.between:
+            notes.append(f'{self.robot.tree.name}: the hand\'s own geometry ({", ".join(self.space.grip.between)}) '
+                         f'stands between the open fingers past the grip point, where an object meets it '
+                         f'(franka_description\'s *_sc links are self-collision capsules: gazebo:=true leaves them '
+                         f'out)')
+        self.notes: tuple[str, ...] = tuple(notes)
         for note in self.notes:
             warnings.warn(note, stacklevel=2)
         centre, top = self.space.centre, self.space.table_top
